@@ -1,0 +1,371 @@
+"""The datum: a periodic input-output record, checked, de-biased and transformed by DFT.
+
+Conventions (R. S. Smith 1995, Sec. 2.3, eq. 3; see docs/theory.md):
+
+* The record holds ``n_samples = n_periods * period_samples`` samples of ``u(k)`` (inputs)
+  and ``y(k)`` (outputs), uniformly sampled every ``ts_s`` seconds.
+* The DFT is ``X(n) = c_N sum_k x(k) exp(-j 2 pi k n / N)``. The prefactor ``c_N`` fixes what
+  ``||w|| <= 1`` means:
+
+  - ``NormConvention.POWER`` (default, the reading the paper's figures imply): ``c_N = 1/N``,
+    so ``sum_n |W(n)|^2 = (1/N) sum_k |w(k)|^2`` is the mean square (power) of ``w``; a noise
+    weight of 0.03 admits 0.03 RMS of sensor noise.
+  - ``NormConvention.ENERGY``: ``c_N = 1/sqrt(N)``, so ``sum_n |W(n)|^2 = sum_k |w(k)|^2``.
+
+* Only the bins ``n = 0 .. N//2`` are kept (real signals: bin ``N-n`` is the conjugate of
+  bin ``n``); ``bin_weights`` counts each kept bin once or twice so that sums over kept bins
+  equal sums over all ``N`` bins.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twotank_validation.errors import DatumError, DimensionError
+
+_INPUT_PERIODIC_RTOL = 1e-6
+_DRIFT_LIMIT = 0.05
+_DECAY_RATIO = 2.0
+
+
+class NormConvention(enum.StrEnum):
+    """Meaning of ``||w||``: mean-square power (default) or energy of the sampled signal."""
+
+    POWER = "power"
+    ENERGY = "energy"
+
+    def dft_scale(self, n_samples: int) -> float:
+        """The DFT prefactor ``c_N`` for a record of ``n_samples`` samples."""
+        if self is NormConvention.POWER:
+            return 1.0 / n_samples
+        return 1.0 / float(np.sqrt(n_samples))
+
+    @property
+    def description(self) -> str:
+        """One line for reports."""
+        if self is NormConvention.POWER:
+            return "power (RMS): ||w||^2 = (1/N) sum_k |w(k)|^2, DFT prefactor 1/N"
+        return "energy: ||w||^2 = sum_k |w(k)|^2, DFT prefactor 1/sqrt(N)"
+
+
+@dataclass(frozen=True)
+class PeriodicityReport:
+    """How far a record is from periodic.
+
+    Attributes:
+        n_periods: whole excitation periods in the record.
+        period_samples: samples per period.
+        input_variation: (n_periods-1, n_inputs) RMS of ``u_{r+1} - u_r`` over RMS of ``u``.
+        output_variation: (n_periods-1, n_outputs) same for the outputs (noise floor
+            ``sqrt(2) * noise_rms / output_rms`` for a settled, periodic response).
+        output_drift: (n_outputs,) change of the period mean from the first to the last
+            period, over the output's RMS deviation: a decaying transient shows here.
+        input_periodic: every input repeats to within 1e-6 relative.
+        transient_suspected: a drift above 5 % or a period-to-period variation that halves
+            or more across the record (three or more periods).
+        messages: human-readable findings.
+    """
+
+    n_periods: int
+    period_samples: int
+    input_variation: np.ndarray
+    output_variation: np.ndarray
+    output_drift: np.ndarray
+    input_periodic: bool
+    transient_suspected: bool
+    messages: tuple[str, ...]
+
+    @property
+    def is_periodic(self) -> bool:
+        """True when the input is periodic and no transient is suspected (then R(n) = 0)."""
+        return self.input_periodic and not self.transient_suspected
+
+
+@dataclass(frozen=True)
+class Datum:
+    """A checked, de-biased, DFT-transformed periodic experiment.
+
+    Attributes:
+        u_bins: (n_bins, n_inputs) complex, scaled DFT of the de-biased inputs, bins 0..N//2.
+        y_bins: (n_bins, n_outputs) complex, same for the outputs.
+        theta: (n_bins,) float, bin frequencies ``2 pi n / N`` in rad/sample.
+        freqs_hz: (n_bins,) float, bin frequencies in Hz.
+        bin_weights: (n_bins,) float, 1 for DC and Nyquist, 2 otherwise.
+        ts_s: sample period (s).
+        period_samples: samples per excitation period.
+        n_samples: record length N.
+        convention: the norm convention (DFT prefactor).
+        u_bias: (n_inputs,) removed input means (model units).
+        y_bias: (n_outputs,) removed output means (model units).
+        u_max: (n_inputs,) max |u(k) - bias|, for the leakage bound.
+        periodicity: periodicity findings.
+        noise_std: (n_bins, n_outputs) float, per-bin noise standard deviation of
+            ``Y(n)`` estimated from the period-to-period variation (harmonic bins of the
+            period; NaN at the other bins and when the record has one period).
+    """
+
+    u_bins: np.ndarray
+    y_bins: np.ndarray
+    theta: np.ndarray
+    freqs_hz: np.ndarray
+    bin_weights: np.ndarray
+    ts_s: float
+    period_samples: int
+    n_samples: int
+    convention: NormConvention
+    u_bias: np.ndarray
+    y_bias: np.ndarray
+    u_max: np.ndarray
+    periodicity: PeriodicityReport
+    noise_std: np.ndarray = field(repr=False)
+
+    @property
+    def n_inputs(self) -> int:
+        """Number of inputs."""
+        return int(self.u_bins.shape[1])
+
+    @property
+    def n_outputs(self) -> int:
+        """Number of outputs."""
+        return int(self.y_bins.shape[1])
+
+    @property
+    def n_periods(self) -> int:
+        """Whole periods in the record."""
+        return self.n_samples // self.period_samples
+
+    @property
+    def harmonic_bins(self) -> np.ndarray:
+        """(n_bins,) bool, bins at harmonics of the excitation period (where U can be non-zero)."""
+        return np.arange(self.theta.size) % self.n_periods == 0
+
+
+def _as_record(x: np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(x, dtype=float)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2:
+        raise DimensionError(f"{name} must be (n_samples, n_channels), found shape {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        k, ch = np.argwhere(bad)[0]
+        raise DatumError(
+            f"{name} holds {int(bad.sum())} NaN/inf values (first at sample {k}, channel {ch}): "
+            "cut the record to a clean stretch of whole periods or repair the samples"
+        )
+    return arr
+
+
+def check_record(
+    u: np.ndarray, y: np.ndarray, period_samples: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Check shapes, finiteness and whole periods of a record.
+
+    Args:
+        u: (n_samples, n_inputs) or (n_samples,) float, inputs in model units.
+        y: (n_samples, n_outputs) or (n_samples,) float, outputs in model units.
+        period_samples: excitation period in samples.
+
+    Returns:
+        ``(u, y)`` as 2-D float arrays.
+
+    Raises:
+        DatumError: NaN/inf, too short, not a whole number of periods, mismatched lengths.
+        DimensionError: arrays that are not 1-D or 2-D.
+    """
+    u2 = _as_record(u, "u")
+    y2 = _as_record(y, "y")
+    if u2.shape[0] != y2.shape[0]:
+        raise DatumError(
+            f"u has {u2.shape[0]} samples but y has {y2.shape[0]}: "
+            "inputs and outputs must be sampled on the same grid"
+        )
+    if int(period_samples) != period_samples or period_samples < 2:
+        raise DatumError(f"period_samples must be an integer >= 2, found {period_samples}")
+    n = u2.shape[0]
+    if n < period_samples:
+        raise DatumError(
+            f"record too short: {n} samples is less than one excitation period "
+            f"({period_samples} samples); record at least one whole period"
+        )
+    if n % period_samples:
+        whole = n // period_samples
+        raise DatumError(
+            f"record of {n} samples is not an integer number of periods of {period_samples} "
+            f"samples ({n / period_samples:.3f} periods): keep the last {whole * period_samples} "
+            "samples (whole periods only), otherwise R(n) != 0 (leakage)"
+        )
+    return u2, y2
+
+
+def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> PeriodicityReport:
+    """Measure period-to-period variation and drift of a record of whole periods.
+
+    Args:
+        u: (n_samples, n_inputs) float, de-biased inputs.
+        y: (n_samples, n_outputs) float, de-biased outputs.
+        period_samples: samples per period.
+    """
+    p = u.shape[0] // period_samples
+    up = u.reshape(p, period_samples, -1)
+    yp = y.reshape(p, period_samples, -1)
+    u_rms = np.sqrt(np.mean(u**2, axis=0)) + np.finfo(float).tiny
+    y_rms = np.sqrt(np.mean(y**2, axis=0)) + np.finfo(float).tiny
+    u_var = np.sqrt(np.mean(np.diff(up, axis=0) ** 2, axis=1)) / u_rms
+    y_var = np.sqrt(np.mean(np.diff(yp, axis=0) ** 2, axis=1)) / y_rms
+    means = yp.mean(axis=1)
+    drift = np.abs(means[-1] - means[0]) / y_rms
+    messages: list[str] = []
+    input_periodic = bool(np.all(u_var <= _INPUT_PERIODIC_RTOL))
+    if p < 2:
+        messages.append("one period only: periodicity and noise cannot be checked")
+    elif not input_periodic:
+        messages.append(
+            f"input not periodic: period-to-period variation up to {u_var.max():.3g} of its RMS"
+        )
+    transient = bool(np.any(drift > _DRIFT_LIMIT))
+    if transient:
+        messages.append(
+            f"output mean drifts by up to {drift.max():.3g} of its RMS across the record: "
+            "a transient may still be decaying (settle longer before recording)"
+        )
+    if p >= 3 and np.any(y_var[0] > _DECAY_RATIO * y_var[-1]):
+        transient = True
+        messages.append(
+            "period-to-period output variation shrinks along the record: transient still decaying"
+        )
+    return PeriodicityReport(
+        n_periods=p,
+        period_samples=period_samples,
+        input_variation=u_var,
+        output_variation=y_var,
+        output_drift=drift,
+        input_periodic=input_periodic,
+        transient_suspected=transient,
+        messages=tuple(messages),
+    )
+
+
+def scaled_dft(x: np.ndarray, convention: NormConvention) -> np.ndarray:
+    """One-sided scaled DFT of a real record.
+
+    Args:
+        x: (n_samples, n_channels) float.
+        convention: fixes the prefactor ``c_N``.
+
+    Returns:
+        (n_samples//2 + 1, n_channels) complex, ``c_N * rfft(x)``.
+    """
+    return np.fft.rfft(x, axis=0) * convention.dft_scale(x.shape[0])
+
+
+def one_sided_weights(n_samples: int) -> np.ndarray:
+    """(n_samples//2 + 1,) multiplicity of each kept bin in the two-sided spectrum."""
+    w = np.full(n_samples // 2 + 1, 2.0)
+    w[0] = 1.0
+    if n_samples % 2 == 0:
+        w[-1] = 1.0
+    return w
+
+
+def noise_estimate(y: np.ndarray, period_samples: int, convention: NormConvention) -> np.ndarray:
+    """Per-bin noise standard deviation of the full-record ``Y(n)`` from period-to-period variation.
+
+    With ``p`` periods, the full-record bin ``n = p m`` is ``c_N * sum_r S_r(m)`` where
+    ``S_r`` is the unscaled DFT of period ``r``; with independent noise its variance is
+    ``c_N^2 p var_r(S_r(m))``, estimated with the unbiased sample variance over periods.
+
+    Args:
+        y: (n_samples, n_outputs) float, de-biased outputs.
+        period_samples: samples per period.
+        convention: norm convention.
+
+    Returns:
+        (n_samples//2 + 1, n_outputs) float; NaN where not estimable.
+    """
+    n, ny = y.shape
+    p = n // period_samples
+    out = np.full((n // 2 + 1, ny), np.nan)
+    if p < 2:
+        return out
+    per_period = np.fft.rfft(y.reshape(p, period_samples, ny), axis=1)  # (p, L//2+1, ny)
+    var = np.var(per_period, axis=0, ddof=1)  # complex variance, E|x - mean|^2
+    std = convention.dft_scale(n) * np.sqrt(p * var)
+    harmonics = np.arange(per_period.shape[1]) * p
+    keep = harmonics < out.shape[0]
+    out[harmonics[keep]] = std[keep]
+    return out
+
+
+def make_datum(
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    ts_s: float,
+    period_samples: int,
+    convention: NormConvention | str = NormConvention.POWER,
+) -> Datum:
+    """Build a :class:`Datum` from raw samples.
+
+    Args:
+        u: (n_samples, n_inputs) float, inputs in model units.
+        y: (n_samples, n_outputs) float, outputs in model units.
+        ts_s: sample period in seconds.
+        period_samples: excitation period in samples; ``n_samples`` must be a multiple.
+        convention: ``"power"`` (default) or ``"energy"``.
+
+    Raises:
+        DatumError: see :func:`check_record`; a non-positive sample period.
+    """
+    if not (np.isfinite(ts_s) and ts_s > 0):
+        raise DatumError(f"sample period must be positive and finite, found {ts_s} s")
+    conv = NormConvention(convention)
+    u2, y2 = check_record(u, y, period_samples)
+    u_bias = u2.mean(axis=0)
+    y_bias = y2.mean(axis=0)
+    uc = u2 - u_bias
+    yc = y2 - y_bias
+    n = u2.shape[0]
+    theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
+    return Datum(
+        u_bins=scaled_dft(uc, conv),
+        y_bins=scaled_dft(yc, conv),
+        theta=theta,
+        freqs_hz=theta / (2.0 * np.pi * ts_s),
+        bin_weights=one_sided_weights(n),
+        ts_s=float(ts_s),
+        period_samples=int(period_samples),
+        n_samples=n,
+        convention=conv,
+        u_bias=u_bias,
+        y_bias=y_bias,
+        u_max=np.max(np.abs(uc), axis=0),
+        periodicity=assess_periodicity(uc, yc, int(period_samples)),
+        noise_std=noise_estimate(yc, int(period_samples), conv),
+    )
+
+
+def leakage_bound(
+    pulse: np.ndarray, u_max: np.ndarray, n_samples: int, convention: NormConvention
+) -> np.ndarray:
+    """Bound on the leakage term ``|R_i(n)|`` per output (Ljung 1987, Thm 2.1).
+
+    ``Y(n) = P(e^{j theta_n}) U(n) + R(n)`` with, for the 1/sqrt(N)-scaled DFT,
+    ``|R(n)| <= (2/sqrt(N)) max|u| sum_k k |p(k)|``. For other prefactors the bound scales
+    with ``c_N``: ``|R_i(n)| <= 2 c_N sum_j max|u_j| sum_k k |p_ij(k)|``, the same at every bin.
+
+    Args:
+        pulse: (n_coeffs, n_outputs, n_inputs) float pulse response of the nominal plant.
+        u_max: (n_inputs,) float, max |u_j(k)| after bias removal.
+        n_samples: record length N.
+        convention: norm convention.
+
+    Returns:
+        (n_outputs,) float.
+    """
+    k = np.arange(pulse.shape[0])[:, None, None]
+    moment = np.sum(k * np.abs(pulse), axis=0)  # (ny, nu)
+    return 2.0 * convention.dft_scale(n_samples) * (moment @ np.asarray(u_max, dtype=float))

@@ -1,0 +1,373 @@
+"""Periodic excitation signals for the frequency-domain validation experiment.
+
+Each valve gets an exactly periodic, zero-mean signal of ``period_samples`` samples, repeated
+for ``settle_periods`` periods (transient, discarded) and ``record_periods`` periods
+(recorded). With an exactly periodic input and a settled plant, the DFT of one recorded period
+has no leakage, so the input-output data can be compared with the model bin by bin.
+
+Two signals are available: circularly low-pass filtered Gaussian noise (Butterworth response
+applied at the DFT bins) and a random-phase multisine with a flat amplitude spectrum.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.signal
+from numpy.typing import NDArray
+
+from twotank_validation.errors import DatumError
+
+__all__ = [
+    "EXCITATION_KINDS",
+    "ExcitationConfig",
+    "excitation_commands",
+    "excitation_period",
+    "filtered_noise_period",
+    "multisine_harmonics",
+    "multisine_period",
+    "record_slice",
+]
+
+FloatArray = NDArray[np.float64]
+
+EXCITATION_KINDS: tuple[str, ...] = ("filtered_noise", "multisine")
+"""The accepted values of ``ExcitationConfig.kind``."""
+
+_VALVES = ("hot", "cold")
+_BIN_TOLERANCE = 1e-9
+"""Relative slack when deciding whether a harmonic lies on a band edge (rounding of k/(n ts))."""
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _check_period_args(n: int, ts_s: float) -> None:
+    if not _is_int(n) or n < 4:
+        raise DatumError(f"period length n={n!r} must be an integer >= 4 samples")
+    if not (math.isfinite(ts_s) and ts_s > 0.0):
+        raise DatumError(f"ts_s={ts_s!r} must be a positive, finite sample period in seconds")
+
+
+def _round_down(value: float, digits: int = 4) -> float:
+    """Round a non-negative ``value`` down to ``digits`` significant digits (safe advice)."""
+    if value <= 0.0:
+        return 0.0
+    scale = 10.0 ** (digits - 1 - math.floor(math.log10(value)))
+    return math.floor(value * scale) / scale
+
+
+def _unit_rms(x: FloatArray, what: str) -> FloatArray:
+    x = x - x.mean()
+    rms = float(np.sqrt(np.mean(x**2)))
+    if not rms > 0.0:
+        raise DatumError(f"{what} has no energy in its band; widen the band or lengthen the period")
+    return np.asarray(x / rms, dtype=np.float64)
+
+
+def multisine_harmonics(
+    n: int, ts_s: float, f_min_hz: float, f_max_hz: float, odd_only: bool
+) -> NDArray[np.int64]:
+    """Return the DFT bins k (frequency k / (n ts_s)) a multisine excites.
+
+    Args:
+        n: Period length, samples.
+        ts_s: Sample period, seconds.
+        f_min_hz: Lowest frequency of the band, Hz, > 0.
+        f_max_hz: Highest frequency of the band, Hz, below Nyquist 1 / (2 ts_s).
+        odd_only: Keep odd k only.
+
+    Returns:
+        (n_harmonics,) int, increasing, each in 1 .. ceil(n/2) - 1 (never DC nor Nyquist);
+        band edges count as inside (to a relative 1e-9).
+    """
+    span = n * ts_s
+    k_lo = max(1, math.ceil(f_min_hz * span * (1.0 - _BIN_TOLERANCE)))
+    k_hi = min((n - 1) // 2, math.floor(f_max_hz * span * (1.0 + _BIN_TOLERANCE)))
+    k = np.arange(k_lo, k_hi + 1, dtype=np.int64)
+    if odd_only:
+        k = k[k % 2 == 1]
+    return k
+
+
+def filtered_noise_period(
+    n: int, ts_s: float, cutoff_hz: float, order: int, rng: np.random.Generator
+) -> FloatArray:
+    """One period of circularly low-pass filtered white Gaussian noise.
+
+    Draws ``rng.standard_normal(n)``, multiplies its DFT by the digital Butterworth response
+    (``scipy.signal.butter(order, cutoff_hz, fs=1/ts_s)``, evaluated with ``sosfreqz`` at the
+    DFT bins k / (n ts_s)), removes the DC bin and transforms back. The result is therefore
+    exactly periodic with period n.
+
+    Args:
+        n: Period length, samples, >= 4.
+        ts_s: Sample period, seconds.
+        cutoff_hz: Low-pass -3 dB frequency, Hz, below Nyquist 1 / (2 ts_s).
+        order: Butterworth order, >= 1.
+        rng: Random generator (consumed: one draw of n normals).
+
+    Returns:
+        (n,) float: zero mean, unit RMS.
+
+    Raises:
+        DatumError: If an argument is out of range.
+    """
+    _check_period_args(n, ts_s)
+    fs = 1.0 / ts_s
+    if not (math.isfinite(cutoff_hz) and 0.0 < cutoff_hz < fs / 2.0):
+        raise DatumError(
+            f"cutoff_hz={cutoff_hz!r} must lie strictly between 0 and the Nyquist "
+            f"frequency {fs / 2.0:.6g} Hz"
+        )
+    if not _is_int(order) or order < 1:
+        raise DatumError(f"order={order!r} must be an integer >= 1")
+    white = rng.standard_normal(n)
+    sos = scipy.signal.butter(order, cutoff_hz, btype="lowpass", output="sos", fs=fs)
+    freqs = np.fft.rfftfreq(n, d=ts_s)
+    _, response = scipy.signal.sosfreqz(sos, worN=freqs, fs=fs)
+    spectrum = np.fft.rfft(white) * response
+    spectrum[0] = 0.0
+    return _unit_rms(np.fft.irfft(spectrum, n=n), "filtered noise")
+
+
+def multisine_period(  # noqa: PLR0917 - signature fixed by the package API
+    n: int,
+    ts_s: float,
+    f_min_hz: float,
+    f_max_hz: float,
+    odd_only: bool,
+    rng: np.random.Generator,
+) -> FloatArray:
+    """One period of a random-phase multisine with a flat amplitude spectrum.
+
+    x[t] = sum_k cos(2 pi k t / n + phi_k) over the bins k of ``multisine_harmonics`` (odd k
+    only if ``odd_only``), phases phi_k uniform in [0, 2 pi), then scaled to unit RMS.
+
+    Args:
+        n: Period length, samples, >= 4.
+        ts_s: Sample period, seconds.
+        f_min_hz: Lowest frequency, Hz, > 0.
+        f_max_hz: Highest frequency, Hz, >= f_min_hz and below Nyquist 1 / (2 ts_s).
+        odd_only: Excite odd harmonics of the period only.
+        rng: Random generator (consumed: one draw of n_harmonics uniforms).
+
+    Returns:
+        (n,) float: zero mean, unit RMS, exactly periodic.
+
+    Raises:
+        DatumError: If the band is invalid or contains no (odd) harmonic of 1 / (n ts_s).
+    """
+    _check_period_args(n, ts_s)
+    nyquist = 0.5 / ts_s
+    if not (math.isfinite(f_min_hz) and math.isfinite(f_max_hz)):
+        raise DatumError(f"f_min_hz={f_min_hz!r}, f_max_hz={f_max_hz!r} must be finite")
+    if not 0.0 < f_min_hz <= f_max_hz < nyquist:
+        raise DatumError(
+            f"multisine band f_min_hz={f_min_hz!r} .. f_max_hz={f_max_hz!r} must satisfy "
+            f"0 < f_min_hz <= f_max_hz < Nyquist = {nyquist:.6g} Hz"
+        )
+    k = multisine_harmonics(n, ts_s, f_min_hz, f_max_hz, odd_only)
+    if k.size == 0:
+        parity = "odd " if odd_only else ""
+        raise DatumError(
+            f"the band {f_min_hz:.6g} .. {f_max_hz:.6g} Hz contains no {parity}harmonic of "
+            f"1/(n ts) = {1.0 / (n * ts_s):.6g} Hz; widen the band or lengthen the period"
+        )
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=k.size)
+    spectrum = np.zeros(n // 2 + 1, dtype=np.complex128)
+    spectrum[k] = np.exp(1j * phases)
+    return _unit_rms(np.fft.irfft(spectrum, n=n), "multisine")
+
+
+@dataclass(frozen=True)
+class ExcitationConfig:
+    """Design of the periodic excitation of both valves.
+
+    Attributes:
+        kind: "filtered_noise" or "multisine".
+        ts_s: Sample period, seconds, > 0.
+        period_samples: Samples per period, >= 4.
+        settle_periods: Periods applied before recording, >= 0; the paper settles for at least
+            5 (the default) so that the tank transient (time constants ~54 s and ~122 s) dies
+            out.
+        record_periods: Periods recorded after settling, >= 1.
+        rms: Per-valve RMS [hot, cold] of the deviation, model units, >= 0 (0 leaves that
+            valve at its offset).
+        cutoff_hz: Filtered noise: Butterworth -3 dB frequency, Hz, below Nyquist.
+        order: Filtered noise: Butterworth order, >= 1.
+        f_min_hz: Multisine: lowest excited frequency, Hz, > 0.
+        f_max_hz: Multisine: highest excited frequency, Hz, below Nyquist.
+        odd_only: Multisine: excite odd harmonics of the period only.
+        seed: Seed of numpy's default_rng for the random noise or phases.
+    """
+
+    kind: str = "filtered_noise"
+    ts_s: float = 0.1
+    period_samples: int = 2048
+    settle_periods: int = 5
+    record_periods: int = 2
+    rms: tuple[float, float] = (0.1, 0.1)
+    cutoff_hz: float = 0.01
+    order: int = 2
+    f_min_hz: float = 1.0 / 204.8
+    f_max_hz: float = 0.05
+    odd_only: bool = False
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in EXCITATION_KINDS:
+            raise DatumError(f"kind={self.kind!r} is unknown; use one of {EXCITATION_KINDS}")
+        _check_period_args(self.period_samples, self.ts_s)
+        if not _is_int(self.settle_periods) or self.settle_periods < 0:
+            raise DatumError(
+                f"settle_periods={self.settle_periods!r} must be an integer >= 0 (paper: >= 5)"
+            )
+        if not _is_int(self.record_periods) or self.record_periods < 1:
+            raise DatumError(f"record_periods={self.record_periods!r} must be an integer >= 1")
+        try:
+            rms = tuple(self.rms)
+        except TypeError:
+            rms = ()
+        if len(rms) != 2 or not all(
+            isinstance(r, int | float) and not isinstance(r, bool) and math.isfinite(r) and r >= 0
+            for r in rms
+        ):
+            raise DatumError(
+                f"rms={self.rms!r} must be two finite, non-negative numbers [hot, cold] "
+                "in model units"
+            )
+        object.__setattr__(self, "rms", (float(rms[0]), float(rms[1])))
+        if not _is_int(self.seed):
+            raise DatumError(f"seed={self.seed!r} must be an integer")
+        nyquist = 0.5 / self.ts_s
+        if self.kind == "filtered_noise":
+            if not (math.isfinite(self.cutoff_hz) and 0.0 < self.cutoff_hz < nyquist):
+                raise DatumError(
+                    f"cutoff_hz={self.cutoff_hz!r} must lie strictly between 0 and the "
+                    f"Nyquist frequency {nyquist:.6g} Hz of ts_s={self.ts_s}"
+                )
+            if not _is_int(self.order) or self.order < 1:
+                raise DatumError(f"order={self.order!r} must be an integer >= 1")
+        else:
+            if not (
+                math.isfinite(self.f_min_hz)
+                and math.isfinite(self.f_max_hz)
+                and 0.0 < self.f_min_hz <= self.f_max_hz < nyquist
+            ):
+                raise DatumError(
+                    f"multisine band f_min_hz={self.f_min_hz!r} .. f_max_hz={self.f_max_hz!r} "
+                    f"must satisfy 0 < f_min_hz <= f_max_hz < Nyquist = {nyquist:.6g} Hz"
+                )
+            if self.harmonics().size == 0:
+                parity = "odd " if self.odd_only else ""
+                raise DatumError(
+                    f"the band {self.f_min_hz:.6g} .. {self.f_max_hz:.6g} Hz contains no "
+                    f"{parity}harmonic of 1/(period_samples ts_s) = "
+                    f"{1.0 / (self.period_samples * self.ts_s):.6g} Hz; widen the band or "
+                    "lengthen the period"
+                )
+
+    @property
+    def period_s(self) -> float:
+        """Length of one period, seconds."""
+        return self.period_samples * self.ts_s
+
+    @property
+    def total_samples(self) -> int:
+        """Samples of the whole experiment: period_samples (settle + record periods)."""
+        return self.period_samples * (self.settle_periods + self.record_periods)
+
+    def harmonics(self) -> NDArray[np.int64]:
+        """Return the multisine's DFT bins of one period, (n_harmonics,) int (see kind)."""
+        return multisine_harmonics(
+            self.period_samples, self.ts_s, self.f_min_hz, self.f_max_hz, self.odd_only
+        )
+
+
+def excitation_period(config: ExcitationConfig) -> FloatArray:
+    """One period of the excitation of both valves.
+
+    The two columns are drawn one after the other from ``default_rng(config.seed)`` (hot
+    first), so they are independent realisations.
+
+    Args:
+        config: Excitation design.
+
+    Returns:
+        (period_samples, 2) float, model units: zero-mean deviations [hot, cold], column i
+        with RMS ``config.rms[i]``.
+    """
+    rng = np.random.default_rng(config.seed)
+    columns = []
+    for rms in config.rms:
+        if config.kind == "filtered_noise":
+            x = filtered_noise_period(
+                config.period_samples, config.ts_s, config.cutoff_hz, config.order, rng
+            )
+        else:
+            x = multisine_period(
+                config.period_samples,
+                config.ts_s,
+                config.f_min_hz,
+                config.f_max_hz,
+                config.odd_only,
+                rng,
+            )
+        columns.append(rms * x)
+    return np.column_stack(columns)
+
+
+def excitation_commands(config: ExcitationConfig, offset: FloatArray) -> FloatArray:
+    """Absolute valve commands of the whole experiment: offset plus the tiled period.
+
+    Args:
+        config: Excitation design.
+        offset: (2,) float, model units: the operating commands [hot, cold], e.g.
+            ``OperatingPoint.commands``.
+
+    Returns:
+        (period_samples (settle_periods + record_periods), 2) float, model units.
+
+    Raises:
+        DatumError: If ``offset`` is not a finite (2,) array or if any command leaves [0, 1]
+            (the message names the valve, the excess and an rms that would fit).
+    """
+    off = np.asarray(offset, dtype=np.float64)
+    if off.shape != (2,) or not np.all(np.isfinite(off)):
+        raise DatumError(f"offset must be a finite (2,) array [hot, cold], got {off!r}")
+    period = excitation_period(config)
+    for i, valve in enumerate(_VALVES):
+        lo, hi = off[i] + period[:, i].min(), off[i] + period[:, i].max()
+        if lo < 0.0 or hi > 1.0:
+            excess = max(-lo, hi - 1.0)
+            # Largest rms for which this period fits into [0, 1] around the offset.
+            limits = [math.inf]
+            low, high = float(period[:, i].min()), float(period[:, i].max())
+            if low < 0.0:
+                limits.append(config.rms[i] * max(off[i], 0.0) / -low)
+            if high > 0.0:
+                limits.append(config.rms[i] * max(1.0 - off[i], 0.0) / high)
+            if 0.0 <= off[i] <= 1.0 and min(limits) < math.inf:
+                advice = f"use rms[{i}] <= {_round_down(min(limits))} instead of "
+                advice += f"{config.rms[i]:.4g}, or move the offset"
+            else:
+                advice = "move the offset into [0, 1]"
+            raise DatumError(
+                f"{valve} valve command leaves [0, 1] by {excess:.4g} (range {lo:.4g} .. "
+                f"{hi:.4g} around offset {off[i]:.4g}); {advice}"
+            )
+    return np.asarray(off + np.tile(period, (config.settle_periods + config.record_periods, 1)))
+
+
+def record_slice(config: ExcitationConfig) -> slice:
+    """The samples of the recorded periods (after settling) within excitation_commands.
+
+    Returns:
+        slice(period_samples settle_periods, period_samples (settle_periods + record_periods)).
+    """
+    start = config.period_samples * config.settle_periods
+    return slice(start, start + config.period_samples * config.record_periods)

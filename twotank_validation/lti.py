@@ -1,0 +1,204 @@
+"""Linear time-invariant building blocks: state space, zero-order hold, frequency response.
+
+Every model part is held as a state-space quadruple. Continuous-time parts are discretised
+by zero-order hold (``scipy.signal.cont2discrete``) at the sample period of the datum, and
+the discrete parts are evaluated on the unit circle at the DFT bins.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.signal
+
+from twotank_validation.errors import DimensionError, ModelError, UnstableModelError
+
+_FloatArray = np.ndarray
+_STABILITY_MARGIN = 1e-9
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """A state-space system ``x' = A x + B u, y = C x + D u``.
+
+    Attributes:
+        a: (n_states, n_states) float.
+        b: (n_states, n_inputs) float.
+        c: (n_outputs, n_states) float.
+        d: (n_outputs, n_inputs) float.
+        dt_s: sample period in seconds for a discrete-time system, ``None`` when continuous.
+    """
+
+    a: _FloatArray
+    b: _FloatArray
+    c: _FloatArray
+    d: _FloatArray
+    dt_s: float | None = None
+
+    def __post_init__(self) -> None:
+        a, b, c, d = (
+            np.atleast_2d(np.asarray(m, dtype=float)) for m in (self.a, self.b, self.c, self.d)
+        )
+        n = a.shape[0] if a.size else 0
+        if a.size == 0:
+            a = np.zeros((0, 0))
+            b = np.zeros((0, d.shape[1]))
+            c = np.zeros((d.shape[0], 0))
+        if a.shape != (n, n):
+            raise DimensionError(f"state matrix A must be square, found shape {a.shape}")
+        if b.shape[0] != n or c.shape[1] != n or d.shape != (c.shape[0], b.shape[1]):
+            raise DimensionError(
+                f"state-space shapes disagree: A {a.shape}, B {b.shape}, C {c.shape}, D {d.shape}; "
+                "expected A (n,n), B (n,m), C (p,n), D (p,m)"
+            )
+        for name, m in (("A", a), ("B", b), ("C", c), ("D", d)):
+            if not np.all(np.isfinite(m)):
+                raise ModelError(f"state-space matrix {name} holds NaN or inf: fix the model file")
+        if self.dt_s is not None and not (np.isfinite(self.dt_s) and self.dt_s > 0):
+            raise ModelError(f"sample period must be positive and finite, found {self.dt_s}")
+        object.__setattr__(self, "a", a)
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "c", c)
+        object.__setattr__(self, "d", d)
+
+    @property
+    def n_states(self) -> int:
+        """Number of states."""
+        return int(self.a.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(n_outputs, n_inputs)."""
+        return (int(self.d.shape[0]), int(self.d.shape[1]))
+
+    @property
+    def is_discrete(self) -> bool:
+        """True for a discrete-time system."""
+        return self.dt_s is not None
+
+
+def static_gain(gain: _FloatArray | float, dt_s: float | None = None) -> StateSpace:
+    """A memoryless system ``y = K u``.
+
+    Args:
+        gain: scalar or (n_outputs, n_inputs) matrix.
+        dt_s: sample period (s) or ``None`` for continuous time.
+    """
+    k = np.atleast_2d(np.asarray(gain, dtype=float))
+    return StateSpace(
+        np.zeros((0, 0)), np.zeros((0, k.shape[1])), np.zeros((k.shape[0], 0)), k, dt_s
+    )
+
+
+def from_transfer_function(num: Sequence[float], den: Sequence[float]) -> StateSpace:
+    """Continuous SISO transfer function (coefficients in descending powers of s) to state space.
+
+    Raises:
+        ModelError: improper or degenerate transfer function.
+    """
+    num_a = np.atleast_1d(np.asarray(num, dtype=float))
+    den_a = np.atleast_1d(np.asarray(den, dtype=float))
+    if den_a.size == 0 or not np.any(den_a):
+        raise ModelError(f"transfer-function denominator {list(den_a)} is zero")
+    den_a = np.trim_zeros(den_a, "f")
+    num_a = np.trim_zeros(num_a, "f") if np.any(num_a) else np.zeros(1)
+    if num_a.size > den_a.size:
+        raise ModelError(
+            f"transfer function num={list(num_a)} den={list(den_a)} is improper "
+            "(numerator degree exceeds denominator degree): add poles to the weight"
+        )
+    a, b, c, d = scipy.signal.tf2ss(num_a, den_a)
+    return StateSpace(a, b, c, d)
+
+
+def discretise(sys: StateSpace, dt_s: float) -> StateSpace:
+    """Zero-order-hold discretisation at ``dt_s`` seconds (identity on discrete systems).
+
+    Raises:
+        ModelError: a discrete system with another sample period.
+    """
+    if sys.is_discrete:
+        if not np.isclose(sys.dt_s, dt_s, rtol=1e-9):  # type: ignore[arg-type]
+            raise ModelError(
+                f"discrete model part has sample period {sys.dt_s} s but the datum has {dt_s} s: "
+                "resample the data or give the part in continuous time"
+            )
+        return sys
+    if sys.n_states == 0:
+        return StateSpace(sys.a, sys.b, sys.c, sys.d, dt_s)
+    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((sys.a, sys.b, sys.c, sys.d), dt_s, method="zoh")
+    return StateSpace(ad, bd, cd, dd, dt_s)
+
+
+def check_stable(sys: StateSpace, what: str) -> None:
+    """Raise ``UnstableModelError`` unless every pole is strictly stable.
+
+    Args:
+        sys: continuous (Re p < 0) or discrete (|p| < 1) system.
+        what: name used in the message.
+    """
+    if sys.n_states == 0:
+        return
+    poles = np.linalg.eigvals(sys.a)
+    if sys.is_discrete:
+        bad = poles[np.abs(poles) >= 1.0 - _STABILITY_MARGIN]
+    else:
+        bad = poles[poles.real >= -_STABILITY_MARGIN]
+    if bad.size:
+        raise UnstableModelError(
+            f"{what} is not stable (poles {np.array2string(bad, precision=4)}): model validation "
+            "by DFT needs a stable nominal; stabilise it in closed loop and supply the "
+            "closed-loop P"
+        )
+
+
+def frequency_response(sys: StateSpace, theta: _FloatArray) -> np.ndarray:
+    """Evaluate a discrete system at ``z = exp(j theta)``.
+
+    Args:
+        sys: discrete-time system.
+        theta: (n_bins,) float, normalised angular frequencies (rad/sample).
+
+    Returns:
+        (n_bins, n_outputs, n_inputs) complex.
+    """
+    if not sys.is_discrete:
+        raise ModelError("frequency_response needs a discrete system: call discretise() first")
+    theta = np.asarray(theta, dtype=float)
+    z = np.exp(1j * theta)
+    p, m = sys.shape
+    if sys.n_states == 0:
+        return np.broadcast_to(sys.d.astype(complex), (theta.size, p, m)).copy()
+    # Diagonalise A once when it is well conditioned (O(n_bins n^2)); otherwise solve per bin.
+    eigvals, eigvecs = np.linalg.eig(sys.a)
+    if np.linalg.cond(eigvecs) < 1e8:
+        cb = sys.c @ eigvecs
+        bb = np.linalg.solve(eigvecs, sys.b)
+        resolvent = 1.0 / (z[:, None] - eigvals[None, :])  # (n_bins, n)
+        return np.einsum("pi,ki,im->kpm", cb, resolvent, bb) + sys.d[None, :, :]
+    eye = np.eye(sys.n_states)
+    zi_a = z[:, None, None] * eye[None] - sys.a[None]
+    x = np.linalg.solve(zi_a, np.broadcast_to(sys.b, (theta.size, *sys.b.shape)))
+    return np.einsum("pn,knm->kpm", sys.c, x) + sys.d[None, :, :]
+
+
+def impulse_response(sys: StateSpace, n_samples: int) -> np.ndarray:
+    """Pulse response coefficients p(k) of a discrete system.
+
+    Args:
+        sys: discrete-time system.
+        n_samples: number of coefficients.
+
+    Returns:
+        (n_samples, n_outputs, n_inputs) float; p(0) = D, p(k) = C A^(k-1) B.
+    """
+    p, m = sys.shape
+    out = np.zeros((n_samples, p, m))
+    out[0] = sys.d
+    x = sys.b.copy()
+    for k in range(1, n_samples):
+        out[k] = sys.c @ x
+        x = sys.a @ x
+    return out

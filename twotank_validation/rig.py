@@ -1,0 +1,732 @@
+"""Nonlinear model of tank 1 of the Caltech two-tank rig, its linearisations and a simulator.
+
+The physics follows R. S. Smith, "Model validation for robust control: an experimental
+process control application", Automatica 31(11), 1995. All signals are in the paper's
+scaled "model units", nominally in [0, 1]; time is in seconds.
+
+States of the nonlinear model, in this order:
+
+* ``hot_flow``, ``cold_flow``: actual valve flows f_h, f_c, each a first-order lag
+  ``1 / (1 + valve_tau_s s)`` of its saturated command,
+* ``height``: tank level h1, from the mass balance ``A1 dh1/dt = f_h + f_c - f1`` with the
+  outlet law ``f1 = (h1 + beta) / alpha``,
+* ``energy``: E1 = h1 t1, from ``A1 dE1/dt = f_h t_h + f_c t_c - f1 t1``.
+
+The outputs are the level h1 and the bulk temperature t1 = E1 / h1. The simulator adds the
+rig's unmodelled physics on the measured temperature (a level-dependent transport delay and an
+optional mixing lag) and white Gaussian sensor noise. Neither is in the linear models.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twotank_validation.errors import DatumError, DimensionError, ModelError
+
+__all__ = [
+    "MODEL_HEIGHT_RANGE",
+    "LinearModel",
+    "OperatingPoint",
+    "RigParams",
+    "SimResult",
+    "TankSimulator",
+    "linearise_model_a",
+    "linearise_model_b",
+    "operating_point",
+    "simulate",
+]
+
+FloatArray = NDArray[np.float64]
+
+MODEL_HEIGHT_RANGE: tuple[float, float] = (0.15, 0.75)
+"""Levels (model units) over which the outlet law h1 = alpha f1 - beta was fitted."""
+
+_MIN_SIM_HEIGHT = 1e-3
+"""Below this level (model units) the tank is empty and t1 = E1 / h1 is undefined."""
+
+_RK4_STABILITY_MARGIN = 2.5
+"""Largest substep / valve_tau_s accepted (RK4 is unstable beyond about 2.785)."""
+
+_T = TypeVar("_T", float, complex)
+
+
+def _frozen_array(value: object, name: str) -> FloatArray:
+    """Return a read-only float64 copy of ``value``; raise ModelError if it is not finite."""
+    arr = np.array(value, dtype=np.float64, copy=True)
+    if not np.all(np.isfinite(arr)):
+        raise ModelError(f"{name} contains NaN or inf: {arr!r}; pass finite numbers")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class RigParams:
+    """Physical parameters of tank 1, its actuators and its sensors (model units, seconds).
+
+    Attributes:
+        area: Tank cross-section A1 (model units of flow time per level), > 0.
+        outlet_alpha: Outlet law slope alpha in h1 = alpha f1 - beta, > 0.
+        outlet_beta: Outlet law offset beta, finite.
+        hot_supply_temp: Hot supply temperature t_h, > cold_supply_temp.
+        cold_supply_temp: Cold supply temperature t_c.
+        valve_tau_s: Time constant of each valve's first-order lag, > 0, seconds.
+        mixing_delay_s: Transport delay of the measured temperature at level
+            ``mixing_ref_level``, >= 0, seconds; the delay is proportional to the level.
+            0 switches the delay off.
+        mixing_ref_level: Level at which the delay equals ``mixing_delay_s``, > 0.
+        mixing_lag_s: Time constant of a first-order lag after the delay, >= 0, seconds;
+            0 switches it off.
+        noise_std_height: Standard deviation of the level sensor noise, >= 0.
+        noise_std_temperature: Standard deviation of the temperature sensor noise, >= 0.
+    """
+
+    area: float = 91.4
+    outlet_alpha: float = 1.34
+    outlet_beta: float = 0.6
+    hot_supply_temp: float = 1.0
+    cold_supply_temp: float = 0.0
+    valve_tau_s: float = 0.05
+    mixing_delay_s: float = 0.0
+    mixing_ref_level: float = 0.47
+    mixing_lag_s: float = 0.0
+    noise_std_height: float = 0.0
+    noise_std_temperature: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ModelError(f"RigParams.{name}={value!r} is not a real number; pass a float")
+            if not math.isfinite(value):
+                raise ModelError(f"RigParams.{name}={value!r} is not finite; pass a finite float")
+        for name in ("area", "outlet_alpha", "valve_tau_s", "mixing_ref_level"):
+            if getattr(self, name) <= 0.0:
+                raise ModelError(
+                    f"RigParams.{name}={getattr(self, name)!r} must be positive; "
+                    "pass a value > 0 in model units / seconds"
+                )
+        for name in ("mixing_delay_s", "mixing_lag_s", "noise_std_height", "noise_std_temperature"):
+            if getattr(self, name) < 0.0:
+                raise ModelError(
+                    f"RigParams.{name}={getattr(self, name)!r} must be >= 0 (0 switches it off)"
+                )
+        if self.hot_supply_temp <= self.cold_supply_temp:
+            raise ModelError(
+                f"RigParams.hot_supply_temp={self.hot_supply_temp!r} must exceed "
+                f"cold_supply_temp={self.cold_supply_temp!r}, otherwise the temperature "
+                "cannot be controlled; swap or correct them"
+            )
+
+    def outlet_flow(self, height: float) -> float:
+        """Return the outlet flow f1 = (h1 + beta) / alpha (model units) at level ``height``."""
+        return (height + self.outlet_beta) / self.outlet_alpha
+
+    def mixing_delay_at(self, height: float) -> float:
+        """Return the measured-temperature transport delay (seconds) at level ``height``."""
+        return self.mixing_delay_s * height / self.mixing_ref_level
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """An equilibrium of tank 1 (model units).
+
+    Attributes:
+        height: Level h1, > 0.
+        temperature: Bulk temperature t1.
+        hot_flow: Hot valve flow f_h in [0, 1] (equal to its command at equilibrium).
+        cold_flow: Cold valve flow f_c in [0, 1].
+        out_flow: Outlet flow f1; must equal hot_flow + cold_flow (mass balance) to 1e-6.
+    """
+
+    height: float
+    temperature: float
+    hot_flow: float
+    cold_flow: float
+    out_flow: float
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ModelError(f"OperatingPoint.{name}={value!r} is not a real number")
+            if not math.isfinite(value):
+                raise ModelError(f"OperatingPoint.{name}={value!r} is not finite")
+        if self.height <= 0.0:
+            raise ModelError(f"OperatingPoint.height={self.height!r} must be positive")
+        for name in ("hot_flow", "cold_flow"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ModelError(
+                    f"OperatingPoint.{name}={value!r} is outside the valve range [0, 1]"
+                )
+        imbalance = self.hot_flow + self.cold_flow - self.out_flow
+        if abs(imbalance) > 1e-6:
+            raise ModelError(
+                f"OperatingPoint is not an equilibrium: hot_flow + cold_flow - out_flow = "
+                f"{imbalance:.3g}; build it with operating_point(params, height, temperature)"
+            )
+
+    @property
+    def commands(self) -> FloatArray:
+        """(2,) float, model units: the valve commands [hot, cold] that hold this point."""
+        return np.array([self.hot_flow, self.cold_flow], dtype=np.float64)
+
+    @property
+    def energy(self) -> float:
+        """The energy state E1 = h1 t1 at this point (model units)."""
+        return self.height * self.temperature
+
+
+def operating_point(
+    params: RigParams, height: float = 0.47, temperature: float = 0.5
+) -> OperatingPoint:
+    """Return the equilibrium of tank 1 at a given level and temperature.
+
+    At equilibrium f_h + f_c = f1 = (h1 + beta) / alpha and f_h t_h + f_c t_c = f1 t1, so
+    f_h = f1 (t1 - t_c) / (t_h - t_c) and f_c = f1 - f_h.
+
+    Args:
+        params: Rig parameters.
+        height: Level h1 (model units), within MODEL_HEIGHT_RANGE = (0.15, 0.75).
+        temperature: Bulk temperature t1 (model units).
+
+    Returns:
+        The operating point.
+
+    Raises:
+        ModelError: If the level is outside the model's valid range or if holding the point
+            needs a valve flow outside [0, 1].
+    """
+    if not (math.isfinite(height) and math.isfinite(temperature)):
+        raise ModelError(f"height={height!r} and temperature={temperature!r} must be finite")
+    lo, hi = MODEL_HEIGHT_RANGE
+    if not lo <= height <= hi:
+        raise ModelError(
+            f"height={height!r} is outside the range {lo}..{hi} over which the outlet law "
+            "h1 = alpha f1 - beta is valid; choose a level inside it"
+        )
+    out_flow = params.outlet_flow(height)
+    span = params.hot_supply_temp - params.cold_supply_temp
+    hot_flow = out_flow * (temperature - params.cold_supply_temp) / span
+    cold_flow = out_flow - hot_flow
+    for name, value in (("hot", hot_flow), ("cold", cold_flow)):
+        if not 0.0 <= value <= 1.0:
+            raise ModelError(
+                f"height={height!r}, temperature={temperature!r} needs {name} flow "
+                f"{value:.4g}, outside the valve range [0, 1]; choose a temperature between "
+                f"the supply temperatures {params.cold_supply_temp} and "
+                f"{params.hot_supply_temp} and a lower level"
+            )
+    return OperatingPoint(
+        height=float(height),
+        temperature=float(temperature),
+        hot_flow=hot_flow,
+        cold_flow=cold_flow,
+        out_flow=out_flow,
+    )
+
+
+# --- the nonlinear right-hand side, shared by the simulator and the linearisations -----------
+
+
+class _Coefficients(NamedTuple):
+    """Precomputed constants of the right-hand side (plain floats, for speed)."""
+
+    inv_tau: float
+    inv_area: float
+    inv_alpha: float
+    beta: float
+    hot_temp: float
+    cold_temp: float
+
+    @classmethod
+    def of(cls, params: RigParams) -> _Coefficients:
+        return cls(
+            inv_tau=1.0 / params.valve_tau_s,
+            inv_area=1.0 / params.area,
+            inv_alpha=1.0 / params.outlet_alpha,
+            beta=params.outlet_beta,
+            hot_temp=params.hot_supply_temp,
+            cold_temp=params.cold_supply_temp,
+        )
+
+
+def _rhs(  # noqa: PLR0917 - positional floats: this is the simulator's hot loop
+    k: _Coefficients, fh: _T, fc: _T, h: _T, e: _T, uh: _T, uc: _T
+) -> tuple[_T, _T, _T, _T]:
+    """Time derivative of [f_h, f_c, h1, E1] under saturated commands [uh, uc].
+
+    Written with arithmetic only so that it is analytic: the linearisations differentiate it
+    by complex step.
+    """
+    f1 = (h + k.beta) * k.inv_alpha
+    return (
+        (uh - fh) * k.inv_tau,
+        (uc - fc) * k.inv_tau,
+        (fh + fc - f1) * k.inv_area,
+        (fh * k.hot_temp + fc * k.cold_temp - f1 * (e / h)) * k.inv_area,
+    )
+
+
+def _output(h: _T, e: _T) -> tuple[_T, _T]:
+    """Bulk outputs [h1, t1 = E1 / h1] of the state."""
+    return (h, e / h)
+
+
+_COMPLEX_STEP = 1e-20
+
+
+def _jacobian(
+    func: Callable[[Sequence[complex]], Sequence[complex]], point: Sequence[float]
+) -> FloatArray:
+    """Jacobian of an analytic ``func`` at real ``point`` by complex step (exact to rounding).
+
+    Returns:
+        (n_outputs, n_inputs) float.
+    """
+    columns = []
+    for j in range(len(point)):
+        z = [complex(v) for v in point]
+        z[j] += 1j * _COMPLEX_STEP
+        columns.append([v.imag / _COMPLEX_STEP for v in func(z)])
+    return np.array(columns, dtype=np.float64).T
+
+
+@dataclass(frozen=True, eq=False)
+class LinearModel:
+    """Continuous-time state-space model in deviations from an operating point.
+
+    Frozen, with read-only arrays; compared by identity (``eq=False``: arrays have no scalar
+    equality).
+
+    dx/dt = a x + b u, y = c x + d u, with u = [hot, cold] command deviations and
+    y = [height, temperature] deviations, all in model units, time in seconds.
+
+    Attributes:
+        a: (n_states, n_states) float.
+        b: (n_states, n_inputs) float.
+        c: (n_outputs, n_states) float.
+        d: (n_outputs, n_inputs) float.
+        state_names: n_states names.
+        input_names: n_inputs names.
+        output_names: n_outputs names.
+    """
+
+    a: FloatArray
+    b: FloatArray
+    c: FloatArray
+    d: FloatArray
+    state_names: tuple[str, ...]
+    input_names: tuple[str, ...] = ("hot", "cold")
+    output_names: tuple[str, ...] = ("height", "temperature")
+
+    def __post_init__(self) -> None:
+        for name in ("a", "b", "c", "d"):
+            object.__setattr__(
+                self, name, _frozen_array(getattr(self, name), f"LinearModel.{name}")
+            )
+            if getattr(self, name).ndim != 2:
+                raise DimensionError(
+                    f"LinearModel.{name} must be 2-D, found shape {getattr(self, name).shape}"
+                )
+        n, m, p = len(self.state_names), len(self.input_names), len(self.output_names)
+        expected = {"a": (n, n), "b": (n, m), "c": (p, n), "d": (p, m)}
+        for name, shape in expected.items():
+            found = getattr(self, name).shape
+            if found != shape:
+                raise DimensionError(
+                    f"LinearModel.{name} has shape {found}, expected {shape} from "
+                    f"{n} state, {m} input and {p} output names"
+                )
+
+    def dc_gain(self) -> FloatArray:
+        """Return the steady-state gain -c a^-1 b + d, (n_outputs, n_inputs) float.
+
+        Raises:
+            ModelError: If ``a`` is singular (the model has an integrator).
+        """
+        try:
+            return np.asarray(-self.c @ np.linalg.solve(self.a, self.b) + self.d)
+        except np.linalg.LinAlgError as exc:
+            raise ModelError("LinearModel.a is singular: the DC gain is infinite") from exc
+
+
+def _op_state(op: OperatingPoint) -> list[float]:
+    return [op.hot_flow, op.cold_flow, op.height, op.energy]
+
+
+def linearise_model_b(params: RigParams, op: OperatingPoint) -> LinearModel:
+    """Linearise the full nonlinear model (the paper's Model B) at ``op``.
+
+    The matrices are the complex-step Jacobians of the same right-hand side and output
+    functions that TankSimulator integrates. The mixing delay and lag are not included.
+
+    Args:
+        params: Rig parameters.
+        op: Operating point (an equilibrium of ``params``).
+
+    Returns:
+        Model with states [hot_flow, cold_flow, height, energy] (E1 = h1 t1),
+        inputs [hot, cold], outputs [height, temperature].
+    """
+    k = _Coefficients.of(params)
+    point = [*_op_state(op), op.hot_flow, op.cold_flow]
+
+    def f(z: Sequence[complex]) -> Sequence[complex]:
+        return _rhs(k, z[0], z[1], z[2], z[3], z[4], z[5])
+
+    def g(z: Sequence[complex]) -> Sequence[complex]:
+        return _output(z[2], z[3])
+
+    jf = _jacobian(f, point)
+    jg = _jacobian(g, point)
+    return LinearModel(
+        a=jf[:, :4],
+        b=jf[:, 4:],
+        c=jg[:, :4],
+        d=jg[:, 4:],
+        state_names=("hot_flow", "cold_flow", "height", "energy"),
+    )
+
+
+def linearise_model_a(params: RigParams, op: OperatingPoint) -> LinearModel:
+    """Linearise the paper's decoupled Model A at ``op``.
+
+    The height channel is the mass-balance Jacobian (identical to Model B). The temperature
+    channel is the energy balance with h1 held at its operating value (so f1 is constant):
+    A1 h1 dt1/dt = f_h t_h + f_c t_c - f1 t1, which at the paper's point gives
+    t1 = 1.25 / (1 + 53.8 s) f_h and h1 = 1.34 / (1 + 122.5 s) (f_h + f_c), each times the
+    valve lag. Both channels are Jacobians of the simulator's right-hand side.
+
+    Args:
+        params: Rig parameters.
+        op: Operating point (an equilibrium of ``params``).
+
+    Returns:
+        Model with states [hot_flow, cold_flow, height, temperature], inputs [hot, cold],
+        outputs [height, temperature].
+    """
+    k = _Coefficients.of(params)
+    h0 = op.height
+    point = [op.hot_flow, op.cold_flow, op.height, op.temperature, op.hot_flow, op.cold_flow]
+
+    def f(z: Sequence[complex]) -> Sequence[complex]:
+        dfh, dfc, dh, _ = _rhs(k, z[0], z[1], z[2], h0 * z[3], z[4], z[5])
+        # Height held: E1 = h0 t1, so dt1/dt = dE1/dt / h0 with h1 = h0 in the energy balance.
+        de_held = _rhs(k, z[0], z[1], complex(h0), h0 * z[3], z[4], z[5])[3]
+        return (dfh, dfc, dh, de_held / h0)
+
+    jf = _jacobian(f, point)
+    c = np.zeros((2, 4))
+    c[0, 2] = 1.0
+    c[1, 3] = 1.0
+    return LinearModel(
+        a=jf[:, :4],
+        b=jf[:, 4:],
+        c=c,
+        d=np.zeros((2, 2)),
+        state_names=("hot_flow", "cold_flow", "height", "temperature"),
+    )
+
+
+# --- simulator ----------------------------------------------------------------------------
+
+
+class TankSimulator:
+    """Steppable nonlinear simulator (the ROS plant node will step it live, one sample at a time).
+
+    The state [f_h, f_c, h1, E1] is integrated by fixed-step RK4 with ``substeps`` steps per
+    sample; each command is saturated to [0, 1] and held over one sample. The bulk temperature
+    is stored at every substep so that the measured temperature can be delayed by
+    tau(h1) = mixing_delay_s h1 / mixing_ref_level (linear interpolation, h1 the current level),
+    then passed through the optional first-order mixing lag (integrated exactly for an input
+    that is linear between substeps). The simulator starts in steady state at ``op``, with the
+    past bulk temperature equal to ``op.temperature``.
+
+    Args:
+        params: Rig parameters.
+        ts_s: Sample period, seconds, > 0.
+        op: Initial operating point; default ``operating_point(params)``.
+        seed: Seed of the sensor noise generator (numpy default_rng).
+        substeps: RK4 steps per sample, >= 1.
+
+    Raises:
+        ModelError: If ``ts_s`` or ``substeps`` are invalid, or if a substep exceeds 2.5 valve
+            time constants (RK4 would be inaccurate or unstable).
+    """
+
+    def __init__(
+        self,
+        params: RigParams,
+        ts_s: float = 0.1,
+        *,
+        op: OperatingPoint | None = None,
+        seed: int = 0,
+        substeps: int = 4,
+    ) -> None:
+        if not (math.isfinite(ts_s) and ts_s > 0.0):
+            raise ModelError(f"ts_s={ts_s!r} must be a positive, finite sample period in seconds")
+        if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+            raise ModelError(f"substeps={substeps!r} must be an integer >= 1")
+        dt = ts_s / substeps
+        if dt > _RK4_STABILITY_MARGIN * params.valve_tau_s:
+            need = math.ceil(ts_s / (_RK4_STABILITY_MARGIN * params.valve_tau_s))
+            raise ModelError(
+                f"substep ts_s/substeps = {dt:.4g} s exceeds {_RK4_STABILITY_MARGIN} valve time "
+                f"constants ({params.valve_tau_s} s): RK4 would be unstable; use substeps >= {need}"
+            )
+        self._params = params
+        self._op = operating_point(params) if op is None else op
+        self._ts = float(ts_s)
+        self._substeps = substeps
+        self._dt = dt
+        self._k = _Coefficients.of(params)
+        self._rng = np.random.default_rng(seed)
+        self._noise_std = (params.noise_std_height, params.noise_std_temperature)
+        self._n_samples = 0
+        self._fh, self._fc, self._h, self._e = _op_state(self._op)
+        t0 = self._op.temperature
+        # Delay history of the bulk temperature at the substep grid (ring buffer).
+        self._delay_per_height = params.mixing_delay_s / params.mixing_ref_level / dt  # substeps
+        if params.mixing_delay_s > 0.0:
+            # Level never exceeds max(h0, 2 alpha - beta): both valves fully open.
+            h_cap = max(self._op.height, 2.0 * params.outlet_alpha - params.outlet_beta)
+            capacity = math.ceil(self._delay_per_height * h_cap) + 3
+        else:
+            capacity = 1
+        self._history = [t0] * capacity
+        self._grid_index = 0
+        self._delayed = t0  # delayed bulk temperature at the current grid point
+        self._measured_temp = t0  # after the mixing lag
+        if params.mixing_lag_s > 0.0:
+            decay = math.exp(-dt / params.mixing_lag_s)
+            self._lag_decay = decay
+            self._lag_ramp = 1.0 - params.mixing_lag_s / dt * (1.0 - decay)
+        else:
+            self._lag_decay = 0.0
+            self._lag_ramp = 1.0
+
+    @property
+    def params(self) -> RigParams:
+        """The rig parameters."""
+        return self._params
+
+    @property
+    def op(self) -> OperatingPoint:
+        """The initial operating point."""
+        return self._op
+
+    @property
+    def ts_s(self) -> float:
+        """The sample period, seconds."""
+        return self._ts
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the start, seconds (sample count times ts_s)."""
+        return self._n_samples * self._ts
+
+    @property
+    def state(self) -> FloatArray:
+        """(4,) float, model units: [hot_flow, cold_flow, height, bulk_temperature] now."""
+        return np.array([self._fh, self._fc, self._h, self._e / self._h], dtype=np.float64)
+
+    @property
+    def clean_output(self) -> FloatArray:
+        """(2,) float, model units: [height, temperature] as measured now, without noise."""
+        return np.array([self._h, self._measured_temp], dtype=np.float64)
+
+    def measure(self) -> FloatArray:
+        """Return the measurement now: (2,) float [height, temperature], model units.
+
+        The temperature includes the mixing delay and lag; both include sensor noise. Each call
+        draws two fresh noise samples.
+        """
+        noise = self._rng.standard_normal(2)
+        return np.array(
+            [
+                self._h + self._noise_std[0] * noise[0],
+                self._measured_temp + self._noise_std[1] * noise[1],
+            ],
+            dtype=np.float64,
+        )
+
+    def step(self, command: FloatArray | Sequence[float]) -> None:
+        """Apply a valve command for one sample period.
+
+        Args:
+            command: (2,) float, model units: absolute [hot, cold] command; saturated to [0, 1].
+
+        Raises:
+            DatumError: If the command is not of shape (2,) or is not finite.
+            ModelError: If the tank empties (level below 1e-3).
+        """
+        u = np.asarray(command, dtype=np.float64)
+        if u.shape != (2,):
+            raise DatumError(f"command has shape {u.shape}, expected (2,) [hot, cold]")
+        if not np.all(np.isfinite(u)):
+            raise DatumError(f"command {u.tolist()} is not finite; pass numbers in [0, 1]")
+        self._advance(min(max(float(u[0]), 0.0), 1.0), min(max(float(u[1]), 0.0), 1.0))
+
+    def _advance(self, uh: float, uc: float) -> None:
+        """Integrate one sample with the saturated commands held (no validation: hot loop)."""
+        k, dt = self._k, self._dt
+        half = 0.5 * dt
+        sixth = dt / 6.0
+        fh, fc, h, e = self._fh, self._fc, self._h, self._e
+        history = self._history
+        capacity = len(history)
+        delay_per_height = self._delay_per_height
+        decay, ramp = self._lag_decay, self._lag_ramp
+        delayed, measured = self._delayed, self._measured_temp
+        j = self._grid_index
+        for _ in range(self._substeps):
+            a1, a2, a3, a4 = _rhs(k, fh, fc, h, e, uh, uc)
+            b1, b2, b3, b4 = _rhs(
+                k, fh + half * a1, fc + half * a2, h + half * a3, e + half * a4, uh, uc
+            )
+            c1, c2, c3, c4 = _rhs(
+                k, fh + half * b1, fc + half * b2, h + half * b3, e + half * b4, uh, uc
+            )
+            d1, d2, d3, d4 = _rhs(k, fh + dt * c1, fc + dt * c2, h + dt * c3, e + dt * c4, uh, uc)
+            fh += sixth * (a1 + 2.0 * (b1 + c1) + d1)
+            fc += sixth * (a2 + 2.0 * (b2 + c2) + d2)
+            h += sixth * (a3 + 2.0 * (b3 + c3) + d3)
+            e += sixth * (a4 + 2.0 * (b4 + c4) + d4)
+            if not h > _MIN_SIM_HEIGHT:  # also catches NaN
+                raise ModelError(
+                    f"tank level fell to {h:.3g} at t = {self.time_s:.1f} s: the tank is empty "
+                    "and the model is undefined; reduce the excitation amplitude or raise the "
+                    "operating level"
+                )
+            j += 1
+            bulk = e / h
+            if capacity > 1:
+                history[j % capacity] = bulk
+                lag = delay_per_height * h  # in substeps
+                pos = j - lag
+                lo = math.floor(pos)
+                oldest = j - capacity + 1
+                if lo < oldest:
+                    lo, frac = oldest, 0.0
+                else:
+                    frac = pos - lo
+                new_delayed = (1.0 - frac) * history[lo % capacity] + frac * history[
+                    (lo + 1) % capacity
+                ]
+            else:
+                new_delayed = bulk
+            measured = decay * measured + (1.0 - decay) * delayed + ramp * (new_delayed - delayed)
+            delayed = new_delayed
+        self._fh, self._fc, self._h, self._e = fh, fc, h, e
+        self._delayed, self._measured_temp = delayed, measured
+        self._grid_index = j
+        self._n_samples += 1
+
+
+@dataclass(frozen=True, eq=False)
+class SimResult:
+    """Record of a simulation (model units, seconds); n is the number of samples.
+
+    Frozen, with read-only arrays; compared by identity (``eq=False``).
+
+    Attributes:
+        time_s: (n,) float, sample times k ts_s.
+        commands: (n, 2) float, the [hot, cold] commands applied at each sample, after
+            saturation to [0, 1].
+        measured: (n, 2) float, [height, temperature] sampled at time_s[k] BEFORE command k is
+            applied (so y(k) depends on u(k-1) and earlier: strictly proper, matching a
+            zero-order-hold discretisation x(k+1) = Ad x(k) + Bd u(k), y(k) = C x(k)),
+            including the mixing delay/lag and sensor noise.
+        clean: (n, 2) float, the same without sensor noise.
+        states: (n, 4) float, [hot_flow, cold_flow, height, bulk_temperature] at time_s[k].
+    """
+
+    time_s: FloatArray
+    commands: FloatArray
+    measured: FloatArray
+    clean: FloatArray
+    states: FloatArray
+
+    def __post_init__(self) -> None:
+        n = np.shape(self.time_s)[0] if np.ndim(self.time_s) == 1 else -1
+        expected = {
+            "time_s": (n,),
+            "commands": (n, 2),
+            "measured": (n, 2),
+            "clean": (n, 2),
+            "states": (n, 4),
+        }
+        for name, shape in expected.items():
+            arr = np.array(getattr(self, name), dtype=np.float64, copy=True)
+            if arr.shape != shape:
+                raise DimensionError(f"SimResult.{name} has shape {arr.shape}, expected {shape}")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+
+def simulate(
+    params: RigParams,
+    commands: FloatArray | Sequence[Sequence[float]],
+    ts_s: float = 0.1,
+    *,
+    op: OperatingPoint | None = None,
+    seed: int = 0,
+    substeps: int = 4,
+) -> SimResult:
+    """Simulate the rig from steady state at ``op`` under a sequence of valve commands.
+
+    Sample k is measured before command k is applied; the result equals stepping a fresh
+    ``TankSimulator(params, ts_s, op=op, seed=seed, substeps=substeps)`` with
+    ``measure()`` then ``step(commands[k])``.
+
+    Args:
+        params: Rig parameters.
+        commands: (n, 2) float, model units: absolute [hot, cold] valve commands, saturated to
+            [0, 1].
+        ts_s: Sample period, seconds.
+        op: Initial operating point; default ``operating_point(params)``.
+        seed: Sensor noise seed.
+        substeps: RK4 steps per sample.
+
+    Returns:
+        The simulation record.
+
+    Raises:
+        DatumError: If ``commands`` is not (n, 2) with n >= 1, or contains NaN or inf.
+        ModelError: If the simulator settings are invalid or the tank empties.
+    """
+    u = np.asarray(commands, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 1:
+        raise DatumError(f"commands have shape {u.shape}, expected (n_samples >= 1, 2) [hot, cold]")
+    bad = ~np.isfinite(u)
+    if np.any(bad):
+        row, col = np.argwhere(bad)[0]
+        raise DatumError(
+            f"commands contain {int(bad.sum())} NaN/inf values, first at sample {row} "
+            f"({('hot', 'cold')[col]} valve); pass finite commands in [0, 1]"
+        )
+    u = np.clip(u, 0.0, 1.0)
+    sim = TankSimulator(params, ts_s, op=op, seed=seed, substeps=substeps)
+    n = u.shape[0]
+    measured = np.empty((n, 2))
+    clean = np.empty((n, 2))
+    states = np.empty((n, 4))
+    for i, (uh, uc) in enumerate(u.tolist()):
+        measured[i] = sim.measure()
+        clean[i] = sim.clean_output
+        states[i] = sim.state
+        sim._advance(uh, uc)
+    return SimResult(
+        time_s=np.arange(n, dtype=np.float64) * sim.ts_s,
+        commands=u,
+        measured=measured,
+        clean=clean,
+        states=states,
+    )
