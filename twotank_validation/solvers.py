@@ -32,6 +32,7 @@ import numpy as np
 from twotank_validation.model import BlockStructure, PlantResponse
 
 _RANK_RTOL = 1e-10
+_NEGLIGIBLE_Z = 1e-10  # |z_i| below this fraction of the bin's unknowns counts as zero
 _CONSISTENCY_RTOL = 1e-8
 _TINY = 1e-300
 
@@ -278,10 +279,12 @@ def homogenise_bin(
 ) -> HomogenisedBin:
     """Eliminate ``Y = P21 v + P22 w + P23 U`` and build the quadratic forms of one bin.
 
-    A block whose input ``z_i`` is zero whatever ``v, w`` are (``P11``, ``P12`` rows zero and
-    ``P13 U`` below 1e-12 of ``||P13|| u_scale``: a bin the excitation does not reach) forces
-    ``v_i = 0``; that is added to the equality constraints instead of being left to the SDP,
-    whose feasible set would otherwise have no interior.
+    A block whose input ``z_i`` does not depend on ``v, w`` (``P11``, ``P12`` rows zero) and is
+    zero -- ``P13 U`` below 1e-12 of ``||P13|| u_scale`` (a bin the excitation does not reach)
+    or below 1e-10 of the bin's least-norm unknowns (an input rolled off to round-off level) --
+    forces ``v_i = 0``. That is added to the equality constraints instead of being left to the
+    SDP, whose feasible set would otherwise have no interior. The second rule changes
+    min ||W(n)|| by at most 1e-10 of the bin's scale times ``||P21|| / sigma_min(P22)``.
 
     Args:
         p: (nz + ny, nv + nw + nu) complex, P at this bin.
@@ -296,13 +299,17 @@ def homogenise_bin(
     zu = p[:nz, nx:] @ u
     scale_u = float(np.linalg.norm(u)) if u_scale is None else u_scale
     p_norm = float(np.linalg.norm(p)) + _TINY
+    # scale of the bin's unknowns: the least-norm solution of the output equation
+    x_scale = float(
+        np.linalg.norm(np.linalg.lstsq(p[nz:, :nx], y - p[nz:, nx:] @ u, rcond=None)[0])
+    )
     forced = []
     for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True):
         dep = float(np.linalg.norm(p[zs, :nx]))
         drive = float(np.linalg.norm(zu[zs]))
-        if dep <= 1e-13 * p_norm and drive <= 1e-12 * (
-            float(np.linalg.norm(p[zs, nx:])) * scale_u + _TINY
-        ):
+        unexcited = drive <= 1e-12 * float(np.linalg.norm(p[zs, nx:])) * scale_u
+        negligible = drive <= _NEGLIGIBLE_Z * x_scale
+        if dep <= 1e-13 * p_norm and (unexcited or negligible):
             forced.append(vs)
     rows = [p[nz:, :nx]]
     rhs = [y - p[nz:, nx:] @ u]
@@ -313,16 +320,23 @@ def homogenise_bin(
         rhs.append(np.zeros(vs.stop - vs.start, dtype=complex))
     bmat = np.concatenate(rows, axis=0)
     r = np.concatenate(rhs)
+    # Balance each block's v against the size of its input z (|v_i| <= |z_i|): the SDP then
+    # sees quadratic forms of comparable size even where the excitation is weak.
+    col = np.ones(nx)
+    for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True):
+        z_size = float(np.linalg.norm(zu[zs])) + float(np.linalg.norm(p[zs, :nx])) * x_scale
+        col[vs] = min(1.0, max(z_size / max(x_scale, _TINY), 1e-150))
+    bmat = bmat * col[None, :]
     uu, s, vh = np.linalg.svd(bmat, full_matrices=True)
     tol = _RANK_RTOL * max(bmat.shape) * (s[0] if s.size else 0.0)
     k = int(np.sum(s > tol)) if s.size else 0
     ur = uu[:, :k]
-    x0 = vh[:k].conj().T @ ((ur.conj().T @ r) / s[:k])
+    x0 = col * (vh[:k].conj().T @ ((ur.conj().T @ r) / s[:k]))
     resid = r - ur @ (ur.conj().T @ r)
     feasible = bool(
         np.linalg.norm(resid) <= _CONSISTENCY_RTOL * (np.linalg.norm(r) + np.linalg.norm(y) + _TINY)
     )
-    null = vh[k:].conj().T  # (nx, nx - k)
+    null = col[:, None] * vh[k:].conj().T  # (nx, nx - k)
     rho = max(float(np.linalg.norm(x0)), float(np.linalg.norm(zu)), _TINY)
     m = np.concatenate([null, (x0 / rho)[:, None]], axis=1)
     g = p[:nz, :nx] @ m
@@ -333,7 +347,7 @@ def homogenise_bin(
     for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
         qi = g[zs].conj().T @ g[zs] - m[vs].conj().T @ m[vs]
         nq = np.linalg.norm(qi, 2)
-        q[i] = qi / nq if nq > 1e-14 else 0.0 * qi
+        q[i] = qi / nq if nq > 0.0 else qi
     a_scale = max(float(np.linalg.norm(a, 2)), _TINY)
     return HomogenisedBin(m=m, a=a / a_scale, q=q, rho=rho, a_scale=a_scale, feasible=feasible)
 
@@ -350,6 +364,12 @@ def lagrangian_point(hb: HomogenisedBin, d: np.ndarray) -> np.ndarray | None:
         return None
     t = -np.linalg.solve(htt, hts)
     return np.concatenate([t, [1.0 + 0.0j]])
+
+
+def _lagrangian_value(hb: HomogenisedBin, d: np.ndarray, xh: np.ndarray) -> float:
+    """``xh^H (A - sum d_i Q_i) xh``: the dual function at d when xh is the Lagrangian minimiser."""
+    h = hb.a - np.einsum("i,ijk->jk", d, hb.q)
+    return float(np.real(xh.conj() @ h @ xh))
 
 
 def polish_dual(
@@ -391,10 +411,15 @@ def polish_dual(
             return None
         step = np.zeros(m)
         step[f] = step_f
+        phi0 = _lagrangian_value(hb, d, xh)
         alpha = 1.0
-        for _ls in range(30):
+        for _ls in range(40):
             cand = np.maximum(d + alpha * step, 0.0)
-            if lagrangian_point(hb, cand) is not None:
+            xc = lagrangian_point(hb, cand)
+            # accept when H_tt stays positive definite and the concave dual does not decrease
+            if xc is not None and _lagrangian_value(hb, cand, xc) >= phi0 - 1e-15 * (
+                1.0 + abs(phi0)
+            ):
                 break
             alpha *= 0.5
         else:
@@ -453,7 +478,7 @@ class _SdpCache:
 _CACHE = _SdpCache()
 
 
-def solve_bin_sdp(hb: HomogenisedBin) -> tuple[float, bool, np.ndarray]:
+def solve_bin_sdp(hb: HomogenisedBin) -> tuple[float, bool, np.ndarray]:  # noqa: PLR0911
     """Solve the SDP relaxation of one homogenised bin, then polish it on the dual.
 
     Returns:
@@ -480,6 +505,16 @@ def solve_bin_sdp(hb: HomogenisedBin) -> tuple[float, bool, np.ndarray]:
             prob.solve(solver=cp.CLARABEL)
     except cp.error.SolverError:
         prob = None
+    if prob is None or prob.status != "optimal":
+        # Clarabel struggles when a block's input is tiny next to its output (a nearly
+        # negative semidefinite Q_i, e.g. a weakly excited bin); the concave dual is then
+        # maximised directly by projected Newton from a few starts.
+        for start in (np.zeros(m), np.ones(m)):
+            polished = polish_dual(hb, start, max_iter=200)
+            if polished is not None:
+                cert = dual_lower_bound(hb, polished[0])
+                if cert is not None:
+                    return cert, True, polished[1]
     if prob is not None and prob.status in ("infeasible", "infeasible_inaccurate"):
         # The relaxation is infeasible, hence so is the bin: no (w, Delta) explains it.
         return np.inf, prob.status == "infeasible", trivial
