@@ -349,7 +349,7 @@ def make_datum(
 
 
 def leakage_bound(
-    pulse: np.ndarray, u_max: np.ndarray, n_samples: int, convention: NormConvention
+    moment: np.ndarray, u_max: np.ndarray, n_samples: int, convention: NormConvention
 ) -> np.ndarray:
     """Bound on the leakage term ``|R_i(n)|`` per output (Ljung 1987, Thm 2.1).
 
@@ -358,7 +358,8 @@ def leakage_bound(
     with ``c_N``: ``|R_i(n)| <= 2 c_N sum_j max|u_j| sum_k k |p_ij(k)|``, the same at every bin.
 
     Args:
-        pulse: (n_coeffs, n_outputs, n_inputs) float pulse response of the nominal plant.
+        moment: (n_outputs, n_inputs) float, ``sum_k k |p_ij(k)|`` of the pulse response
+            (see :func:`pulse_moment`).
         u_max: (n_inputs,) float, max |u_j(k)| after bias removal.
         n_samples: record length N.
         convention: norm convention.
@@ -366,6 +367,17 @@ def leakage_bound(
     Returns:
         (n_outputs,) float.
     """
-    k = np.arange(pulse.shape[0])[:, None, None]
-    moment = np.sum(k * np.abs(pulse), axis=0)  # (ny, nu)
     return 2.0 * convention.dft_scale(n_samples) * (moment @ np.asarray(u_max, dtype=float))
+
+
+def pulse_moment(pulse: np.ndarray) -> np.ndarray:
+    """``sum_k k |p(k)|`` of a pulse response.
+
+    Args:
+        pulse: (n_coeffs, n_outputs, n_inputs) float.
+
+    Returns:
+        (n_outputs, n_inputs) float.
+    """
+    k = np.arange(pulse.shape[0])[:, None, None]
+    return np.sum(k * np.abs(pulse), axis=0)

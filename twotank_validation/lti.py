@@ -197,6 +197,16 @@ def impulse_response(sys: StateSpace, n_samples: int) -> np.ndarray:
     p, m = sys.shape
     out = np.zeros((n_samples, p, m))
     out[0] = sys.d
+    if n_samples < 2 or sys.n_states == 0:
+        return out
+    eigvals, eigvecs = np.linalg.eig(sys.a)
+    if np.linalg.cond(eigvecs) < 1e8:
+        # p(k) = C V diag(lambda^(k-1)) V^-1 B, vectorised over k (no Python loop over samples)
+        cv = sys.c @ eigvecs
+        vb = np.linalg.solve(eigvecs, sys.b)
+        powers = eigvals[None, :] ** np.arange(n_samples - 1)[:, None]  # (n-1, n_states)
+        out[1:] = np.einsum("pi,ki,im->kpm", cv, powers, vb).real
+        return out
     x = sys.b.copy()
     for k in range(1, n_samples):
         out[k] = sys.c @ x

@@ -228,6 +228,8 @@ class LFTModel:
     generalized: StateSpace | None = None
     description: str = ""
     operating_point: Mapping[str, float] = field(default_factory=dict)
+    cache: dict[object, Any] = field(default_factory=dict, compare=False, repr=False)
+    """Memo of derived quantities (e.g. pulse-response moments per sample period)."""
 
     def __post_init__(self) -> None:
         if (self.nominal is None) == (self.generalized is None):

@@ -11,6 +11,7 @@ import numpy as np
 
 from twotank_validation import lti, solvers
 from twotank_validation.datum import Datum, NormConvention, leakage_bound
+from twotank_validation.datum import pulse_moment as datum_pulse_moment
 from twotank_validation.errors import DimensionError, ModelError
 from twotank_validation.model import LFTModel, PlantResponse
 
@@ -138,6 +139,15 @@ def pulse_response(model: LFTModel, ts_s: float, max_samples: int = 200_000) -> 
         raise ModelError(f"nominal of {model.name!r} is unstable: no pulse response bound")
     n = int(min(max_samples, max(16, np.ceil(np.log(_PULSE_DECAY) / np.log(max(rad, 1e-300))) + 2)))
     return lti.impulse_response(sys, n)
+
+
+def pulse_moment(model: LFTModel, ts_s: float) -> np.ndarray:
+    """(ny, nu) float, ``sum_k k |p_ij(k)|`` of the discretised nominal (memoised per model)."""
+    key = ("pulse_moment", float(ts_s))
+    if key not in model.cache:
+        model.cache[key] = datum_pulse_moment(pulse_response(model, ts_s))
+    moment: np.ndarray = model.cache[key]
+    return moment
 
 
 def validate(
