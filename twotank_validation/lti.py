@@ -101,14 +101,16 @@ def from_transfer_function(num: Sequence[float], den: Sequence[float]) -> StateS
     num_a = np.atleast_1d(np.asarray(num, dtype=float))
     den_a = np.atleast_1d(np.asarray(den, dtype=float))
     if den_a.size == 0 or not np.any(den_a):
-        raise ModelError(f"transfer-function denominator {list(den_a)} is zero")
+        raise ModelError(f"transfer-function denominator {den_a.tolist()} is zero")
     den_a = np.trim_zeros(den_a, "f")
     num_a = np.trim_zeros(num_a, "f") if np.any(num_a) else np.zeros(1)
     if num_a.size > den_a.size:
         raise ModelError(
-            f"transfer function num={list(num_a)} den={list(den_a)} is improper "
+            f"transfer function num={num_a.tolist()} den={den_a.tolist()} is improper "
             "(numerator degree exceeds denominator degree): add poles to the weight"
         )
+    if den_a.size == 1:  # a constant: tf2ss would add a spurious state with a pole at 0
+        return static_gain(float(num_a[-1]) / float(den_a[0]))
     a, b, c, d = scipy.signal.tf2ss(num_a, den_a)
     return StateSpace(a, b, c, d)
 

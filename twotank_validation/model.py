@@ -364,6 +364,8 @@ def parse_lti(node: Any, source: str, where: str) -> StateSpace:
 
     A number alone is a static gain; ``ss`` may carry ``dt_s`` for a discrete system.
     """
+    if isinstance(node, bool):
+        raise _err(source, where, f"expected a number or an LTI mapping, found {node!r}")
     if isinstance(node, int | float):
         return lti.static_gain(float(node))
     if not isinstance(node, Mapping) or len(node) != 1:
@@ -392,7 +394,13 @@ def parse_lti(node: Any, source: str, where: str) -> StateSpace:
         mats = [_matrix(body[k], source, f"{where}.ss.{k}") for k in "ABCD"]
         try:
             dt = body.get("dt_s")
-            return StateSpace(mats[0], mats[1], mats[2], mats[3], None if dt is None else float(dt))
+            dt_s = None if dt is None else float(dt)
+        except (TypeError, ValueError) as err:
+            raise _err(
+                source, f"{where}.ss.dt_s", f"expected a sample period in s, found {dt!r}"
+            ) from err
+        try:
+            return StateSpace(mats[0], mats[1], mats[2], mats[3], dt_s)
         except ModelError as err:
             raise _err(source, f"{where}.ss", str(err)) from err
     raise _err(source, where, f"unknown LTI kind {key!r}; use gain, tf or ss")
@@ -420,7 +428,12 @@ def _block_diag(parts: Sequence[StateSpace], source: str, where: str) -> StateSp
         raise _err(source, where, "each entry of a diagonal weight must be scalar (1x1)")
     dts = {p.dt_s for p in parts}
     if len(dts) != 1:
-        raise _err(source, where, "diagonal weight mixes continuous and discrete parts")
+        raise _err(
+            source,
+            where,
+            f"diagonal weight mixes sample periods {sorted(map(str, dts))}: "
+            "give every entry in continuous time or all with the same dt_s",
+        )
     return StateSpace(
         block_diag(*[p.a for p in parts]) if any(p.n_states for p in parts) else np.zeros((0, 0)),
         block_diag(*[p.b for p in parts]),
@@ -474,12 +487,27 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
     op = doc.get("operating_point", {}) or {}
     if not isinstance(op, Mapping):
         raise _err(source, "operating_point", "expected a mapping of output name to value")
+    op_values: dict[str, float] = {}
+    for key, value in op.items():
+        if key not in outputs:
+            raise _err(
+                source, "operating_point", f"unknown output {key!r}; the model has {list(outputs)}"
+            )
+        try:
+            op_values[str(key)] = float(value)
+        except (TypeError, ValueError) as err:
+            raise _err(
+                source, f"operating_point.{key}", f"expected a number, found {value!r}"
+            ) from err
+    for key in ("perturbations", "noise"):
+        if doc.get(key) is not None and not isinstance(doc[key], list):
+            raise _err(source, key, f"expected a list, found {doc[key]!r}")
     common: dict[str, Any] = {
         "name": name,
         "input_names": inputs,
         "output_names": outputs,
         "description": str(doc.get("description", "")),
-        "operating_point": {str(k): float(v) for k, v in op.items()},
+        "operating_point": op_values,
     }
     if "generalized_plant" in doc:
         if "nominal" in doc or "perturbations" in doc or "noise" in doc:
@@ -497,6 +525,8 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
             raise _err(
                 source, "generalized_plant", "needs blocks: [[rows, cols], ...] and noise_inputs: n"
             ) from err
+        if nw < 0:
+            raise _err(source, "generalized_plant.noise_inputs", f"must be >= 0, found {nw}")
         return LFTModel(
             blocks=BlockStructure(shapes),
             block_names=tuple(f"block{i}" for i in range(len(shapes))),
