@@ -649,7 +649,8 @@ def solve_sdp(
     delta = rank_one_delta(v_c, z_c, blocks)
     upper, w, v, z = witness_from_delta(resp, u, y, delta)
     scale = np.linalg.norm(y - _mv(resp.p23, u), axis=1)
-    loose = np.flatnonzero(np.isfinite(lower) & ~(upper - lower <= 1e-9 * (upper + scale)))
+    with np.errstate(invalid="ignore"):  # inf - inf on infeasible bins, excluded just after
+        loose = np.flatnonzero(np.isfinite(lower) & ~(upper - lower <= 1e-9 * (upper + scale)))
     lower = np.where(np.isinf(lower), np.inf, lower)
     if loose.size:
         delta = tuple(d.copy() for d in delta)

@@ -195,7 +195,7 @@ def validate(
     elapsed = time.perf_counter() - start
     error = datum.y_bins - np.einsum("kij,kj->ki", resp.p23, datum.u_bins)
     leak = leakage_bound(
-        pulse_response(model, datum.ts_s), datum.u_max, datum.n_samples, datum.convention
+        pulse_moment(model, datum.ts_s), datum.u_max, datum.n_samples, datum.convention
     )
     return ValidationResult(
         model_name=model.name,
