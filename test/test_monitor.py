@@ -1,0 +1,258 @@
+"""The online validator's core: alarm debouncing, sample alignment, windowing and gates."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import cache
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from twotank_validation import excitation as ex
+from twotank_validation import experiment, monitor, rig
+from twotank_validation.model import load_model
+from twotank_validation.monitor import Alarm, AlarmConfig, AlarmState, update_alarm
+
+# ------------------------------------------------------------------ alarm
+
+
+def run_alarm(verdicts, cfg=None):
+    cfg = cfg or AlarmConfig()
+    state, levels = AlarmState(), []
+    for v in verdicts:
+        if v is None:
+            state = update_alarm(state, cfg, judged=False, invalidated=False, beta=math.nan)
+        else:
+            beta = 1.5 if v else 0.5
+            state = update_alarm(state, cfg, judged=True, invalidated=v, beta=beta)
+        levels.append(state.level)
+    return levels
+
+
+def test_alarm_sequence_by_hand() -> None:
+    ok, w, e, s = Alarm.OK, Alarm.WARN, Alarm.ERROR, Alarm.STALE
+    # invalid once -> WARN (beta 1.5 >= 0.8), twice -> ERROR, one valid -> still ERROR,
+    # a stale window keeps counters, three valid in a row clear it.
+    seq = [False, True, True, False, None, False, False, True, False]
+    assert run_alarm(seq) == [ok, w, e, e, s, e, ok, w, ok]
+
+
+def test_latched_alarm_needs_reset() -> None:
+    cfg = AlarmConfig(latch=True)
+    state = AlarmState()
+    for v in [True, True, False, False, False, False]:
+        state = update_alarm(state, cfg, judged=True, invalidated=v, beta=1.5 if v else 0.1)
+    assert state.level is Alarm.ERROR
+    state = monitor.reset_alarm(state)
+    state = update_alarm(state, cfg, judged=True, invalidated=False, beta=0.1)
+    assert state.level is Alarm.OK
+
+
+@given(
+    st.lists(st.one_of(st.none(), st.booleans()), max_size=40), st.integers(1, 4), st.integers(1, 4)
+)
+def test_alarm_matches_reference_definition(verdicts, n_alarm, n_clear) -> None:
+    """ERROR iff, looking back over judged windows, the last run of >= n_alarm invalidating
+    windows is not followed by >= n_clear valid ones."""
+    cfg = AlarmConfig(alarm_windows=n_alarm, clear_windows=n_clear)
+    levels = run_alarm(verdicts, cfg)
+    for i, v in enumerate(verdicts):
+        if v is None:
+            assert levels[i] is Alarm.STALE
+            continue
+        judged = [x for x in verdicts[: i + 1] if x is not None]
+        in_error = False
+        run_bad = run_good = 0
+        for x in judged:
+            run_bad, run_good = (run_bad + 1, 0) if x else (0, run_good + 1)
+            if run_bad >= n_alarm:
+                in_error = True
+            elif in_error and run_good >= n_clear:
+                in_error = False
+        expected = Alarm.ERROR if in_error else (Alarm.WARN if v else Alarm.OK)
+        assert levels[i] is expected
+
+
+# ------------------------------------------------------------------ aligner
+
+TS_NS = 100_000_000
+
+
+def make_aligner():
+    return monitor.SampleAligner(0.1, 2, ("height", "temperature"))
+
+
+def test_aligner_zero_order_holds_commands_and_matches_grid() -> None:
+    al = make_aligner()
+    out = []
+    out += al.push_command(0, [0.4, 0.4])
+    out += al.push_measurement(0, 3_000_000, 0.47)  # 3 ms jitter
+    out += al.push_measurement(1, 0, 0.5)
+    out += al.push_measurement(0, TS_NS, 0.48)
+    out += al.push_measurement(1, TS_NS, 0.51)
+    out += al.push_command(TS_NS, [0.5, 0.3])
+    assert [s.index for s in out] == [0, 1]
+    np.testing.assert_array_equal(out[0].u, [0.4, 0.4])
+    np.testing.assert_array_equal(out[1].u, [0.5, 0.3])
+    np.testing.assert_array_equal(out[1].y, [0.48, 0.51])
+    assert all(s.flag is None for s in out)
+
+
+def test_aligner_flags_bad_input_without_losing_samples() -> None:
+    al = make_aligner()
+    out = []
+    out += al.push_command(0, [0.4, 0.4])
+    for k in range(6):
+        t = k * TS_NS
+        if k == 2:
+            out += al.push_measurement(0, t, float("nan"))
+        elif k != 3:  # k = 3: height never arrives (gap)
+            out += al.push_measurement(0, t, 0.47)
+        out += al.push_measurement(1, t, 0.5)
+        out += al.push_measurement(1, t, 0.5)  # duplicate
+        out += al.push_command(t, [0.4, 0.4])  # duplicate/old command
+    out += al.push_measurement(0, 0, 0.47)  # out of order (already finalised)
+    assert [s.index for s in out] == [0, 1, 2, 3, 4, 5]
+    assert "non-finite height" in str(out[2].flag)
+    assert "gap" in str(out[3].flag)
+    assert "height" in str(out[3].flag)
+    assert out[4].flag is None
+    c = al.counters
+    assert c.duplicates >= 6
+    assert c.out_of_order >= 1
+    assert c.non_finite == 1
+    assert c.missing == 1
+
+
+def test_aligner_restarts_on_clock_jump_backwards() -> None:
+    al = make_aligner()
+    al.push_command(0, [0.4, 0.4])
+    for k in range(30):
+        al.push_measurement(0, k * TS_NS, 0.47)
+        al.push_measurement(1, k * TS_NS, 0.5)
+    al.push_measurement(0, 0, 0.47)
+    assert al.counters.clock_resets == 1
+    assert al.next_index == 0
+
+
+# ------------------------------------------------------------------ monitor on the rig
+
+FAST = monitor.MonitorConfig(ts_s=0.8, period_samples=256)  # same 204.8 s period, 8x fewer samples
+
+
+@cache
+def rig_record(n_periods: int = 6, seed: int = 0):
+    cfg = experiment.ExperimentConfig()
+    exc = dataclasses.replace(
+        cfg.excitation, ts_s=0.8, period_samples=256, settle_periods=0, record_periods=n_periods
+    )
+    op = rig.operating_point(cfg.rig)
+    u = ex.excitation_commands(exc, op.commands)
+    sim = rig.simulate(cfg.rig, u, 0.8, seed=seed, substeps=16)
+    stamps = np.arange(len(u), dtype=np.int64) * 800_000_000
+    return stamps, sim.commands, sim.measured
+
+
+def models():
+    return [load_model("A"), load_model("B")]
+
+
+def test_monitor_verdicts_on_the_rig() -> None:
+    stamps, u, y = rig_record()
+    reports = monitor.monitor_record(stamps, u, y, FAST, models())
+    by_model = {m: [r for r in reports if r.model == m] for m in ("A", "B")}
+    assert len(by_model["A"]) == 5  # windows end at periods 2..6
+    assert not by_model["A"][0].judged
+    assert "settling" in by_model["A"][0].data_quality
+    assert by_model["A"][0].alarm is Alarm.STALE
+    judged_a = [r for r in by_model["A"] if r.judged]
+    judged_b = [r for r in by_model["B"] if r.judged]
+    assert all(r.invalidated for r in judged_a)
+    assert not any(r.invalidated for r in judged_b)
+    assert by_model["A"][-1].alarm is Alarm.ERROR
+    assert by_model["B"][-1].alarm is Alarm.OK
+
+
+def test_monitor_equals_offline_validation_bit_for_bit() -> None:
+    """A judged window's beta equals validate() on the same samples (one code path)."""
+    from twotank_validation.datum import make_datum  # noqa: PLC0415
+    from twotank_validation.validate import validate  # noqa: PLC0415
+
+    stamps, u, y = rig_record()
+    reports = monitor.monitor_record(stamps, u, y, FAST, models())
+    last = [r for r in reports if r.model == "B"][-1]
+    n = FAST.window_samples
+    datum = make_datum(u[-n:], y[-n:], ts_s=0.8, period_samples=256)
+    res = validate(datum, load_model("B"))
+    assert last.beta == res.beta
+    np.testing.assert_array_equal(last.w_min, res.w_min)
+
+
+@settings(max_examples=5)
+@given(seed=st.integers(0, 2**16))
+def test_aligner_path_equals_direct_path_under_shuffled_arrival(seed: int) -> None:
+    """Messages of the three streams arriving in any order within a sample, with jitter, give
+    the same reports as feeding the aligned record directly."""
+    stamps, u, y = rig_record()
+    rng = np.random.default_rng(seed)
+    al = monitor.SampleAligner(0.8, 2, ("height", "temperature"))
+    mon = monitor.WindowMonitor(FAST, models())
+    live = []
+    for k in range(len(stamps)):
+        jitter = rng.integers(-50_000_000, 50_000_000, size=3)
+        events = [
+            ("cmd", int(stamps[k] + abs(jitter[0])) if k else 0, u[k]),
+            ("m0", int(stamps[k] + jitter[1]), y[k, 0]),
+            ("m1", int(stamps[k] + jitter[2]), y[k, 1]),
+        ]
+        for i in rng.permutation(3):
+            kind, t, val = events[i]
+            if kind == "cmd":
+                samples = al.push_command(t, val)
+            else:
+                samples = al.push_measurement(int(kind[1]), t, float(val))
+            for s in samples:
+                live.extend(mon.push(s))
+    offline = monitor.monitor_record(stamps, u, y, FAST, models())
+    # the aligner finalises the last sample only when the next one arrives
+    offline = offline[: len(live)]
+    assert len(live) == len(offline) >= 8
+    for a, b in zip(live, offline, strict=True):
+        assert (a.model, a.judged, a.data_quality, a.alarm) == (
+            b.model,
+            b.judged,
+            b.data_quality,
+            b.alarm,
+        )
+        if a.judged:
+            assert a.beta == b.beta
+
+
+def test_monitor_refuses_windows_unfit_to_judge() -> None:
+    stamps, u, y = rig_record()
+    y_nan = y.copy()
+    y_nan[700, 1] = np.nan
+    reports = monitor.monitor_record(stamps, u, y_nan, FAST, models()[:1])
+    affected = [r for r in reports if r.start_ns <= stamps[700] <= r.end_ns]
+    assert affected
+    assert all(not r.judged and "non-finite" in r.data_quality for r in affected)
+    # input changed (excitation switched): not periodic
+    u2 = u.copy()
+    u2[800:] = u2[800:] * 0.5 + 0.2
+    reports = monitor.monitor_record(stamps, u2, y, FAST, models()[:1])
+    assert any("input not periodic" in r.data_quality for r in reports)
+    # no excitation at all
+    flat = np.tile(u[0], (len(u), 1))
+    reports = monitor.monitor_record(stamps, flat, y, FAST, models()[:1])
+    assert all(not r.judged for r in reports)
+    assert "too little excitation" in reports[-1].data_quality
+
+
+def test_monitor_config_rejects_bad_values() -> None:
+    with pytest.raises(ValueError, match="period_samples"):
+        monitor.MonitorConfig(period_samples=1)
+    with pytest.raises(ValueError, match="alarm_windows"):
+        AlarmConfig(alarm_windows=0)

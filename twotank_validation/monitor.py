@@ -1,0 +1,644 @@
+"""Online validation: sample alignment, windowing, data-quality gates and the debounced alarm.
+
+This is the one code path shared by the live ROS node, bag replay and offline use. It is
+ROS-free: callers feed it stamped values (integer nanoseconds) and get
+:class:`WindowReport` objects back.
+
+* :class:`SampleAligner` puts three streams (valve commands, level, temperature) on the
+  sample grid ``t0 + k ts``: measurements are matched to a grid point within a jitter
+  tolerance, commands are zero-order held. Duplicates, out-of-order stamps, NaN/inf and gaps
+  are counted and flagged on the samples they affect; nothing is silently dropped.
+* :class:`WindowMonitor` buffers aligned samples and, at every excitation-period boundary,
+  validates the last ``periods_per_window`` periods against every model — but only when the
+  window is fit to judge (no flagged samples, input periodic for ``settle_periods`` more
+  periods before it, enough excitation). Otherwise the report says why and carries STALE.
+* :func:`update_alarm` debounces the raw per-window verdicts into the alarm level.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from twotank_validation.datum import NormConvention, make_datum
+from twotank_validation.errors import DatumError, ModelError, TwotankError
+from twotank_validation.model import LFTModel, PlantResponse
+from twotank_validation.validate import check_compatible, validate
+
+NS_PER_S = 1_000_000_000
+
+
+class Alarm(enum.IntEnum):
+    """Alarm levels, equal to diagnostic_msgs/DiagnosticStatus levels."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+@dataclass(frozen=True)
+class AlarmConfig:
+    """Debouncing of the raw verdicts.
+
+    Attributes:
+        alarm_windows: consecutive invalidating windows that raise ERROR.
+        clear_windows: consecutive valid windows that clear ERROR.
+        warn_beta: beta at or above which a valid window reports WARN.
+        latch: keep ERROR until :func:`reset_alarm` even after valid windows.
+    """
+
+    alarm_windows: int = 2
+    clear_windows: int = 3
+    warn_beta: float = 0.8
+    latch: bool = False
+
+    def __post_init__(self) -> None:
+        if self.alarm_windows < 1 or self.clear_windows < 1:
+            raise ValueError(
+                f"alarm_windows and clear_windows must be >= 1, found {self.alarm_windows}, "
+                f"{self.clear_windows}"
+            )
+        if not (math.isfinite(self.warn_beta) and self.warn_beta > 0):
+            raise ValueError(f"warn_beta must be positive and finite, found {self.warn_beta}")
+
+
+@dataclass(frozen=True)
+class AlarmState:
+    """Debounce counters and the current level.
+
+    Attributes:
+        level: level of the last window.
+        in_error: an ERROR is active (raised and not yet cleared or reset).
+        invalid_run: consecutive invalidating judged windows.
+        valid_run: consecutive valid judged windows.
+    """
+
+    level: Alarm = Alarm.OK
+    in_error: bool = False
+    invalid_run: int = 0
+    valid_run: int = 0
+
+
+def update_alarm(
+    state: AlarmState, config: AlarmConfig, *, judged: bool, invalidated: bool, beta: float
+) -> AlarmState:
+    """Next alarm state after one window.
+
+    A window that was not judged leaves the counters alone and reports STALE. A judged window
+    extends the run of its verdict; ERROR rises after ``alarm_windows`` invalidating windows in
+    a row and clears after ``clear_windows`` valid ones (never, while latched). Otherwise WARN
+    when ``beta >= warn_beta``, else OK.
+    """
+    if not judged:
+        return replace(state, level=Alarm.STALE)
+    if invalidated:
+        invalid_run, valid_run = state.invalid_run + 1, 0
+    else:
+        invalid_run, valid_run = 0, state.valid_run + 1
+    in_error = state.in_error
+    if invalid_run >= config.alarm_windows:
+        in_error = True
+    elif in_error and not config.latch and valid_run >= config.clear_windows:
+        in_error = False
+    if in_error:
+        level = Alarm.ERROR
+    elif beta >= config.warn_beta:
+        level = Alarm.WARN
+    else:
+        level = Alarm.OK
+    return AlarmState(level=level, in_error=in_error, invalid_run=invalid_run, valid_run=valid_run)
+
+
+def reset_alarm(state: AlarmState) -> AlarmState:
+    """Clear a (latched) ERROR and the counters; the next window decides the level."""
+    return AlarmState(level=Alarm.OK if state.level == Alarm.ERROR else state.level)
+
+
+# --------------------------------------------------------------------------- alignment
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One grid sample.
+
+    Attributes:
+        index: grid index k (``stamp_ns = t0 + k ts``).
+        stamp_ns: grid time (ns).
+        u: (n_inputs,) float, zero-order-held commands (NaN before the first command).
+        y: (n_outputs,) float, measurements (NaN where missing or bad).
+        flag: ``None`` for a clean sample, else why it cannot be used.
+    """
+
+    index: int
+    stamp_ns: int
+    u: np.ndarray
+    y: np.ndarray
+    flag: str | None = None
+
+
+@dataclass
+class AlignerCounters:
+    """What the aligner refused or repaired, for diagnostics."""
+
+    duplicates: int = 0
+    out_of_order: int = 0
+    off_grid: int = 0
+    non_finite: int = 0
+    missing: int = 0
+    clock_resets: int = 0
+
+
+@dataclass
+class _Pending:
+    y: np.ndarray
+    seen: np.ndarray
+    flag: str | None = None
+
+
+class SampleAligner:
+    """Put stamped commands and per-channel measurements on the sample grid.
+
+    Args:
+        ts_s: sample period (s).
+        n_inputs: number of command entries.
+        output_names: measurement channel names (order of ``y``).
+        jitter_fraction: accepted distance of a measurement stamp from its grid point, as a
+            fraction of the sample period.
+        reset_after_s: a measurement stamped this much before the last finalised sample is a
+            clock jump backwards (e.g. a restarted simulation): the aligner starts over.
+    """
+
+    def __init__(
+        self,
+        ts_s: float,
+        n_inputs: int,
+        output_names: Sequence[str],
+        *,
+        jitter_fraction: float = 0.25,
+        reset_after_s: float = 1.0,
+    ) -> None:
+        if not (math.isfinite(ts_s) and ts_s > 0):
+            raise DatumError(f"sample period must be positive, found {ts_s}")
+        self.ts_ns = round(ts_s * NS_PER_S)
+        self.n_inputs = n_inputs
+        self.output_names = tuple(output_names)
+        self.tol_ns = round(jitter_fraction * self.ts_ns)
+        self.reset_ns = round(reset_after_s * NS_PER_S)
+        self.counters = AlignerCounters()
+        self._clear()
+
+    def _clear(self) -> None:
+        self.t0_ns: int | None = None
+        self.next_index = 0
+        self._pending: dict[int, _Pending] = {}
+        self._commands: deque[tuple[int, np.ndarray]] = deque()
+        self._held = np.full(self.n_inputs, np.nan)
+        self.last_command_ns: int | None = None
+
+    def reset(self) -> None:
+        """Start over (new grid origin); counters are kept."""
+        self._clear()
+
+    def grid_time(self, index: int) -> int:
+        """Stamp (ns) of grid index ``index``."""
+        assert self.t0_ns is not None
+        return self.t0_ns + index * self.ts_ns
+
+    def push_command(self, stamp_ns: int, values: Sequence[float]) -> list[Sample]:
+        """Add a command (held from ``stamp_ns`` on). Returns samples it completes."""
+        u = np.asarray(values, dtype=float)
+        if u.shape != (self.n_inputs,):
+            raise DatumError(f"command needs {self.n_inputs} values, found shape {u.shape}")
+        if self.last_command_ns is not None and stamp_ns <= self.last_command_ns:
+            if stamp_ns == self.last_command_ns:
+                self.counters.duplicates += 1
+            else:
+                self.counters.out_of_order += 1
+            return []
+        if not np.all(np.isfinite(u)):
+            self.counters.non_finite += 1
+        self._commands.append((stamp_ns, u))
+        self.last_command_ns = stamp_ns
+        return self._finalise()
+
+    def push_measurement(self, channel: int, stamp_ns: int, value: float) -> list[Sample]:
+        """Add one measurement of output ``channel``. Returns the samples now complete."""
+        if self.t0_ns is None:
+            self.t0_ns = stamp_ns
+        offset = stamp_ns - self.t0_ns
+        k = (offset + self.ts_ns // 2) // self.ts_ns
+        if k < self.next_index:
+            if stamp_ns < self.grid_time(self.next_index) - self.reset_ns:
+                self.counters.clock_resets += 1
+                self._clear()
+                return self.push_measurement(channel, stamp_ns, value)
+            self.counters.out_of_order += 1
+            return []
+        pend = self._pending.get(k)
+        if pend is None:
+            pend = _Pending(
+                np.full(len(self.output_names), np.nan), np.zeros(len(self.output_names), bool)
+            )
+            self._pending[k] = pend
+        if pend.seen[channel]:
+            self.counters.duplicates += 1
+            return []
+        pend.seen[channel] = True
+        if abs(offset - k * self.ts_ns) > self.tol_ns:
+            self.counters.off_grid += 1
+            pend.flag = pend.flag or (
+                f"{self.output_names[channel]} stamp {stamp_ns} ns is off the sample grid by "
+                f"{(offset - k * self.ts_ns) / 1e6:.1f} ms"
+            )
+        if math.isfinite(value):
+            pend.y[channel] = value
+        else:
+            self.counters.non_finite += 1
+            pend.flag = pend.flag or f"non-finite {self.output_names[channel]} ({value})"
+        return self._finalise()
+
+    def _held_at(self, t_ns: int) -> np.ndarray:
+        while self._commands and self._commands[0][0] <= t_ns + self.tol_ns:
+            self._held = self._commands.popleft()[1]
+        return self._held.copy()
+
+    def _finalise(self) -> list[Sample]:
+        out: list[Sample] = []
+        while self._pending:
+            k = self.next_index
+            newest = max(self._pending)
+            pend = self._pending.get(k)
+            t_k = self.grid_time(k)
+            cmd_known = (
+                self.last_command_ns is not None and self.last_command_ns >= t_k - self.tol_ns
+            )
+            if pend is not None and pend.seen.all() and (cmd_known or newest > k + 1):
+                flag = pend.flag
+                y = pend.y
+            elif newest > k + 1 and (pend is None or not pend.seen.all()):
+                # later samples are complete or arriving: this one will not be completed
+                self.counters.missing += 1
+                missing = [
+                    n
+                    for n, s in zip(self.output_names, pend.seen if pend else [], strict=False)
+                    if not s
+                ]
+                names = ", ".join(missing) if pend else ", ".join(self.output_names)
+                flag = f"gap: no {names} sample at t = {t_k / NS_PER_S:.3f} s"
+                y = pend.y if pend else np.full(len(self.output_names), np.nan)
+            else:
+                break
+            u = self._held_at(t_k)
+            if flag is None and not np.all(np.isfinite(u)):
+                flag = (
+                    "no valid valve command yet"
+                    if self.last_command_ns is None
+                    else "non-finite valve command"
+                )
+            self._pending.pop(k, None)
+            self.next_index += 1
+            out.append(Sample(k, t_k, u, y, flag))
+        return out
+
+
+# --------------------------------------------------------------------------- windows
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Settings of the online validator (all shared by the node's ROS parameters).
+
+    Attributes:
+        ts_s: sample period (s).
+        period_samples: excitation period (samples).
+        periods_per_window: periods validated together (a window every period).
+        settle_periods: periods of periodic input required before a window is judged (the
+            plant settles after the excitation started or changed).
+        min_excitation_rms: a window is judged only if some input's RMS deviation reaches
+            this (model units).
+        input_periodic_rtol: accepted period-to-period input change, relative to its RMS.
+        convention: norm convention of ||w||.
+        method: solver choice passed to :func:`validate`.
+        alarm: debouncing.
+    """
+
+    ts_s: float = 0.1
+    period_samples: int = 2048
+    periods_per_window: int = 2
+    settle_periods: int = 1
+    min_excitation_rms: float = 0.005
+    input_periodic_rtol: float = 1e-6
+    convention: NormConvention = NormConvention.POWER
+    method: str = "auto"
+    alarm: AlarmConfig = field(default_factory=AlarmConfig)
+
+    def __post_init__(self) -> None:
+        checks = [
+            (
+                math.isfinite(self.ts_s) and self.ts_s > 0,
+                f"ts_s must be positive, found {self.ts_s}",
+            ),
+            (self.period_samples >= 4, f"period_samples must be >= 4, found {self.period_samples}"),
+            (
+                self.periods_per_window >= 1,
+                f"periods_per_window must be >= 1, found {self.periods_per_window}",
+            ),
+            (self.settle_periods >= 0, f"settle_periods must be >= 0, found {self.settle_periods}"),
+            (
+                self.min_excitation_rms >= 0,
+                f"min_excitation_rms must be >= 0, found {self.min_excitation_rms}",
+            ),
+            (
+                self.input_periodic_rtol >= 0,
+                f"input_periodic_rtol must be >= 0, found {self.input_periodic_rtol}",
+            ),
+            (self.method in ("auto", "closed_form", "sdp"), f"unknown method {self.method!r}"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(msg)
+
+    @property
+    def window_samples(self) -> int:
+        """Samples per validated window."""
+        return self.periods_per_window * self.period_samples
+
+    @property
+    def span_samples(self) -> int:
+        """Samples that must be clean and periodic before a window is judged."""
+        return (self.periods_per_window + self.settle_periods) * self.period_samples
+
+
+@dataclass(frozen=True)
+class WindowReport:
+    """One model's verdict on one window (everything the ROS ValidationReport carries).
+
+    Attributes:
+        model: model name.
+        start_ns: stamp of the first sample of the window (ns).
+        end_ns: stamp of the last sample (ns).
+        n_periods: periods in the window.
+        n_samples: samples in the window.
+        judged: the window was fit to judge.
+        data_quality: ``"ok"`` or why it was not judged.
+        beta: total min ||w|| (NaN when not judged).
+        beta_lower: general solver's certified lower bound (NaN for the closed form).
+        beta_upper: general solver's witness upper bound (NaN for the closed form).
+        margin: ``1 - beta``.
+        invalidated: raw verdict (``beta > 1``).
+        alarm: debounced alarm after this window.
+        convention: norm convention name.
+        solver: solver that ran (empty when not judged).
+        freqs_hz: (n_bins,) float.
+        w_min: (n_bins,) float.
+        compute_time_s: wall time of the validation.
+    """
+
+    model: str
+    start_ns: int
+    end_ns: int
+    n_periods: int
+    n_samples: int
+    judged: bool
+    data_quality: str
+    beta: float
+    beta_lower: float
+    beta_upper: float
+    margin: float
+    invalidated: bool
+    alarm: Alarm
+    convention: str
+    solver: str
+    freqs_hz: np.ndarray
+    w_min: np.ndarray
+    compute_time_s: float
+
+
+class WindowMonitor:
+    """Buffer aligned samples; every period, validate the last window against each model.
+
+    Args:
+        config: monitor settings.
+        models: models to validate (inputs/outputs must match the samples).
+    """
+
+    def __init__(self, config: MonitorConfig, models: Sequence[LFTModel]) -> None:
+        if not models:
+            raise ModelError("the monitor needs at least one model")
+        self.config = config
+        self.models = tuple(models)
+        nu, ny = self.models[0].nu, self.models[0].ny
+        for m in self.models:
+            if (m.nu, m.ny) != (nu, ny):
+                raise ModelError(
+                    f"models disagree on dimensions: {self.models[0].name} is {ny}x{nu}, "
+                    f"{m.name} is {m.ny}x{m.nu}"
+                )
+        self.n_inputs, self.n_outputs = nu, ny
+        cap = config.span_samples
+        self._u = np.zeros((cap, nu))
+        self._y = np.zeros((cap, ny))
+        self._stamp = np.zeros(cap, dtype=np.int64)
+        self._flag: list[str | None] = [None] * cap
+        self._count = 0
+        self._last_index: int | None = None
+        n = config.window_samples
+        theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
+        self._responses: dict[str, PlantResponse] = {
+            m.name: m.response(theta, config.ts_s) for m in self.models
+        }
+        self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
+
+    def reset_buffer(self) -> None:
+        """Forget buffered samples (after a clock reset); alarm states are kept."""
+        self._count = 0
+        self._last_index = None
+
+    def reset_alarms(self) -> None:
+        """Clear latched alarms of every model."""
+        self.alarms = {k: reset_alarm(v) for k, v in self.alarms.items()}
+
+    def push(self, sample: Sample) -> list[WindowReport]:
+        """Add one aligned sample; returns one report per model at each period boundary."""
+        if self._last_index is not None and sample.index != self._last_index + 1:
+            # the aligner restarted (clock reset): periods restart from here
+            self._count = 0
+        self._last_index = sample.index
+        cap = self.config.span_samples
+        pos = self._count % cap
+        self._u[pos] = sample.u
+        self._y[pos] = sample.y
+        self._stamp[pos] = sample.stamp_ns
+        self._flag[pos] = sample.flag
+        self._count += 1
+        cfg = self.config
+        if self._count % cfg.period_samples or self._count < cfg.window_samples:
+            return []
+        return self._evaluate()
+
+    def _ordered(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
+        """Last ``n`` buffered samples in time order."""
+        cap = self.config.span_samples
+        idx = (np.arange(self._count - n, self._count)) % cap
+        return self._u[idx], self._y[idx], self._stamp[idx], [self._flag[i] for i in idx]
+
+    def _quality(self) -> str:
+        cfg = self.config
+        L = cfg.period_samples
+        span = min(self._count, cfg.span_samples)
+        u, _, _, flags = self._ordered(span)
+        bad = [f for f in flags if f is not None]
+        if bad:
+            return (
+                f"{len(bad)} unusable sample(s) in the window or its settling periods; "
+                f"first: {bad[0]}"
+            )
+        if self._count < cfg.span_samples:
+            return (
+                f"settling: {cfg.settle_periods} period(s) of periodic input are needed before "
+                f"the window ({self._count // L - cfg.periods_per_window} so far)"
+            )
+        rms = np.sqrt(np.mean((u - u.mean(axis=0)) ** 2, axis=0))
+        change = np.max(np.abs(u[L:] - u[:-L]), axis=0) if span > L else np.zeros(self.n_inputs)
+        if np.any(change > cfg.input_periodic_rtol * np.maximum(rms, 1e-12)):
+            j = int(np.argmax(change / np.maximum(rms, 1e-12)))
+            return (
+                f"input not periodic: input {j} changes by {change[j]:.3g} from one period to "
+                "the next (excitation started or changed; waiting for the plant to settle)"
+            )
+        win_u = u[-cfg.window_samples :]
+        win_rms = np.sqrt(np.mean((win_u - win_u.mean(axis=0)) ** 2, axis=0))
+        if float(np.max(win_rms)) < cfg.min_excitation_rms:
+            return (
+                f"too little excitation: input RMS {np.array2string(win_rms, precision=4)} below "
+                f"min_excitation_rms = {cfg.min_excitation_rms}"
+            )
+        return "ok"
+
+    def _evaluate(self) -> list[WindowReport]:
+        cfg = self.config
+        n = cfg.window_samples
+        u, y, stamps, _ = self._ordered(n)
+        start_ns, end_ns = int(stamps[0]), int(stamps[-1])
+        quality = self._quality()
+        datum = None
+        if quality == "ok":
+            try:
+                datum = make_datum(
+                    u,
+                    y,
+                    ts_s=cfg.ts_s,
+                    period_samples=cfg.period_samples,
+                    convention=cfg.convention,
+                )
+            except TwotankError as err:
+                quality = f"datum rejected: {err}"
+        reports = []
+        for model in self.models:
+            if datum is None:
+                reports.append(self._unjudged(model.name, start_ns, end_ns, quality))
+                continue
+            check_compatible(datum, model)
+            t0 = time.perf_counter()
+            res = validate(datum, model, method=cfg.method, response=self._responses[model.name])
+            elapsed = time.perf_counter() - t0
+            state = update_alarm(
+                self.alarms[model.name],
+                cfg.alarm,
+                judged=True,
+                invalidated=res.invalidated,
+                beta=res.beta,
+            )
+            self.alarms[model.name] = state
+            general = res.method == "sdp"
+            reports.append(
+                WindowReport(
+                    model=model.name,
+                    start_ns=start_ns,
+                    end_ns=end_ns,
+                    n_periods=cfg.periods_per_window,
+                    n_samples=n,
+                    judged=True,
+                    data_quality="ok",
+                    beta=res.beta,
+                    beta_lower=res.beta if general else math.nan,
+                    beta_upper=res.beta_upper if general else math.nan,
+                    margin=res.margin,
+                    invalidated=res.invalidated,
+                    alarm=state.level,
+                    convention=cfg.convention.value,
+                    solver=res.method,
+                    freqs_hz=res.freqs_hz,
+                    w_min=res.w_min,
+                    compute_time_s=elapsed,
+                )
+            )
+        return reports
+
+    def _unjudged(self, name: str, start_ns: int, end_ns: int, reason: str) -> WindowReport:
+        state = update_alarm(
+            self.alarms[name], self.config.alarm, judged=False, invalidated=False, beta=math.nan
+        )
+        self.alarms[name] = state
+        return WindowReport(
+            model=name,
+            start_ns=start_ns,
+            end_ns=end_ns,
+            n_periods=self.config.periods_per_window,
+            n_samples=self.config.window_samples,
+            judged=False,
+            data_quality=reason,
+            beta=math.nan,
+            beta_lower=math.nan,
+            beta_upper=math.nan,
+            margin=math.nan,
+            invalidated=False,
+            alarm=state.level,
+            convention=self.config.convention.value,
+            solver="",
+            freqs_hz=np.zeros(0),
+            w_min=np.zeros(0),
+            compute_time_s=0.0,
+        )
+
+
+def monitor_record(
+    stamps_ns: np.ndarray,
+    u: np.ndarray,
+    y: np.ndarray,
+    config: MonitorConfig,
+    models: Sequence[LFTModel],
+) -> list[WindowReport]:
+    """Offline: feed an already aligned record through the same monitor as the live node.
+
+    Args:
+        stamps_ns: (n,) int, sample stamps (ns), on the grid.
+        u: (n, n_inputs) float.
+        y: (n, n_outputs) float.
+        config: monitor settings.
+        models: models.
+    """
+    mon = WindowMonitor(config, models)
+    t0 = int(stamps_ns[0])
+    ts_ns = round(config.ts_s * NS_PER_S)
+    out: list[WindowReport] = []
+    for k in range(len(stamps_ns)):
+        idx = (int(stamps_ns[k]) - t0 + ts_ns // 2) // ts_ns
+        flag = (
+            None if np.all(np.isfinite(u[k])) and np.all(np.isfinite(y[k])) else "non-finite value"
+        )
+        out.extend(
+            mon.push(
+                Sample(
+                    idx, int(stamps_ns[k]), np.asarray(u[k], float), np.asarray(y[k], float), flag
+                )
+            )
+        )
+    return out
