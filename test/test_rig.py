@@ -424,3 +424,71 @@ def test_sim_result_is_read_only_and_shaped():
     assert res.states.shape == (7, 4)
     with pytest.raises(ValueError, match="read-only"):
         res.measured[0, 0] = 0.0
+
+
+# --- regression against the simulator as it was before faults were added -------------------
+# The values below were printed by the fault-free rig.py of commit 75e6a05 (before Fault,
+# add_fault and RigParams.ambient_temperature existed) for exactly these inputs. They pin the
+# no-fault behaviour: the fault machinery must not change a single bit of it.
+
+
+def test_no_fault_run_is_bit_identical_to_recorded_run():
+    """Pure float arithmetic (no lag: no exp, no noise), so exact on any IEEE platform."""
+    params = RigParams()
+    op = operating_point(params)
+    u = np.tile(op.commands, (600, 1))
+    u[100:, 0] += 0.1
+    u[300:, 1] -= 0.05
+    for res in (simulate(params, u), simulate(params, u, faults=())):
+        np.testing.assert_array_equal(res.clean[199], [0.480354826021074, 0.5102580098208036])
+        np.testing.assert_array_equal(res.clean[599], [0.5003136349378631, 0.5485517769252172])
+        np.testing.assert_array_equal(
+            res.states[599],
+            [0.4992537313432835, 0.3492537313432836, 0.5003136349378631, 0.5485517769252172],
+        )
+        np.testing.assert_array_equal(res.measured, res.clean)
+        assert float(res.states.sum()) == pytest.approx(1118.232924333763, rel=1e-14)
+
+
+def test_no_fault_run_with_delay_lag_noise_matches_recorded_run():
+    """Mixing delay, lag (one math.exp) and seeded noise: to 1e-12, robust to another libm.
+
+    A behavioural change (delay, lag, noise order, RK4) moves these by far more than 1e-12.
+    """
+    params = RigParams(
+        mixing_delay_s=7.0, mixing_lag_s=3.0, noise_std_height=0.01, noise_std_temperature=0.02
+    )
+    op = operating_point(params, 0.5, 0.45)
+    rng = np.random.default_rng(11)
+    u = op.commands + 0.05 * rng.standard_normal((400, 2))
+    res = simulate(params, u, 0.2, op=op, seed=4, substeps=5)
+    recorded = {
+        57: (
+            [0.4978377730636994, 0.47420332400676557],
+            [0.500378851912859, 0.45040763156513736],
+            [0.47405260954379147, 0.4550241013635938, 0.500378851912859, 0.45119431180520364],
+        ),
+        199: (
+            [0.5013860235845923, 0.4347250982544192],
+            [0.5016340018556525, 0.4504001992483018],
+            [0.38769390138382764, 0.5277886514401197, 0.5016340018556525, 0.4504087508420978],
+        ),
+        399: (
+            [0.5082616200177966, 0.43108863498335526],
+            [0.500193973146285, 0.451405206118797],
+            [0.4277527831976016, 0.3832900361914647, 0.500193973146285, 0.45183793092807534],
+        ),
+    }
+    for k, (measured, clean, states) in recorded.items():
+        np.testing.assert_allclose(res.measured[k], measured, rtol=1e-12, err_msg=str(k))
+        np.testing.assert_allclose(res.clean[k], clean, rtol=1e-12, err_msg=str(k))
+        np.testing.assert_allclose(res.states[k], states, rtol=1e-12, err_msg=str(k))
+    assert float(res.measured.sum()) == pytest.approx(380.6084823450976, rel=1e-12)
+    assert float(res.clean.sum()) == pytest.approx(380.572716648948, rel=1e-12)
+    assert float(res.states.sum()) == pytest.approx(709.3670836829892, rel=1e-12)
+
+
+def test_rig_params_ambient_temperature_default_and_validation():
+    assert RigParams().ambient_temperature == 0.3
+    with pytest.raises(ModelError, match="ambient_temperature"):
+        RigParams(ambient_temperature=float("nan"))

@@ -15,6 +15,16 @@ States of the nonlinear model, in this order:
 The outputs are the level h1 and the bulk temperature t1 = E1 / h1. The simulator adds the
 rig's unmodelled physics on the measured temperature (a level-dependent transport delay and an
 optional mixing lag) and white Gaussian sensor noise. Neither is in the linear models.
+
+Faults and unmodelled effects (:class:`Fault`, kinds in ``FAULT_KINDS``) can be switched on
+at a given simulated time: a leak, heat loss to ambient, a stuck or weak valve, a sensor bias
+or delay, a changed mixing delay. With faults the balances become
+
+* ``A1 dh1/dt = f_h + f_c - f1 - leak``,
+* ``A1 dE1/dt = f_h t_h + f_c t_c - (f1 + leak) t1 - q (t1 - t_amb)``,
+
+with ``q`` the heat-loss coefficient and ``t_amb = RigParams.ambient_temperature``. Faults are
+not in the linearisations.
 """
 
 from __future__ import annotations
@@ -30,7 +40,10 @@ from numpy.typing import NDArray
 from twotank_validation.errors import DatumError, DimensionError, ModelError
 
 __all__ = [
+    "FAULT_KINDS",
+    "MAX_FAULT_DELAY_S",
     "MODEL_HEIGHT_RANGE",
+    "Fault",
     "LinearModel",
     "OperatingPoint",
     "RigParams",
@@ -84,6 +97,8 @@ class RigParams:
             0 switches it off.
         noise_std_height: Standard deviation of the level sensor noise, >= 0.
         noise_std_temperature: Standard deviation of the temperature sensor noise, >= 0.
+        ambient_temperature: Ambient temperature (model units) towards which a ``heat_loss``
+            fault cools the tank; unused without that fault.
     """
 
     area: float = 91.4
@@ -97,6 +112,7 @@ class RigParams:
     mixing_lag_s: float = 0.0
     noise_std_height: float = 0.0
     noise_std_temperature: float = 0.0
+    ambient_temperature: float = 0.3
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
@@ -232,6 +248,196 @@ def operating_point(
     )
 
 
+# --- faults and unmodelled effects -----------------------------------------------------------
+
+FAULT_KINDS: tuple[str, ...] = (
+    "leak",
+    "sensor_bias",
+    "valve_stuck",
+    "valve_weak",
+    "sensor_delay",
+    "mixing_delay",
+    "heat_loss",
+)
+"""Kinds of :class:`Fault` that TankSimulator implements."""
+
+_VALVE_CHANNELS: tuple[str, ...] = ("hot", "cold")
+_SENSOR_CHANNELS: tuple[str, ...] = ("height", "temperature")
+_CHANNELS: dict[str, tuple[str, ...]] = {
+    "leak": (),
+    "sensor_bias": _SENSOR_CHANNELS,
+    "valve_stuck": _VALVE_CHANNELS,
+    "valve_weak": _VALVE_CHANNELS,
+    "sensor_delay": _SENSOR_CHANNELS,
+    "mixing_delay": (),
+    "heat_loss": (),
+}
+
+MAX_FAULT_DELAY_S = 600.0
+"""Largest ``sensor_delay`` or ``mixing_delay`` magnitude accepted, seconds."""
+
+# (low, high, low_inclusive, unit) of the magnitude of each kind; valve_stuck: any finite value.
+_MAGNITUDE_RANGES: dict[str, tuple[float, float, bool, str]] = {
+    "leak": (0.0, 1.0, True, "extra outflow, model flow units (nominal outflow 0.8)"),
+    "sensor_bias": (-1.0, 1.0, True, "additive offset, model units"),
+    "valve_weak": (0.0, 1.0, False, "fraction of the commanded flow delivered"),
+    "sensor_delay": (0.0, MAX_FAULT_DELAY_S, True, "extra transport delay, seconds"),
+    "mixing_delay": (0.0, MAX_FAULT_DELAY_S, True, "mixing delay at mixing_ref_level, seconds"),
+    "heat_loss": (0.0, 1.0, True, "heat-loss coefficient, model flow units"),
+}
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault or unmodelled effect of the rig, active from ``onset_s`` until ``end_s``.
+
+    Before ``onset_s`` and from ``end_s`` on the rig is nominal. In a TankSimulator a fault
+    takes effect at the first sample instant k ts_s >= onset_s and is removed at the first
+    sample instant >= end_s (both to a rounding tolerance of 1e-9 sample), so it is at most one
+    sample late. Meaning of ``magnitude`` by ``kind`` (model units, seconds):
+
+    * ``leak``: extra outflow in [0, 1] (model flow units; 0.02 is 2.5 % of the nominal
+      outflow 0.8), leaving at the tank temperature: ``A1 dh1/dt = f_h + f_c - f1 - leak``.
+    * ``sensor_bias``: additive offset in [-1, 1] on the measured ``channel``
+      (``"height"`` or ``"temperature"``).
+    * ``valve_stuck``: the ``channel`` valve (``"hot"`` or ``"cold"``) freezes at its actual
+      flow when the fault takes effect and ignores its command; ``magnitude`` is ignored (any
+      finite value, e.g. 0).
+    * ``valve_weak``: the ``channel`` valve delivers ``magnitude`` in (0, 1] times its
+      (saturated) command; 0.7 is a 30 % loss. The valve lag still applies.
+    * ``sensor_delay``: extra transport delay of ``magnitude`` in [0, 600] s on the measured
+      ``channel``: from onset the measurement is the fault-free measurement ``magnitude`` s
+      earlier (linear interpolation between substeps).
+    * ``mixing_delay``: the measured-temperature transport delay at ``mixing_ref_level``
+      becomes ``magnitude`` in [0, 600] s, replacing ``RigParams.mixing_delay_s`` (still
+      proportional to the level).
+    * ``heat_loss``: heat lost to ambient, ``q (t1 - ambient_temperature)`` in the energy
+      balance with q = ``magnitude`` in [0, 1] (model flow units, e.g. 0.05).
+
+    Several faults combine: leaks, heat losses, biases and sensor delays of the same channel
+    add; weak-valve factors multiply; a stuck valve overrides a weak one; of several active
+    ``mixing_delay`` faults the one registered last applies.
+
+    Attributes:
+        kind: One of ``FAULT_KINDS``.
+        onset_s: Simulated time (seconds, finite, >= 0) at which the fault takes effect.
+        magnitude: Size of the fault, finite, in the range given above for its kind.
+        channel: ``"hot"``/``"cold"`` for valve faults, ``"height"``/``"temperature"`` for
+            sensor faults, ``""`` for the others.
+        end_s: Time (seconds) from which the fault is removed, > ``onset_s``; default never.
+
+    Raises:
+        ModelError: If a field is invalid (unknown kind, missing or wrong channel, magnitude out
+            of range, non-finite or negative onset, end not after onset).
+    """
+
+    kind: str
+    onset_s: float
+    magnitude: float
+    channel: str = ""
+    end_s: float = math.inf
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.kind, str) or self.kind not in FAULT_KINDS:
+            raise ModelError(
+                f"Fault.kind={self.kind!r} is not a known fault kind; use one of {FAULT_KINDS}"
+            )
+        where = f"Fault(kind={self.kind!r})"
+        for name in ("onset_s", "magnitude", "end_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ModelError(f"{where}.{name}={value!r} is not a real number; pass a float")
+            object.__setattr__(self, name, float(value))
+        if not (math.isfinite(self.onset_s) and self.onset_s >= 0.0):
+            raise ModelError(
+                f"{where}.onset_s={self.onset_s!r} must be a finite simulated time >= 0 s"
+            )
+        if math.isnan(self.end_s) or self.end_s <= self.onset_s:
+            raise ModelError(
+                f"{where}.end_s={self.end_s!r} must be later than onset_s={self.onset_s!r} "
+                "(math.inf: never removed)"
+            )
+        if not math.isfinite(self.magnitude):
+            raise ModelError(f"{where}.magnitude={self.magnitude!r} is not finite")
+        if self.kind in _MAGNITUDE_RANGES:
+            lo, hi, lo_inclusive, unit = _MAGNITUDE_RANGES[self.kind]
+            above_lo = self.magnitude >= lo if lo_inclusive else self.magnitude > lo
+            if not (above_lo and self.magnitude <= hi):
+                bracket = "[" if lo_inclusive else "("
+                raise ModelError(
+                    f"{where}.magnitude={self.magnitude!r} is outside {bracket}{lo:g}, {hi:g}] "
+                    f"({unit})"
+                )
+        allowed = _CHANNELS[self.kind]
+        if not isinstance(self.channel, str):
+            raise ModelError(f"{where}.channel={self.channel!r} is not a string")
+        if allowed and self.channel not in allowed:
+            raise ModelError(
+                f"{where}.channel={self.channel!r} is invalid; a {self.kind} fault needs "
+                f"channel in {allowed}"
+            )
+        if not allowed and self.channel:
+            raise ModelError(
+                f"{where}.channel={self.channel!r} is invalid; a {self.kind} fault acts on the "
+                'whole tank: leave channel=""'
+            )
+
+
+class _FaultEffects(NamedTuple):
+    """Combined effect of the faults active during one sample (identity: the nominal rig)."""
+
+    leak: float = 0.0
+    heat_loss: float = 0.0
+    valve_gain: tuple[float, float] = (1.0, 1.0)
+    stuck: tuple[bool, bool] = (False, False)
+    bias: tuple[float, float] = (0.0, 0.0)
+    sensor_delay_s: tuple[float, float] = (0.0, 0.0)
+    mixing_delay_s: float | None = None
+
+    @property
+    def changes_dynamics(self) -> bool:
+        """Whether the state equations differ from the nominal ones."""
+        return (
+            self.leak != 0.0
+            or self.heat_loss != 0.0
+            or self.valve_gain != (1.0, 1.0)
+            or self.stuck != (False, False)
+        )
+
+    @classmethod
+    def of(cls, faults: Sequence[Fault]) -> _FaultEffects:
+        leak = heat_loss = 0.0
+        gain = [1.0, 1.0]
+        stuck = [False, False]
+        bias = [0.0, 0.0]
+        delay = [0.0, 0.0]
+        mixing: float | None = None
+        for f in faults:
+            if f.kind == "leak":
+                leak += f.magnitude
+            elif f.kind == "heat_loss":
+                heat_loss += f.magnitude
+            elif f.kind == "valve_weak":
+                gain[_VALVE_CHANNELS.index(f.channel)] *= f.magnitude
+            elif f.kind == "valve_stuck":
+                stuck[_VALVE_CHANNELS.index(f.channel)] = True
+            elif f.kind == "sensor_bias":
+                bias[_SENSOR_CHANNELS.index(f.channel)] += f.magnitude
+            elif f.kind == "sensor_delay":
+                delay[_SENSOR_CHANNELS.index(f.channel)] += f.magnitude
+            else:  # mixing_delay: the last one registered wins
+                mixing = f.magnitude
+        return cls(
+            leak=leak,
+            heat_loss=heat_loss,
+            valve_gain=(gain[0], gain[1]),
+            stuck=(stuck[0], stuck[1]),
+            bias=(bias[0], bias[1]),
+            sensor_delay_s=(delay[0], delay[1]),
+            mixing_delay_s=mixing,
+        )
+
+
 # --- the nonlinear right-hand side, shared by the simulator and the linearisations -----------
 
 
@@ -271,6 +477,54 @@ def _rhs(  # noqa: PLR0917 - positional floats: this is the simulator's hot loop
         (uc - fc) * k.inv_tau,
         (fh + fc - f1) * k.inv_area,
         (fh * k.hot_temp + fc * k.cold_temp - f1 * (e / h)) * k.inv_area,
+    )
+
+
+class _FaultyCoefficients(NamedTuple):
+    """Constants of the right-hand side under dynamic faults (leak, heat loss, valves)."""
+
+    inv_tau_hot: float  # 0 when the hot valve is stuck
+    inv_tau_cold: float
+    inv_area: float
+    inv_alpha: float
+    beta: float
+    hot_temp: float
+    cold_temp: float
+    leak: float
+    heat_loss: float
+    ambient: float
+
+    @classmethod
+    def of(cls, params: RigParams, effects: _FaultEffects) -> _FaultyCoefficients:
+        inv_tau = 1.0 / params.valve_tau_s
+        return cls(
+            inv_tau_hot=0.0 if effects.stuck[0] else inv_tau,
+            inv_tau_cold=0.0 if effects.stuck[1] else inv_tau,
+            inv_area=1.0 / params.area,
+            inv_alpha=1.0 / params.outlet_alpha,
+            beta=params.outlet_beta,
+            hot_temp=params.hot_supply_temp,
+            cold_temp=params.cold_supply_temp,
+            leak=effects.leak,
+            heat_loss=effects.heat_loss,
+            ambient=params.ambient_temperature,
+        )
+
+
+def _rhs_faulty(  # noqa: PLR0917 - same signature as _rhs
+    k: _FaultyCoefficients, fh: float, fc: float, h: float, e: float, uh: float, uc: float
+) -> tuple[float, float, float, float]:
+    """Time derivative of [f_h, f_c, h1, E1] with a leak, heat loss and stuck valves.
+
+    Weak valves are applied by the caller, which scales the commands [uh, uc].
+    """
+    out = (h + k.beta) * k.inv_alpha + k.leak
+    t = e / h
+    return (
+        (uh - fh) * k.inv_tau_hot,
+        (uc - fc) * k.inv_tau_cold,
+        (fh + fc - out) * k.inv_area,
+        (fh * k.hot_temp + fc * k.cold_temp - out * t - k.heat_loss * (t - k.ambient)) * k.inv_area,
     )
 
 
@@ -437,6 +691,24 @@ def linearise_model_a(params: RigParams, op: OperatingPoint) -> LinearModel:
 
 # --- simulator ----------------------------------------------------------------------------
 
+_FAULT_TIME_TOLERANCE = 1e-9
+"""Fraction of a sample by which a fault time may exceed a sample instant and still hit it."""
+
+
+def _regrown(history: list[float], j: int, capacity: int, current: float) -> list[float]:
+    """Return a ring buffer of ``capacity`` >= len(history) with the same values at grid index j.
+
+    Entries older than the old buffer hold its oldest value; an unrecorded history (length
+    <= 1) becomes ``current`` everywhere.
+    """
+    old = len(history)
+    if old <= 1:
+        return [current] * capacity
+    grown = [history[(j + 1) % old]] * capacity  # the oldest recorded value
+    for back in range(old):
+        grown[(j - back) % capacity] = history[(j - back) % old]
+    return grown
+
 
 class TankSimulator:
     """Steppable nonlinear simulator (the ROS plant node will step it live, one sample at a time).
@@ -449,16 +721,25 @@ class TankSimulator:
     that is linear between substeps). The simulator starts in steady state at ``op``, with the
     past bulk temperature equal to ``op.temperature``.
 
+    Faults (:class:`Fault`) given to the constructor or to :meth:`add_fault` switch on at the
+    first sample instant k ts_s >= ``onset_s`` and off at the first one >= ``end_s``; they are
+    constant over a sample. Sensor faults (bias, delay) act on :meth:`measure` and
+    :attr:`clean_output`, not on :attr:`state`. Without faults the simulation is bit-identical
+    to that of the fault-free simulator, and with faults it is still deterministic under
+    ``seed`` (faults draw no random numbers).
+
     Args:
         params: Rig parameters.
         ts_s: Sample period, seconds, > 0.
         op: Initial operating point; default ``operating_point(params)``.
         seed: Seed of the sensor noise generator (numpy default_rng).
         substeps: RK4 steps per sample, >= 1.
+        faults: Faults to register now, as with :meth:`add_fault`.
 
     Raises:
-        ModelError: If ``ts_s`` or ``substeps`` are invalid, or if a substep exceeds 2.5 valve
-            time constants (RK4 would be inaccurate or unstable).
+        ModelError: If ``ts_s`` or ``substeps`` are invalid, if a substep exceeds 2.5 valve
+            time constants (RK4 would be inaccurate or unstable), or if an element of
+            ``faults`` is not a Fault.
     """
 
     def __init__(
@@ -469,6 +750,7 @@ class TankSimulator:
         op: OperatingPoint | None = None,
         seed: int = 0,
         substeps: int = 4,
+        faults: Sequence[Fault] = (),
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0.0):
             raise ModelError(f"ts_s={ts_s!r} must be a positive, finite sample period in seconds")
@@ -494,10 +776,11 @@ class TankSimulator:
         t0 = self._op.temperature
         # Delay history of the bulk temperature at the substep grid (ring buffer).
         self._delay_per_height = params.mixing_delay_s / params.mixing_ref_level / dt  # substeps
+        # Level never exceeds max(h0, 2 alpha - beta): both valves fully open (faults only
+        # lower it).
+        self._h_cap = max(self._op.height, 2.0 * params.outlet_alpha - params.outlet_beta)
         if params.mixing_delay_s > 0.0:
-            # Level never exceeds max(h0, 2 alpha - beta): both valves fully open.
-            h_cap = max(self._op.height, 2.0 * params.outlet_alpha - params.outlet_beta)
-            capacity = math.ceil(self._delay_per_height * h_cap) + 3
+            capacity = math.ceil(self._delay_per_height * self._h_cap) + 3
         else:
             capacity = 1
         self._history = [t0] * capacity
@@ -511,6 +794,179 @@ class TankSimulator:
         else:
             self._lag_decay = 0.0
             self._lag_ramp = 1.0
+        # Faults: (fault, first sample index, first sample index without it), in registration
+        # order. The effects are recomputed only at sample index _next_change.
+        self._faults: list[tuple[Fault, float, float]] = []
+        self._active: tuple[Fault, ...] = ()
+        self._effects = _FaultEffects()
+        self._faulty_k: _FaultyCoefficients | None = None  # None: nominal dynamics
+        self._next_change = -math.inf
+        # Fault-free measured [height, temperature] at the substep grid (ring buffers), kept
+        # only while a sensor_delay fault is registered.
+        self._sensor_history: tuple[list[float], list[float]] = ([], [])
+        for fault in faults:
+            self.add_fault(fault)
+
+    # --- faults -------------------------------------------------------------------------
+
+    def add_fault(self, fault: Fault) -> None:
+        """Register a fault; it takes effect at the first sample instant >= ``fault.onset_s``.
+
+        A fault whose onset is already past (``onset_s <= time_s``) takes effect immediately:
+        from the next :meth:`measure` and :meth:`step`. A ``valve_stuck`` fault freezes the
+        valve at its flow at that moment. Delay faults (``sensor_delay``, ``mixing_delay``)
+        need the past signal: it is retained from construction for the rig's own mixing delay
+        and from registration for sensor delays, as far back as the longest delay registered
+        so far needs. A delay that reaches further back (added during a run, with its onset
+        closer than its delay) reads the oldest retained value instead (exact when added at the
+        start, in steady state).
+
+        Args:
+            fault: The fault.
+
+        Raises:
+            ModelError: If ``fault`` is not a Fault.
+        """
+        if not isinstance(fault, Fault):
+            raise ModelError(f"fault={fault!r} is not a Fault; build it with Fault(kind, ...)")
+        tolerance = _FAULT_TIME_TOLERANCE
+        first = float(math.ceil(fault.onset_s / self._ts - tolerance))
+        stop = (
+            math.inf if math.isinf(fault.end_s) else math.ceil(fault.end_s / self._ts - tolerance)
+        )
+        self._faults.append((fault, first, float(stop)))
+        self._next_change = -math.inf
+        if fault.kind == "mixing_delay":
+            capacity = (
+                math.ceil(fault.magnitude / self._params.mixing_ref_level / self._dt * self._h_cap)
+                + 3
+            )
+            if capacity > len(self._history):
+                bulk = self._e / self._h
+                self._history = _regrown(self._history, self._grid_index, capacity, bulk)
+        elif fault.kind == "sensor_delay":
+            total = [0.0, 0.0]
+            for f, _, _ in self._faults:
+                if f.kind == "sensor_delay":
+                    total[_SENSOR_CHANNELS.index(f.channel)] += f.magnitude
+            capacity = math.ceil(max(total) / self._dt) + 3
+            hist_h, hist_t = self._sensor_history
+            if capacity > len(hist_h):
+                j = self._grid_index
+                self._sensor_history = (
+                    _regrown(hist_h, j, capacity, self._h),
+                    _regrown(hist_t, j, capacity, self._measured_temp),
+                )
+
+    def clear_faults(self) -> None:
+        """Remove every fault, pending or active: the rig is nominal from now on.
+
+        The state is kept (a level lowered by a leak recovers with the tank's own dynamics);
+        a stuck valve resumes following its command. The retained signal history is kept too,
+        so clearing and re-adding the same faults at once (e.g. to update the list) continues
+        the run exactly as if the faults had stayed registered.
+        """
+        self._faults.clear()
+        self._active = ()
+        self._effects = _FaultEffects()
+        self._faulty_k = None
+        self._next_change = -math.inf
+        self._set_mixing_delay(self._params.mixing_delay_s)
+
+    @property
+    def faults(self) -> tuple[Fault, ...]:
+        """Every registered fault (past, active and pending), in registration order."""
+        return tuple(f for f, _, _ in self._faults)
+
+    @property
+    def active_faults(self) -> tuple[Fault, ...]:
+        """The faults in effect at the current time ``time_s``, in registration order."""
+        if self._faults:
+            self._refresh_faults()
+        return self._active
+
+    def _refresh_faults(self) -> None:
+        """Update the active faults and their combined effect for the current sample."""
+        n = self._n_samples
+        if n < self._next_change:
+            return
+        active = []
+        next_change = math.inf
+        for fault, first, stop in self._faults:
+            if first <= n < stop:
+                active.append(fault)
+                next_change = min(next_change, stop)
+            elif first > n:
+                next_change = min(next_change, first)
+        self._next_change = next_change
+        self._active = tuple(active)
+        effects = _FaultEffects.of(active)
+        self._effects = effects
+        params = self._params
+        self._faulty_k = (
+            _FaultyCoefficients.of(params, effects) if effects.changes_dynamics else None
+        )
+        mixing = params.mixing_delay_s if effects.mixing_delay_s is None else effects.mixing_delay_s
+        self._set_mixing_delay(mixing)
+
+    def _set_mixing_delay(self, delay_s: float) -> None:
+        """Set the mixing delay at the reference level, effective from the current sample.
+
+        On a change the delayed bulk temperature is re-read from the history with the new
+        delay, so that the measurement of this very sample already has it (the mixing lag, if
+        any, keeps its state and follows the jump of its input).
+        """
+        delay_per_height = delay_s / self._params.mixing_ref_level / self._dt
+        if delay_per_height == self._delay_per_height:
+            return
+        self._delay_per_height = delay_per_height
+        history = self._history
+        capacity = len(history)
+        j = self._grid_index
+        if capacity > 1:
+            pos = j - delay_per_height * self._h
+            lo = math.floor(pos)
+            oldest = j - capacity + 1
+            if lo < oldest:
+                lo, frac = oldest, 0.0
+            else:
+                frac = pos - lo
+            delayed = (1.0 - frac) * history[lo % capacity] + frac * history[(lo + 1) % capacity]
+        else:
+            delayed = self._e / self._h
+        self._delayed = delayed
+        if self._params.mixing_lag_s == 0.0:
+            self._measured_temp = delayed
+
+    def _delayed_sensor(self, channel: int, delay_s: float) -> float:
+        """Fault-free measurement of ``channel`` ``delay_s`` seconds ago (linear interpolation)."""
+        history = self._sensor_history[channel]
+        capacity = len(history)
+        j = self._grid_index
+        pos = j - delay_s / self._dt
+        lo = math.floor(pos)
+        oldest = j - capacity + 1
+        if lo < oldest:
+            lo, frac = oldest, 0.0
+        else:
+            frac = pos - lo
+        return (1.0 - frac) * history[lo % capacity] + frac * history[(lo + 1) % capacity]
+
+    def _clean(self) -> tuple[float, float]:
+        """[height, temperature] as measured now without noise, sensor faults included."""
+        if not self._faults:
+            return self._h, self._measured_temp
+        self._refresh_faults()
+        effects = self._effects
+        height, temperature = self._h, self._measured_temp
+        delay_h, delay_t = effects.sensor_delay_s
+        if delay_h > 0.0:
+            height = self._delayed_sensor(0, delay_h)
+        if delay_t > 0.0:
+            temperature = self._delayed_sensor(1, delay_t)
+        return height + effects.bias[0], temperature + effects.bias[1]
+
+    # --- simulation ---------------------------------------------------------------------
 
     @property
     def params(self) -> RigParams:
@@ -539,20 +995,24 @@ class TankSimulator:
 
     @property
     def clean_output(self) -> FloatArray:
-        """(2,) float, model units: [height, temperature] as measured now, without noise."""
-        return np.array([self._h, self._measured_temp], dtype=np.float64)
+        """(2,) float, model units: [height, temperature] as measured now, without noise.
+
+        Includes the mixing delay and lag and the active sensor faults (bias, delay).
+        """
+        return np.array(self._clean(), dtype=np.float64)
 
     def measure(self) -> FloatArray:
         """Return the measurement now: (2,) float [height, temperature], model units.
 
-        The temperature includes the mixing delay and lag; both include sensor noise. Each call
-        draws two fresh noise samples.
+        The temperature includes the mixing delay and lag; both include the active sensor
+        faults and sensor noise. Each call draws two fresh noise samples.
         """
         noise = self._rng.standard_normal(2)
+        height, temperature = self._clean()
         return np.array(
             [
-                self._h + self._noise_std[0] * noise[0],
-                self._measured_temp + self._noise_std[1] * noise[1],
+                height + self._noise_std[0] * noise[0],
+                temperature + self._noise_std[1] * noise[1],
             ],
             dtype=np.float64,
         )
@@ -576,7 +1036,17 @@ class TankSimulator:
 
     def _advance(self, uh: float, uc: float) -> None:
         """Integrate one sample with the saturated commands held (no validation: hot loop)."""
-        k, dt = self._k, self._dt
+        k: object = self._k
+        rhs: Callable[..., tuple[float, float, float, float]] = _rhs
+        if self._faults:
+            self._refresh_faults()
+            if self._faulty_k is not None:
+                k, rhs = self._faulty_k, _rhs_faulty
+                gain_hot, gain_cold = self._effects.valve_gain
+                uh, uc = uh * gain_hot, uc * gain_cold
+        sensor_h, sensor_t = self._sensor_history
+        sensor_capacity = len(sensor_h)
+        dt = self._dt
         half = 0.5 * dt
         sixth = dt / 6.0
         fh, fc, h, e = self._fh, self._fc, self._h, self._e
@@ -587,14 +1057,14 @@ class TankSimulator:
         delayed, measured = self._delayed, self._measured_temp
         j = self._grid_index
         for _ in range(self._substeps):
-            a1, a2, a3, a4 = _rhs(k, fh, fc, h, e, uh, uc)
-            b1, b2, b3, b4 = _rhs(
+            a1, a2, a3, a4 = rhs(k, fh, fc, h, e, uh, uc)
+            b1, b2, b3, b4 = rhs(
                 k, fh + half * a1, fc + half * a2, h + half * a3, e + half * a4, uh, uc
             )
-            c1, c2, c3, c4 = _rhs(
+            c1, c2, c3, c4 = rhs(
                 k, fh + half * b1, fc + half * b2, h + half * b3, e + half * b4, uh, uc
             )
-            d1, d2, d3, d4 = _rhs(k, fh + dt * c1, fc + dt * c2, h + dt * c3, e + dt * c4, uh, uc)
+            d1, d2, d3, d4 = rhs(k, fh + dt * c1, fc + dt * c2, h + dt * c3, e + dt * c4, uh, uc)
             fh += sixth * (a1 + 2.0 * (b1 + c1) + d1)
             fc += sixth * (a2 + 2.0 * (b2 + c2) + d2)
             h += sixth * (a3 + 2.0 * (b3 + c3) + d3)
@@ -624,6 +1094,9 @@ class TankSimulator:
                 new_delayed = bulk
             measured = decay * measured + (1.0 - decay) * delayed + ramp * (new_delayed - delayed)
             delayed = new_delayed
+            if sensor_capacity:
+                sensor_h[j % sensor_capacity] = h
+                sensor_t[j % sensor_capacity] = measured
         self._fh, self._fc, self._h, self._e = fh, fc, h, e
         self._delayed, self._measured_temp = delayed, measured
         self._grid_index = j
@@ -679,11 +1152,12 @@ def simulate(
     op: OperatingPoint | None = None,
     seed: int = 0,
     substeps: int = 4,
+    faults: Sequence[Fault] = (),
 ) -> SimResult:
     """Simulate the rig from steady state at ``op`` under a sequence of valve commands.
 
     Sample k is measured before command k is applied; the result equals stepping a fresh
-    ``TankSimulator(params, ts_s, op=op, seed=seed, substeps=substeps)`` with
+    ``TankSimulator(params, ts_s, op=op, seed=seed, substeps=substeps, faults=faults)`` with
     ``measure()`` then ``step(commands[k])``.
 
     Args:
@@ -694,13 +1168,15 @@ def simulate(
         op: Initial operating point; default ``operating_point(params)``.
         seed: Sensor noise seed.
         substeps: RK4 steps per sample.
+        faults: Faults switched on at their onset times (see :class:`Fault`). ``commands``
+            in the result are those requested; ``states`` show the actual valve flows.
 
     Returns:
         The simulation record.
 
     Raises:
         DatumError: If ``commands`` is not (n, 2) with n >= 1, or contains NaN or inf.
-        ModelError: If the simulator settings are invalid or the tank empties.
+        ModelError: If the simulator settings or a fault are invalid, or the tank empties.
     """
     u = np.asarray(commands, dtype=np.float64)
     if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 1:
@@ -713,7 +1189,7 @@ def simulate(
             f"({('hot', 'cold')[col]} valve); pass finite commands in [0, 1]"
         )
     u = np.clip(u, 0.0, 1.0)
-    sim = TankSimulator(params, ts_s, op=op, seed=seed, substeps=substeps)
+    sim = TankSimulator(params, ts_s, op=op, seed=seed, substeps=substeps, faults=faults)
     n = u.shape[0]
     measured = np.empty((n, 2))
     clean = np.empty((n, 2))
