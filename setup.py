@@ -37,6 +37,9 @@ setup(
     entry_points={
         "console_scripts": [
             "twotank-validation = twotank_validation.cli:main",
+            "twotank_validator = twotank_validation.ros.validator_node:main",
+            "twotank_plant = twotank_validation.ros.plant_node:main",
+            "twotank_excitation = twotank_validation.ros.excitation_node:main",
         ],
     },
 )

@@ -2,6 +2,10 @@
 
 import os
 
+# DDS discovery stays on loopback, in a domain of the project's own (also set by scripts/run).
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", "77")
+
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(

@@ -130,10 +130,13 @@ def test_aligner_flags_bad_input_without_losing_samples() -> None:
 def test_aligner_restarts_on_clock_jump_backwards() -> None:
     al = make_aligner()
     al.push_command(0, [0.4, 0.4])
-    for k in range(30):
+    for k in range(700):  # 70 s of data
         al.push_measurement(0, k * TS_NS, 0.47)
         al.push_measurement(1, k * TS_NS, 0.5)
-    al.push_measurement(0, 0, 0.47)
+    al.push_measurement(0, 65 * TS_NS, 0.47)  # 63.5 s late: a straggler, dropped
+    assert al.counters.out_of_order == 1
+    assert al.counters.clock_resets == 0
+    al.push_measurement(0, 0, 0.47)  # 69.8 s back (> 60 s): the clock restarted
     assert al.counters.clock_resets == 1
     assert al.next_index == 0
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -12,6 +14,7 @@ from tqdm import tqdm
 
 from twotank_validation.datum import NormConvention
 from twotank_validation.errors import TwotankError
+from twotank_validation.monitor import WindowReport
 
 
 def _progress_factory(enabled: bool) -> Callable[[str, int], Callable[[int], None]] | None:
@@ -58,6 +61,64 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _loopback_only() -> None:
+    """DDS discovery on loopback only, in a domain of our own unless one was chosen."""
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.setdefault("ROS_DOMAIN_ID", "77")
+
+
+def _cmd_live(args: argparse.Namespace) -> int:
+    _loopback_only()
+    from twotank_validation.ros.live import LiveConfig, run_live  # noqa: PLC0415 (needs rclpy)
+
+    cfg = LiveConfig(
+        duration_s=args.duration,
+        ts_s=args.ts,
+        period_samples=args.period,
+        models=tuple(args.model or ["A", "B"]),
+        faults=tuple(args.fault or ()),
+        seed=args.seed,
+    )
+
+    def show(rep: WindowReport) -> None:
+        if args.json:
+            print(json.dumps(report_dict(rep)), flush=True)
+            return
+        verdict = (
+            f"beta {rep.beta:6.3f}  {'INVALIDATED' if rep.invalidated else 'valid      '}"
+            if rep.judged
+            else f"not judged: {rep.data_quality}"
+        )
+        print(
+            f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
+            f"{verdict}  alarm {rep.alarm.name}",
+            flush=True,
+        )
+
+    result = run_live(cfg, on_report=show)
+    print(
+        f"simulated {cfg.duration_s:.0f} s in {result.wall_s:.1f} s wall "
+        f"({cfg.duration_s / max(result.wall_s, 1e-9):.0f}x real time); "
+        f"{len(result.reports)} reports; aligner: {result.counters}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def report_dict(rep: WindowReport) -> dict[str, object]:
+    """JSON-friendly summary of a window report (spectrum left out)."""
+    return {
+        "model": rep.model,
+        "start": rep.start_ns / 1e9,
+        "end": rep.end_ns / 1e9,
+        "judged": rep.judged,
+        "beta": rep.beta if rep.judged else None,
+        "invalidated": rep.invalidated,
+        "alarm": rep.alarm.name,
+        "reason": None if rep.judged else rep.data_quality,
+    }
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (one sub-command per job)."""
     parser = argparse.ArgumentParser(
@@ -74,6 +135,21 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--no-sdp", action="store_true", help="skip the general SDP cross-check")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
     demo.set_defaults(func=_cmd_demo)
+    live = sub.add_parser(
+        "live", help="plant, excitation and validator nodes in one process on a simulated clock"
+    )
+    live.add_argument(
+        "--duration", type=float, default=3000.0, help="simulated seconds (default 3000)"
+    )
+    live.add_argument("--ts", type=float, default=0.1, help="sample period in s (default 0.1)")
+    live.add_argument("--period", type=int, default=2048, help="excitation period in samples")
+    live.add_argument(
+        "--model", action="append", help="model name or YAML path (repeat; default A and B)"
+    )
+    live.add_argument("--fault", action="append", help="plant fault, e.g. leak=0.02@1000 (repeat)")
+    live.add_argument("--seed", type=int, default=0, help="plant noise seed")
+    live.add_argument("--json", action="store_true", help="one JSON object per report")
+    live.set_defaults(func=_cmd_live)
     return parser
 
 

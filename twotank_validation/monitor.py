@@ -171,8 +171,10 @@ class SampleAligner:
         output_names: measurement channel names (order of ``y``).
         jitter_fraction: accepted distance of a measurement stamp from its grid point, as a
             fraction of the sample period.
-        reset_after_s: a measurement stamped this much before the last finalised sample is a
-            clock jump backwards (e.g. a restarted simulation): the aligner starts over.
+        reset_after_s: a measurement stamped this much before the last finalised sample is
+            taken for a clock jump backwards (a restarted recording or simulation) and the
+            aligner starts over; later-than-that stragglers are dropped as out of order. A
+            live node also resets on a backward jump of its ROS clock.
     """
 
     def __init__(
@@ -182,7 +184,7 @@ class SampleAligner:
         output_names: Sequence[str],
         *,
         jitter_fraction: float = 0.25,
-        reset_after_s: float = 1.0,
+        reset_after_s: float = 60.0,
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0):
             raise DatumError(f"sample period must be positive, found {ts_s}")

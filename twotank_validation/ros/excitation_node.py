@@ -1,0 +1,112 @@
+"""Excitation node: periodic valve commands (issue #2's generator) on ``flow_cmd``.
+
+Publishes ``offset + excitation_period[k mod period]`` every ``ts_s`` (or when an external
+driver calls :meth:`ExcitationNode.tick`), stamped with the node's clock.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+
+from twotank_validation import excitation, rig
+from twotank_validation.errors import TwotankError
+from twotank_validation.monitor import NS_PER_S
+from twotank_validation.ros import interfaces as itf
+from twotank_validation.ros.params import Param, ParameterError, declare
+
+EXCITATION_PARAMS = (
+    Param(
+        "kind", "filtered_noise", "filtered_noise or multisine", choices=excitation.EXCITATION_KINDS
+    ),
+    Param("ts_s", 0.1, "sample period (s)", 1e-3, 60.0),
+    Param("period_samples", 2048, "excitation period (samples)", 4, 1_000_000),
+    Param("rms_hot", 0.05, "hot valve RMS deviation (model units)", 0.0, 0.5),
+    Param("rms_cold", 0.2, "cold valve RMS deviation (model units)", 0.0, 0.5),
+    Param("cutoff_hz", 0.006, "filtered noise: low-pass cutoff (Hz)", 1e-6, 1e3),
+    Param("f_max_hz", 0.05, "multisine: highest frequency (Hz)", 1e-6, 1e3),
+    Param("odd_only", False, "multisine: odd harmonics only"),
+    Param("seed", 2, "excitation seed", 0, 2**31 - 1),
+    Param("height", 0.47, "operating level the offsets are computed for (model units)", 0.15, 0.75),
+    Param("temperature", 0.5, "operating temperature (model units)", 0.0, 1.0),
+    Param(
+        "self_timed", True, "publish every ts_s on a timer (false: an external driver calls tick())"
+    ),
+)
+
+
+class ExcitationNode(Node):
+    """Periodic excitation of both valves around the operating point."""
+
+    def __init__(self, *, name: str = "twotank_excitation", **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        v = declare(self, EXCITATION_PARAMS)
+        try:
+            cfg = excitation.ExcitationConfig(
+                kind=str(v["kind"]),
+                ts_s=float(v["ts_s"]),
+                period_samples=int(v["period_samples"]),
+                rms=(float(v["rms_hot"]), float(v["rms_cold"])),
+                cutoff_hz=float(v["cutoff_hz"]),
+                f_max_hz=float(v["f_max_hz"]),
+                odd_only=bool(v["odd_only"]),
+                seed=int(v["seed"]),
+                settle_periods=0,
+                record_periods=1,
+            )
+            op = rig.operating_point(rig.RigParams(), float(v["height"]), float(v["temperature"]))
+            self.table = excitation.excitation_commands(
+                cfg, op.commands
+            )  # (period, 2), checked in [0, 1]
+        except (TwotankError, ValueError) as err:
+            raise ParameterError(f"cannot start the excitation: {err}") from err
+        self.ts_ns = round(float(v["ts_s"]) * NS_PER_S)
+        self.k = 0
+        flow_cls, _ = itf.message_classes()
+        self._cls = flow_cls
+        self.pub = self.create_publisher(flow_cls, "flow_cmd", 100)
+        if v["self_timed"]:
+            self.create_timer(float(v["ts_s"]), self.tick)
+
+    def command(self, k: int) -> np.ndarray:
+        """(2,) the command of sample k."""
+        return np.asarray(self.table[k % len(self.table)])
+
+    def tick(self, stamp_ns: int | None = None) -> None:
+        """Publish the next command."""
+        now = int(self.get_clock().now().nanoseconds) if stamp_ns is None else stamp_ns
+        hot, cold = self.command(self.k)
+        msg = self._cls()
+        itf.set_stamp(msg.header.stamp, now)
+        msg.hot = float(hot)
+        msg.cold = float(cold)
+        self.pub.publish(msg)
+        self.k += 1
+
+
+def main(args: list[str] | None = None) -> int:
+    """``ros2 run twotank_validation twotank_excitation`` entry point."""
+    rclpy.init(args=args)
+    try:
+        node = ExcitationNode()
+    except ParameterError as err:
+        print(f"ERROR: {err}", file=sys.stderr)
+        rclpy.shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

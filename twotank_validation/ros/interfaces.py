@@ -1,0 +1,129 @@
+"""Message interfaces, unit conversions and extractors shared by the nodes and bag replay.
+
+The extractors read only field names common to rclpy messages and rosbags' decoded
+messages (``header.stamp.sec/nanosec``, ``fluid_pressure``, ``temperature``, ``hot``,
+``cold``), so live and replay go through the same code.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from twotank_validation.monitor import NS_PER_S, WindowReport
+
+FLOW_CMD_TYPE = "twotank_validation_msgs/msg/FlowCommand"
+HEIGHT_TYPE = "sensor_msgs/msg/FluidPressure"
+TEMPERATURE_TYPE = "sensor_msgs/msg/Temperature"
+
+
+def message_classes() -> tuple[Any, Any]:
+    """``(FlowCommand, ValidationReport)`` generated message classes.
+
+    Raises:
+        ImportError: with a hint when the package's messages were not built.
+    """
+    try:
+        from twotank_validation_msgs.msg import (  # noqa: PLC0415
+            FlowCommand,
+            ValidationReport,
+        )
+    except ImportError as err:  # pragma: no cover - depends on the install
+        raise ImportError(
+            "the messages twotank_validation_msgs/FlowCommand and ValidationReport are not "
+            "built: run `bash scripts/run exec true` (bootstraps the venv and builds them) "
+            "or build the package with colcon"
+        ) from err
+    return FlowCommand, ValidationReport
+
+
+@dataclass(frozen=True)
+class RigUnits:
+    """Per-rig conversion of the measurement messages to model units.
+
+    Attributes:
+        pascal_per_unit: gauge pressure at the tank base per model unit of level
+            (9806.65 Pa: 1 model unit = 1 m of water).
+        temperature_offset_c: temperature (°C) of model unit 0 (the cold supply, 15 °C).
+        temperature_span_c: °C per model unit (hot supply 65 °C = 1).
+    """
+
+    pascal_per_unit: float = 9806.65
+    temperature_offset_c: float = 15.0
+    temperature_span_c: float = 50.0
+
+    def __post_init__(self) -> None:
+        for name in ("pascal_per_unit", "temperature_offset_c", "temperature_span_c"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, found {getattr(self, name)}")
+        if self.pascal_per_unit <= 0 or self.temperature_span_c <= 0:
+            raise ValueError("pascal_per_unit and temperature_span_c must be positive")
+
+    def level_from_pressure(self, pressure_pa: float) -> float:
+        """Model-unit level from gauge pressure (Pa)."""
+        return pressure_pa / self.pascal_per_unit
+
+    def pressure_from_level(self, level: float) -> float:
+        """Gauge pressure (Pa) from model-unit level."""
+        return level * self.pascal_per_unit
+
+    def temperature_from_celsius(self, celsius: float) -> float:
+        """Model-unit temperature from °C."""
+        return (celsius - self.temperature_offset_c) / self.temperature_span_c
+
+    def celsius_from_temperature(self, temperature: float) -> float:
+        """°C from model-unit temperature."""
+        return self.temperature_offset_c + self.temperature_span_c * temperature
+
+
+def stamp_ns(msg: Any) -> int:
+    """Header stamp of a message in integer nanoseconds."""
+    st = msg.header.stamp
+    return int(st.sec) * NS_PER_S + int(st.nanosec)
+
+
+def set_stamp(stamp_msg: Any, ns: int) -> None:
+    """Write integer nanoseconds into a builtin_interfaces/Time-like object."""
+    stamp_msg.sec = int(ns // NS_PER_S)
+    stamp_msg.nanosec = int(ns % NS_PER_S)
+
+
+def flow_values(msg: Any) -> tuple[float, float]:
+    """(hot, cold) valve commands in model units from a FlowCommand."""
+    return float(msg.hot), float(msg.cold)
+
+
+def height_value(msg: Any, units: RigUnits) -> float:
+    """Model-unit level from a sensor_msgs/FluidPressure."""
+    return units.level_from_pressure(float(msg.fluid_pressure))
+
+
+def temperature_value(msg: Any, units: RigUnits) -> float:
+    """Model-unit temperature from a sensor_msgs/Temperature."""
+    return units.temperature_from_celsius(float(msg.temperature))
+
+
+def report_message(report: WindowReport, cls: Any) -> Any:
+    """Fill a ValidationReport message from a core :class:`WindowReport`."""
+    msg = cls()
+    set_stamp(msg.header.stamp, report.end_ns)
+    msg.model = report.model
+    set_stamp(msg.window_start, report.start_ns)
+    set_stamp(msg.window_end, report.end_ns)
+    msg.n_periods = report.n_periods
+    msg.n_samples = report.n_samples
+    msg.judged = report.judged
+    msg.data_quality = report.data_quality
+    msg.beta = float(report.beta)
+    msg.beta_lower = float(report.beta_lower)
+    msg.beta_upper = float(report.beta_upper)
+    msg.margin = float(report.margin)
+    msg.invalidated = bool(report.invalidated)
+    msg.alarm_level = int(report.alarm)
+    msg.norm_convention = report.convention
+    msg.solver = report.solver
+    msg.frequencies_hz = [float(x) for x in report.freqs_hz]
+    msg.w_min = [float(x) for x in report.w_min]
+    msg.compute_time_s = float(report.compute_time_s)
+    return msg

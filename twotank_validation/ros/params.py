@@ -1,0 +1,68 @@
+"""Declared ROS parameters with descriptions and ranges; invalid values stop a node at start-up."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+
+from twotank_validation.errors import TwotankError
+
+
+class ParameterError(TwotankError, ValueError):
+    """A node parameter is out of range or inconsistent; the message names it."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: name, default, description and optional numeric range (inclusive)."""
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] = ()
+
+
+def declare(node: Node, params: Sequence[Param]) -> dict[str, Any]:
+    """Declare ``params`` on ``node`` and return their values, checked.
+
+    Raises:
+        ParameterError: a value outside its range or not among its choices.
+    """
+    values: dict[str, Any] = {}
+    for p in params:
+        desc = ParameterDescriptor(description=p.description)
+        if p.low is not None and p.high is not None:
+            if isinstance(p.default, bool):
+                pass
+            elif isinstance(p.default, int):
+                desc.integer_range = [
+                    IntegerRange(from_value=int(p.low), to_value=int(p.high), step=0)
+                ]
+            elif isinstance(p.default, float):
+                desc.floating_point_range = [
+                    FloatingPointRange(from_value=float(p.low), to_value=float(p.high), step=0.0)
+                ]
+        if p.choices:
+            desc.additional_constraints = f"one of {list(p.choices)}"
+        try:
+            value = node.declare_parameter(p.name, p.default, desc).value
+        except Exception as err:  # rclpy raises several types for an out-of-range override
+            raise ParameterError(f"parameter {p.name!r}: {err}") from err
+        if p.choices:
+            items = value if isinstance(value, list | tuple) else [value]
+            bad = [v for v in items if v not in p.choices]
+            if bad:
+                raise ParameterError(f"parameter {p.name!r}: {bad} not among {list(p.choices)}")
+        numeric = isinstance(value, int | float) and not isinstance(value, bool)
+        high = p.high if p.high is not None else math.inf
+        if p.low is not None and numeric and not p.low <= value <= high:
+            raise ParameterError(f"parameter {p.name!r} = {value} is outside [{p.low}, {p.high}]")
+        values[p.name] = value
+    return values

@@ -1,0 +1,402 @@
+"""The validator node: flow commands, level and temperature in; reports, margin and alarm out.
+
+Thin adapter over :mod:`twotank_validation.monitor`: subscription callbacks only convert a
+message to (stream, stamp, value) and queue it; a worker thread runs the aligner, the window
+monitor and the validation, and publishes. Topics (node-relative, remappable):
+
+* in: ``flow_cmd`` (twotank_validation_msgs/FlowCommand), ``height``
+  (sensor_msgs/FluidPressure), ``temperature`` (sensor_msgs/Temperature);
+* out, per model M: ``validation/M/report`` (ValidationReport), ``validation/M/margin``
+  (std_msgs/Float64, ``1 - beta``), ``validation/M/invalidated`` (std_msgs/Bool,
+  transient-local, the debounced alarm == ERROR); ``/diagnostics`` (one status per model);
+* service ``reset_alarm`` (std_srvs/Trigger) clears latched alarms.
+"""
+
+from __future__ import annotations
+
+import queue
+import sys
+import threading
+from collections.abc import Sequence
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import FluidPressure, Temperature
+from std_msgs.msg import Bool, Float64
+from std_srvs.srv import Trigger
+
+from twotank_validation.datum import NormConvention
+from twotank_validation.errors import TwotankError
+from twotank_validation.model import LFTModel, load_model
+from twotank_validation.monitor import (
+    NS_PER_S,
+    Alarm,
+    AlarmConfig,
+    MonitorConfig,
+    SampleAligner,
+    WindowMonitor,
+    WindowReport,
+)
+from twotank_validation.ros import interfaces as itf
+from twotank_validation.ros.params import Param, ParameterError, declare
+
+VALIDATOR_PARAMS = (
+    Param("models", ["A", "B"], "models to validate: built-in names (A, B) or YAML file paths"),
+    Param("ts_s", 0.1, "sample period of the data (s)", 1e-3, 60.0),
+    Param("period_samples", 2048, "excitation period (samples)", 4, 1_000_000),
+    Param("periods_per_window", 2, "periods validated together; a window every period", 1, 64),
+    Param(
+        "settle_periods", 1, "periods of periodic input required before a window is judged", 0, 64
+    ),
+    Param(
+        "min_excitation_rms",
+        0.005,
+        "minimum input RMS deviation (model units) to judge a window",
+        0.0,
+        1.0,
+    ),
+    Param(
+        "input_periodic_rtol",
+        1e-6,
+        "accepted period-to-period input change relative to its RMS",
+        0.0,
+        1.0,
+    ),
+    Param(
+        "norm_convention",
+        "power",
+        "meaning of ||w||: power (RMS) or energy",
+        choices=("power", "energy"),
+    ),
+    Param(
+        "method", "auto", "solver: auto, closed_form or sdp", choices=("auto", "closed_form", "sdp")
+    ),
+    Param("alarm_windows", 2, "consecutive invalidating windows that raise ERROR", 1, 1000),
+    Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),
+    Param("warn_beta", 0.8, "beta at or above which a valid window reports WARN", 1e-6, 1e6),
+    Param("latch_alarm", False, "keep ERROR until the reset_alarm service is called"),
+    Param(
+        "stale_timeout_s",
+        2.0,
+        "a stream silent this long (ROS time) makes the status STALE",
+        0.01,
+        3600.0,
+    ),
+    Param(
+        "jitter_fraction",
+        0.25,
+        "accepted stamp distance from the sample grid, fraction of ts_s",
+        0.0,
+        0.49,
+    ),
+    Param("pascal_per_unit", 9806.65, "gauge pressure (Pa) per model unit of level", 1e-9, 1e12),
+    Param("temperature_offset_c", 15.0, "temperature (degC) of model unit 0", -273.15, 1e4),
+    Param("temperature_span_c", 50.0, "degC per model unit of temperature", 1e-9, 1e6),
+)
+
+_STREAMS = ("flow_cmd", "height", "temperature")
+_EXPECTED_TYPES = {
+    "flow_cmd": itf.FLOW_CMD_TYPE,
+    "height": itf.HEIGHT_TYPE,
+    "temperature": itf.TEMPERATURE_TYPE,
+}
+
+
+def monitor_config(values: dict[str, Any]) -> MonitorConfig:
+    """Build the core config from parameter values (raises ParameterError if inconsistent)."""
+    try:
+        return MonitorConfig(
+            ts_s=float(values["ts_s"]),
+            period_samples=int(values["period_samples"]),
+            periods_per_window=int(values["periods_per_window"]),
+            settle_periods=int(values["settle_periods"]),
+            min_excitation_rms=float(values["min_excitation_rms"]),
+            input_periodic_rtol=float(values["input_periodic_rtol"]),
+            convention=NormConvention(values["norm_convention"]),
+            method=str(values["method"]),
+            alarm=AlarmConfig(
+                alarm_windows=int(values["alarm_windows"]),
+                clear_windows=int(values["clear_windows"]),
+                warn_beta=float(values["warn_beta"]),
+                latch=bool(values["latch_alarm"]),
+            ),
+        )
+    except ValueError as err:
+        raise ParameterError(str(err)) from err
+
+
+class ValidatorNode(Node):
+    """Online model validation with a fault-detection alarm.
+
+    Args:
+        models: models to use instead of the ``models`` parameter (tests, composition).
+        **kwargs: passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
+
+    Raises:
+        ParameterError: invalid parameters (the node does not start).
+    """
+
+    def __init__(
+        self,
+        *,
+        models: Sequence[LFTModel] | None = None,
+        name: str = "twotank_validator",
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(name, **kwargs)
+        values = declare(self, VALIDATOR_PARAMS)
+        self.config = monitor_config(values)
+        try:
+            self.units = itf.RigUnits(
+                float(values["pascal_per_unit"]),
+                float(values["temperature_offset_c"]),
+                float(values["temperature_span_c"]),
+            )
+            self.models = (
+                list(models) if models is not None else [load_model(m) for m in values["models"]]
+            )
+            self.monitor = WindowMonitor(self.config, self.models)
+        except (TwotankError, ValueError) as err:
+            raise ParameterError(f"cannot start the validator: {err}") from err
+        self.aligner = SampleAligner(
+            self.config.ts_s,
+            2,
+            ("height", "temperature"),
+            jitter_fraction=float(values["jitter_fraction"]),
+        )
+        self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
+        flow_cls, self._report_cls = itf.message_classes()
+
+        self._queue: queue.Queue[tuple[str, int, Any] | None] = queue.Queue()
+        self._lock = threading.Lock()
+        self._last_rx: dict[str, int | None] = dict.fromkeys(_STREAMS)
+        self.received: dict[str, int] = dict.fromkeys(_STREAMS, 0)
+        self._status: dict[str, tuple[Alarm, str]] = {
+            m.name: (Alarm.STALE, "waiting for data") for m in self.models
+        }
+        self._last_report: dict[str, WindowReport] = {}
+        self.reports: list[
+            WindowReport
+        ] = []  # every report published (bounded by the caller's run)
+        self.max_kept_reports = 10_000
+
+        self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 1000)
+        self.create_subscription(FluidPressure, "height", self._on_height, 1000)
+        self.create_subscription(Temperature, "temperature", self._on_temperature, 1000)
+        latched = QoSProfile(
+            depth=1,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        self._pub_report = {
+            m.name: self.create_publisher(self._report_cls, f"validation/{m.name}/report", 10)
+            for m in self.models
+        }
+        self._pub_margin = {
+            m.name: self.create_publisher(Float64, f"validation/{m.name}/margin", 10)
+            for m in self.models
+        }
+        self._pub_invalid = {
+            m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", latched)
+            for m in self.models
+        }
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_service(Trigger, "reset_alarm", self._on_reset)
+        for m in self.models:
+            self._publish_invalidated(m.name, False)
+        self.create_timer(0.5, self._on_watchdog)
+        # a backward jump of the (simulated) clock restarts alignment and windowing
+        self._jump_handle = self.get_clock().create_jump_callback(
+            JumpThreshold(
+                min_forward=None, min_backward=Duration(nanoseconds=-1), on_clock_change=True
+            ),
+            post_callback=self._on_time_jump,
+        )
+        self._worker = threading.Thread(
+            target=self._work, name="twotank_validator_worker", daemon=True
+        )
+        self._worker.start()
+
+    # ---------------------------------------------------------------- callbacks (never block)
+
+    def _now_ns(self) -> int:
+        return int(self.get_clock().now().nanoseconds)
+
+    def _on_flow(self, msg: Any) -> None:
+        self._last_rx["flow_cmd"] = self._now_ns()
+        self.received["flow_cmd"] += 1
+        self._queue.put(("flow_cmd", itf.stamp_ns(msg), itf.flow_values(msg)))
+
+    def _on_height(self, msg: FluidPressure) -> None:
+        self._last_rx["height"] = self._now_ns()
+        self.received["height"] += 1
+        self._queue.put(("height", itf.stamp_ns(msg), itf.height_value(msg, self.units)))
+
+    def _on_temperature(self, msg: Temperature) -> None:
+        self._last_rx["temperature"] = self._now_ns()
+        self.received["temperature"] += 1
+        self._queue.put(("temperature", itf.stamp_ns(msg), itf.temperature_value(msg, self.units)))
+
+    def _on_time_jump(self, jump: Any) -> None:
+        if jump.delta.nanoseconds < 0:
+            self._queue.put(("__reset__", 0, None))
+
+    def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        with self._lock:
+            self.monitor.reset_alarms()
+        for m in self.models:
+            self._publish_invalidated(m.name, False)
+        resp.success = True
+        resp.message = "alarms reset"
+        return resp
+
+    # ---------------------------------------------------------------- worker thread
+
+    def feed(self, stream: str, stamp: int, value: Any) -> list[WindowReport]:
+        """Run one event through aligner and monitor (the worker calls this; tests may too)."""
+        with self._lock:
+            if stream == "flow_cmd":
+                samples = self.aligner.push_command(stamp, value)
+            else:
+                samples = self.aligner.push_measurement(
+                    0 if stream == "height" else 1, stamp, float(value)
+                )
+            out: list[WindowReport] = []
+            for s in samples:
+                out.extend(self.monitor.push(s))
+            return out
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if item[0] == "__marker__":
+                item[2].set()
+                continue
+            if item[0] == "__reset__":
+                with self._lock:
+                    self.aligner.counters.clock_resets += 1
+                    self.aligner.reset()
+                    self.monitor.reset_buffer()
+                continue
+            try:
+                reports = self.feed(*item)
+            except Exception as err:  # keep the node alive; the status says what happened
+                self.get_logger().error(f"validator failed on {item[0]} at {item[1]} ns: {err}")
+                for name in self._status:
+                    self._status[name] = (Alarm.STALE, f"internal error: {err}")
+                continue
+            for rep in reports:
+                self._publish(rep)
+
+    def wait_idle(self, timeout_s: float = 10.0) -> bool:
+        """Block until the worker has processed every queued event (tests, composition)."""
+        done = threading.Event()
+        self._queue.put(("__marker__", 0, done))
+        return done.wait(timeout_s)
+
+    def _publish(self, rep: WindowReport) -> None:
+        self._last_report[rep.model] = rep
+        self.reports.append(rep)
+        if len(self.reports) > self.max_kept_reports:
+            del self.reports[: len(self.reports) - self.max_kept_reports]
+        self._pub_report[rep.model].publish(itf.report_message(rep, self._report_cls))
+        self._pub_margin[rep.model].publish(Float64(data=float(rep.margin)))
+        self._publish_invalidated(rep.model, rep.alarm == Alarm.ERROR)
+        text = (
+            f"beta {rep.beta:.3f} (margin {rep.margin:+.3f}), "
+            + ("INVALIDATED" if rep.invalidated else "not invalidated")
+            if rep.judged
+            else f"window not judged: {rep.data_quality}"
+        )
+        self._status[rep.model] = (rep.alarm, text)
+        self._publish_diagnostics()
+
+    def _publish_invalidated(self, name: str, value: bool) -> None:
+        self._pub_invalid[name].publish(Bool(data=value))
+
+    def _publish_diagnostics(self, override: tuple[Alarm, str] | None = None) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        for m in self.models:
+            level, text = override if override is not None else self._status[m.name]
+            st = DiagnosticStatus()
+            st.level = bytes([int(level)])
+            st.name = f"twotank_validation: model {m.name}"
+            st.hardware_id = self.get_fully_qualified_name()
+            st.message = text
+            rep = self._last_report.get(m.name)
+            if rep is not None:
+                st.values = [
+                    KeyValue(key="beta", value=f"{rep.beta:.6g}"),
+                    KeyValue(key="margin", value=f"{rep.margin:.6g}"),
+                    KeyValue(key="window_end_s", value=f"{rep.end_ns / NS_PER_S:.3f}"),
+                    KeyValue(key="data_quality", value=rep.data_quality),
+                ]
+            arr.status.append(st)
+        self._pub_diag.publish(arr)
+
+    # ---------------------------------------------------------------- watchdog
+
+    def _wrong_types(self) -> list[str]:
+        problems = []
+        for stream in _STREAMS:
+            topic = self.resolve_topic_name(stream)
+            for info in self.get_publishers_info_by_topic(topic):
+                if info.topic_type != _EXPECTED_TYPES[stream]:
+                    problems.append(
+                        f"{topic} has a publisher of type {info.topic_type}, "
+                        f"expected {_EXPECTED_TYPES[stream]}"
+                    )
+        return problems
+
+    def _on_watchdog(self) -> None:
+        now = self._now_ns()
+        problems = self._wrong_types()
+        for stream, last in self._last_rx.items():
+            if last is None:
+                problems.append(f"no {stream} received yet")
+            elif now - last > self.stale_timeout_ns:
+                problems.append(f"{stream} stopped {(now - last) / NS_PER_S:.1f} s ago")
+        if problems:
+            self._publish_diagnostics((Alarm.STALE, "; ".join(problems)))
+        else:
+            self._publish_diagnostics()
+
+    def destroy_node(self) -> None:
+        """Stop the worker thread, then destroy the node."""
+        worker = getattr(self, "_worker", None)
+        if worker is not None:
+            self._queue.put(None)
+            worker.join(timeout=5.0)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """``ros2 run twotank_validation twotank_validator`` entry point."""
+    rclpy.init(args=args)
+    try:
+        node = ValidatorNode()
+    except ParameterError as err:
+        print(f"ERROR: {err}", file=sys.stderr)
+        rclpy.shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
