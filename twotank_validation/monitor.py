@@ -23,6 +23,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -485,6 +486,11 @@ class WindowMonitor:
             return []
         return self._evaluate()
 
+    def last_window(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies."""
+        u, y, stamps, _ = self._ordered(min(self._count, self.config.window_samples))
+        return stamps.copy(), u.copy(), y.copy()
+
     def _ordered(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
         """Last ``n`` buffered samples in time order."""
         cap = self.config.span_samples
@@ -644,3 +650,52 @@ def monitor_record(
             )
         )
     return out
+
+
+STREAMS = ("flow_cmd", "height", "temperature")
+
+
+class OnlineValidator:
+    """Aligner + window monitor: the one path from stamped stream values to window reports.
+
+    The live node and bag replay both feed it ``(stream, stamp_ns, value)`` events, where
+    ``stream`` is one of :data:`STREAMS` and ``value`` is ``(hot, cold)`` for ``flow_cmd`` and a
+    model-unit float for the measurements.
+
+    Args:
+        config: monitor settings.
+        models: models to validate.
+        jitter_fraction: accepted stamp distance from the sample grid (fraction of ts).
+    """
+
+    def __init__(
+        self, config: MonitorConfig, models: Sequence[LFTModel], *, jitter_fraction: float = 0.25
+    ) -> None:
+        self.config = config
+        self.monitor = WindowMonitor(config, models)
+        self.aligner = SampleAligner(
+            config.ts_s, 2, ("height", "temperature"), jitter_fraction=jitter_fraction
+        )
+        self.samples_seen = 0
+
+    def feed(self, stream: str, stamp_ns: int, value: Any) -> list[WindowReport]:
+        """One event in, the reports of any window it completes out."""
+        if stream == "flow_cmd":
+            samples = self.aligner.push_command(stamp_ns, value)
+        elif stream in ("height", "temperature"):
+            samples = self.aligner.push_measurement(
+                0 if stream == "height" else 1, stamp_ns, float(value)
+            )
+        else:
+            raise DatumError(f"unknown stream {stream!r}; expected one of {STREAMS}")
+        out: list[WindowReport] = []
+        for s in samples:
+            self.samples_seen += 1
+            out.extend(self.monitor.push(s))
+        return out
+
+    def restart(self) -> None:
+        """Forget alignment and buffered samples (clock jumped back); alarms are kept."""
+        self.aligner.counters.clock_resets += 1
+        self.aligner.reset()
+        self.monitor.reset_buffer()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +14,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from twotank_validation import lti
+from twotank_validation.datum import Datum
 from twotank_validation.experiment import ExperimentResult
 from twotank_validation.model import LFTModel, load_model
+from twotank_validation.validate import ValidationResult
 
 PAPER_BETA = {"A": 1.32, "B": 0.53}
 
@@ -82,9 +85,8 @@ def experiment_numbers(res: ExperimentResult) -> dict[str, Any]:
     return _jsonable(out)
 
 
-def plot_nyquist(model: LFTModel, res: ExperimentResult, path: Path, n_discs: int = 12) -> None:
+def plot_nyquist(model: LFTModel, d: Datum, path: Path, n_discs: int = 12) -> None:
     """Nominal hot-flow-to-temperature response with its perturbation discs (paper Fig. 6)."""
-    d = res.datum
     theta = np.linspace(1e-4, np.pi / 20, 600)
     g = lti.frequency_response(model.nominal_discrete(d.ts_s), theta)[:, 1, 0]
     pert = next(p for p in model.perturbations if 1 in p.outputs)
@@ -113,18 +115,19 @@ def plot_nyquist(model: LFTModel, res: ExperimentResult, path: Path, n_discs: in
     plt.close(fig)
 
 
-def plot_per_bin(res: ExperimentResult, path: Path) -> None:
+def plot_per_bin(results: Mapping[str, ValidationResult], path: Path, title: str = "") -> None:
     """Per-bin minimum ||W(n)|| against frequency for every model."""
     fig, ax = plt.subplots(figsize=(8, 4))
-    for name, oc in res.outcomes.items():
-        v = oc.validation
+    convention = ""
+    for name, v in results.items():
+        convention = v.convention.value
         keep = v.freqs_hz > 0
         ax.semilogx(
             v.freqs_hz[keep], v.w_min[keep], lw=0.8, label=f"Model {name} (β = {v.beta:.2f})"
         )
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("min ||W(n)||")
-    ax.set_title(f"Per-bin minimum noise norm ({res.datum.convention.value} convention)")
+    ax.set_title(title or f"Per-bin minimum noise norm ({convention} convention)")
     ax.legend()
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
@@ -132,14 +135,19 @@ def plot_per_bin(res: ExperimentResult, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_time_signals(res: ExperimentResult, path: Path) -> None:
+def plot_time_signals(
+    results: Mapping[str, ValidationResult],
+    models: Mapping[str, LFTModel],
+    time_s: np.ndarray,
+    path: Path,
+) -> None:
     """Minimum-norm weighted noise W_n w(k) and perturbation output v(k) (paper Figs. 8-9)."""
-    names = list(res.outcomes)
+    names = list(results)
     fig, axes = plt.subplots(2, len(names), figsize=(5 * len(names), 6), squeeze=False, sharex=True)
-    t = res.time_s - res.time_s[0]
+    t = time_s - time_s[0]
     for col, name in enumerate(names):
-        v = res.outcomes[name].validation
-        model = load_model(name)
+        v = results[name]
+        model = models[name]
         w = v.time_domain_noise()
         vv = v.time_domain_perturbation()
         weights = [
@@ -235,9 +243,84 @@ def write_report(res: ExperimentResult, out_dir: Path) -> dict[str, Any]:
     numbers = experiment_numbers(res)
     (out_dir / "results.json").write_text(json.dumps(numbers, indent=2))
     plot_data(res, out_dir / "data.png")
-    for name in res.outcomes:
-        plot_nyquist(load_model(name), res, out_dir / f"nyquist_{name}.png")
-    plot_per_bin(res, out_dir / "per_bin.png")
-    plot_time_signals(res, out_dir / "time_signals.png")
+    models = {name: load_model(name) for name in res.outcomes}
+    results = {name: oc.validation for name, oc in res.outcomes.items()}
+    for name, model in models.items():
+        plot_nyquist(model, res.datum, out_dir / f"nyquist_{name}.png")
+    plot_per_bin(results, out_dir / "per_bin.png")
+    plot_time_signals(results, models, res.time_s, out_dir / "time_signals.png")
     (out_dir / "summary.md").write_text(_markdown(numbers))
     return numbers
+
+
+def plot_alarm_timeline(summary: Mapping[str, Any], path: Path) -> None:
+    """Beta per window against time for each model, coloured by the debounced alarm level."""
+    colours = {"OK": "tab:green", "WARN": "tab:orange", "ERROR": "tab:red", "STALE": "0.6"}
+    models = summary["models"]
+    fig, axes = plt.subplots(
+        len(models) or 1, 1, figsize=(9, 2.6 * max(len(models), 1)), squeeze=False, sharex=True
+    )
+    for ax, (name, entry) in zip(axes[:, 0], models.items(), strict=False):
+        for w in entry["windows"]:
+            beta = w["beta"]
+            y = beta if beta is not None else 0.0
+            ax.plot(
+                [w["start"], w["end"]],
+                [y, y],
+                color=colours[w["alarm"]],
+                lw=3,
+                solid_capstyle="butt",
+            )
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_ylabel(f"β, model {name}")
+        ax.grid(alpha=0.3)
+    for level, colour in colours.items():
+        axes[0, 0].plot([], [], color=colour, lw=3, label=level)
+    axes[0, 0].legend(loc="upper left", fontsize=7, ncol=4)
+    axes[-1, 0].set_xlabel("bag time (s)")
+    axes[0, 0].set_title("Validation windows (bar = window span; grey at 0 = not judged)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_replay_report(
+    replay: Any, models: Mapping[str, LFTModel], summary: Mapping[str, Any], out_dir: Path
+) -> list[Path]:
+    """Figures of a bag replay.
+
+    The alarm timeline, and per model and window of interest (largest beta, first alarm) the
+    demo's figures: Nyquist discs, per-bin min ||W(n)||, minimum-norm time signals.
+
+    Args:
+        replay: a :class:`twotank_validation.replay.ReplayResult`.
+        models: the models by name.
+        summary: :func:`twotank_validation.replay.summary_json` of it.
+        out_dir: folder to write into.
+    """
+    from twotank_validation.datum import make_datum  # noqa: PLC0415
+    from twotank_validation.validate import validate  # noqa: PLC0415
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = [out_dir / "alarm_timeline.png"]
+    plot_alarm_timeline(summary, written[0])
+    for name, snaps in replay.snapshots.items():
+        model = models[name]
+        for why, snap in snaps.items():
+            rep = snap.report
+            d = make_datum(
+                snap.u,
+                snap.y,
+                ts_s=float(np.median(np.diff(snap.stamps_ns))) / 1e9,
+                period_samples=rep.n_samples // rep.n_periods,
+            )
+            res = validate(d, model)
+            stem = f"{name}_{why}"
+            plot_nyquist(model, d, out_dir / f"nyquist_{stem}.png")
+            plot_per_bin({name: res}, out_dir / f"per_bin_{stem}.png", title=f"model {name}, {why}")
+            t = (snap.stamps_ns - replay.bag_start_ns) / 1e9
+            plot_time_signals({name: res}, {name: model}, t, out_dir / f"time_signals_{stem}.png")
+            written += [
+                out_dir / f"{kind}_{stem}.png" for kind in ("nyquist", "per_bin", "time_signals")
+            ]
+    return written

@@ -125,6 +125,7 @@ def run_live(
     *,
     on_report: Callable[[WindowReport], None] | None = None,
     context: Context | None = None,
+    attach: Callable[[Context], tuple[Sequence[Node], Callable[[int], bool]]] | None = None,
 ) -> LiveResult:
     """Run the composition for ``config.duration_s`` simulated seconds.
 
@@ -132,6 +133,8 @@ def run_live(
         config: run settings.
         on_report: called (from the driver thread) with each new report as it appears.
         context: rclpy context to use (a fresh one is created and shut down otherwise).
+        attach: adds nodes that subscribe to the interface topics (e.g. a recorder); returns
+            them and a predicate ``synced(k)``: they have every message of sample k.
     """
     own = context is None
     ctx = context or Context()
@@ -171,7 +174,9 @@ def run_live(
             ],
         )
         driver = Node("twotank_clock", context=ctx)
-        nodes = [exc, plant, val, driver]
+        extra_nodes, synced = attach(ctx) if attach is not None else ((), None)
+        nodes = [exc, plant, val, driver, *extra_nodes]
+        n_extra = 1 if attach is not None else 0
         clock_pub = driver.create_publisher(Clock, "/clock", 10)
         executor = SingleThreadedExecutor(context=ctx)
         for n in nodes:
@@ -180,8 +185,8 @@ def run_live(
         _spin_until(
             executor,
             lambda: (
-                exc.pub.get_subscription_count() >= 2
-                and plant.pub_height.get_subscription_count() >= 1
+                exc.pub.get_subscription_count() >= 2 + n_extra
+                and plant.pub_height.get_subscription_count() >= 1 + n_extra
             ),
             10.0,
         )
@@ -198,6 +203,10 @@ def run_live(
                 raise RuntimeError(f"plant did not receive the command of t = {t / NS_PER_S:.1f} s")
             plant.tick(t)
             # lockstep: the validator has every message of this sample before time moves on
+            if synced is not None and not _spin_until(executor, partial(synced, k)):
+                raise RuntimeError(
+                    f"attached nodes did not receive the sample of t = {t / NS_PER_S:.1f} s"
+                )
             if not _spin_until(executor, partial(_sample_arrived, val, k)):
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.1f} s"

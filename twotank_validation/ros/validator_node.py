@@ -38,8 +38,7 @@ from twotank_validation.monitor import (
     Alarm,
     AlarmConfig,
     MonitorConfig,
-    SampleAligner,
-    WindowMonitor,
+    OnlineValidator,
     WindowReport,
 )
 from twotank_validation.ros import interfaces as itf
@@ -160,15 +159,13 @@ class ValidatorNode(Node):
             self.models = (
                 list(models) if models is not None else [load_model(m) for m in values["models"]]
             )
-            self.monitor = WindowMonitor(self.config, self.models)
+            self.core = OnlineValidator(
+                self.config, self.models, jitter_fraction=float(values["jitter_fraction"])
+            )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
-        self.aligner = SampleAligner(
-            self.config.ts_s,
-            2,
-            ("height", "temperature"),
-            jitter_fraction=float(values["jitter_fraction"]),
-        )
+        self.monitor = self.core.monitor
+        self.aligner = self.core.aligner
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
         flow_cls, self._report_cls = itf.message_classes()
 
@@ -260,16 +257,7 @@ class ValidatorNode(Node):
     def feed(self, stream: str, stamp: int, value: Any) -> list[WindowReport]:
         """Run one event through aligner and monitor (the worker calls this; tests may too)."""
         with self._lock:
-            if stream == "flow_cmd":
-                samples = self.aligner.push_command(stamp, value)
-            else:
-                samples = self.aligner.push_measurement(
-                    0 if stream == "height" else 1, stamp, float(value)
-                )
-            out: list[WindowReport] = []
-            for s in samples:
-                out.extend(self.monitor.push(s))
-            return out
+            return self.core.feed(stream, stamp, value)
 
     def _work(self) -> None:
         while True:
@@ -281,9 +269,7 @@ class ValidatorNode(Node):
                 continue
             if item[0] == "__reset__":
                 with self._lock:
-                    self.aligner.counters.clock_resets += 1
-                    self.aligner.reset()
-                    self.monitor.reset_buffer()
+                    self.core.restart()
                 continue
             try:
                 reports = self.feed(*item)
