@@ -119,6 +119,117 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
     }
 
 
+EXIT_INCOMPLETE = 3
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from twotank_validation.bags.scenario import simulate_command  # noqa: PLC0415
+
+    path = simulate_command(args.scenario, args.out, args.storage)
+    print(f"wrote {path}")
+    return 0
+
+
+def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
+    from twotank_validation.monitor import STREAMS  # noqa: PLC0415
+
+    topics = {s: s for s in STREAMS}
+    for pair in pairs or ():
+        stream, sep, topic = pair.partition("=")
+        if not sep or stream not in topics or not topic:
+            raise UsageError(
+                f"--topic expects STREAM=TOPIC with STREAM in {list(STREAMS)}, found {pair!r}"
+            )
+        topics[stream] = topic
+    return topics
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from twotank_validation import replay, report  # noqa: PLC0415
+    from twotank_validation.model import load_model  # noqa: PLC0415
+    from twotank_validation.monitor import AlarmConfig, MonitorConfig  # noqa: PLC0415
+    from twotank_validation.ros.interfaces import RigUnits  # noqa: PLC0415
+
+    models = [load_model(m) for m in (args.model or ["A", "B"])]
+    try:
+        cfg = replay.ReplayConfig(
+            monitor=MonitorConfig(
+                ts_s=args.ts,
+                period_samples=args.period,
+                periods_per_window=args.periods_per_window,
+                settle_periods=args.settle_periods,
+                convention=NormConvention(args.norm),
+                alarm=AlarmConfig(),
+            ),
+            topics=_topic_map(args.topic),
+            units=RigUnits(
+                args.pascal_per_unit, args.temperature_offset_c, args.temperature_span_c
+            ),
+        )
+    except ValueError as err:
+        raise UsageError(str(err)) from err
+    bar = None
+    if not args.quiet:
+        bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5, disable=None)
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.total = max(total, done)
+            bar.n = done
+            bar.refresh()
+
+    result = replay.replay_bag(args.bag, models, cfg, progress=progress)
+    if bar is not None:
+        bar.close()
+    summary = replay.summary_json(result)
+    print(f"{'window (s)':>21}  {'model':<6} {'beta':>7}  {'verdict':<12} alarm")
+    for name, entry in summary["models"].items():
+        for w in entry["windows"]:
+            verdict = (
+                ("INVALIDATED" if w["invalidated"] else "valid")
+                if w["beta"] is not None
+                else "not judged"
+            )
+            beta = f"{w['beta']:7.3f}" if w["beta"] is not None else "      -"
+            extra = f"  ({w['reason']})" if w["reason"] else ""
+            print(
+                f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<12} "
+                f"{w['alarm']}{extra}"
+            )
+    for name, entry in summary["models"].items():
+        bmax = "-" if entry["beta_max"] is None else f"{entry['beta_max']:.3f}"
+        first = "none" if entry["first_alarm"] is None else f"{entry['first_alarm']:.1f} s"
+        print(f"model {name}: beta_max {bmax}, first alarm {first}")
+    for problem in result.problems:
+        print(f"WARNING: {problem}", file=sys.stderr)
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2))
+    if args.report:
+        report.write_replay_report(result, {m.name: m for m in models}, summary, Path(args.report))
+    print(
+        f"{result.messages} messages; decoding {result.decode_s:.2f} s, "
+        f"validation {result.validate_s:.2f} s; "
+        + ("complete" if result.complete else "INCOMPLETE"),
+        file=sys.stderr,
+    )
+    return 0 if result.complete else EXIT_INCOMPLETE
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    _loopback_only()
+    from twotank_validation.ros.record import record  # noqa: PLC0415 (needs rclpy)
+
+    counts = record(
+        args.out, duration_s=args.duration, storage=args.storage, topics=_topic_map(args.topic)
+    )
+    print(f"wrote {args.out}: " + ", ".join(f"{t} {n}" for t, n in counts.items()))
+    return 0
+
+
+class UsageError(TwotankError, ValueError):
+    """A command-line argument is not usable (the message says which)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (one sub-command per job)."""
     parser = argparse.ArgumentParser(
@@ -150,6 +261,52 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--seed", type=int, default=0, help="plant noise seed")
     live.add_argument("--json", action="store_true", help="one JSON object per report")
     live.set_defaults(func=_cmd_live)
+
+    sim = sub.add_parser("simulate", help="simulate a scenario of the rig into a rosbag2 bag")
+    sim.add_argument(
+        "--scenario", required=True, help="scenario YAML file or shipped name (e.g. nominal, leak)"
+    )
+    sim.add_argument("--out", required=True, help="bag to write (must not exist)")
+    sim.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    sim.set_defaults(func=_cmd_simulate)
+
+    rec = sub.add_parser("record", help="record the interface topics of a live system into a bag")
+    rec.add_argument("--out", required=True, help="bag to write (must not exist)")
+    rec.add_argument(
+        "--duration", type=float, default=None, help="seconds (ROS time); default: until Ctrl-C"
+    )
+    rec.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    rec.add_argument(
+        "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
+    )
+    rec.set_defaults(func=_cmd_record)
+
+    val = sub.add_parser(
+        "validate", help="validate recorded bags through the live validator's code"
+    )
+    val.add_argument("bag", help="rosbag2 directory (MCAP or SQLite3) or a plain .mcap file")
+    val.add_argument(
+        "--model", action="append", help="model name or YAML path (repeat; default A and B)"
+    )
+    val.add_argument("--json", help="write the per-window results as JSON to this file")
+    val.add_argument("--report", help="write figures (alarm timeline, windows of interest) here")
+    val.add_argument(
+        "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
+    )
+    val.add_argument("--ts", type=float, default=0.1, help="sample period of the recording (s)")
+    val.add_argument("--period", type=int, default=2048, help="excitation period (samples)")
+    val.add_argument("--periods-per-window", type=int, default=2)
+    val.add_argument("--settle-periods", type=int, default=1)
+    val.add_argument("--norm", choices=[c.value for c in NormConvention], default="power")
+    val.add_argument(
+        "--pascal-per-unit", type=float, default=9806.65, help="level: Pa per model unit"
+    )
+    val.add_argument(
+        "--temperature-offset-c", type=float, default=15.0, help="degC of model unit 0"
+    )
+    val.add_argument("--temperature-span-c", type=float, default=50.0, help="degC per model unit")
+    val.add_argument("--quiet", action="store_true", help="no progress bar")
+    val.set_defaults(func=_cmd_validate)
     return parser
 
 
