@@ -35,8 +35,8 @@ from tqdm import tqdm
 from twotank_validation import excitation, rig
 from twotank_validation.bags.writer import (
     STORAGES,
-    BagError,
     BagExistsError,
+    BagWriteError,
     BagWriter,
     flow_command,
     fluid_pressure,
@@ -584,7 +584,7 @@ def simulate_command(scenario: str, out: str, storage: str = "mcap") -> Path:
             storage, BagExistsError if ``out`` exists, ModelError if the tank empties.
     """
     if storage not in STORAGES:
-        raise BagError(f"--storage {storage!r} is not a bag storage; use one of {STORAGES}")
+        raise BagWriteError(f"--storage {storage!r} is not a bag storage; use one of {STORAGES}")
     if Path(out).exists() or Path(out).is_symlink():
         raise BagExistsError(
             f"{out} exists already; bags are never overwritten: choose another --out"

@@ -27,7 +27,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from twotank_validation.errors import TwotankError
+from twotank_validation.bags.reader import BagError
 from twotank_validation.ros.interfaces import (
     FLOW_CMD_TYPE,
     HEIGHT_TYPE,
@@ -44,6 +44,7 @@ __all__ = [
     "STORAGES",
     "BagError",
     "BagExistsError",
+    "BagWriteError",
     "BagWriter",
     "flow_command",
     "fluid_pressure",
@@ -76,11 +77,11 @@ _MAX_LOG_TIME_NS: Final = 2**63 - 1
 _MAX_STAMP_NS: Final = (2**31 - 1) * _NS_PER_S + _NS_PER_S - 1  # builtin_interfaces/Time, int32 sec
 
 
-class BagError(TwotankError, ValueError):
+class BagWriteError(BagError, ValueError):
     """A bag cannot be written as asked (storage, topic, type, time, or a closed bag)."""
 
 
-class BagExistsError(BagError, FileExistsError):
+class BagExistsError(BagWriteError, FileExistsError):
     """The bag's path exists already; bags are never overwritten."""
 
 
@@ -113,7 +114,7 @@ def interface_msg_dir(search: Sequence[Path] | None = None) -> Path:
         if all((place / f"{name}.msg").is_file() for name in _OWN_MESSAGES):
             return place
     looked = "\n  ".join(str(p) for p in candidates)
-    raise BagError(
+    raise BagWriteError(
         f"cannot find the message definitions {', '.join(n + '.msg' for n in _OWN_MESSAGES)} "
         f"of {INTERFACE_PACKAGE}; looked in:\n  {looked}\n"
         "install the interface package (bash scripts/run exec true, or a colcon build of msgs/) "
@@ -139,7 +140,7 @@ def typestore() -> Typestore:
         try:
             types.update(get_types_from_msg(path.read_text(), f"{INTERFACE_PACKAGE}/msg/{name}"))
         except Exception as err:
-            raise BagError(f"{path}: cannot parse the message definition: {err}") from err
+            raise BagWriteError(f"{path}: cannot parse the message definition: {err}") from err
     store.register(types)
     return store
 
@@ -167,7 +168,9 @@ class BagWriter:
         self, path: str | os.PathLike[str], storage: str = "mcap", *, store: Typestore | None = None
     ) -> None:
         if storage not in STORAGES:
-            raise BagError(f"storage={storage!r} is not a known bag storage; use one of {STORAGES}")
+            raise BagWriteError(
+                f"storage={storage!r} is not a known bag storage; use one of {STORAGES}"
+            )
         self.path = Path(path)
         self.storage = storage
         if self.path.exists() or self.path.is_symlink():
@@ -182,7 +185,7 @@ class BagWriter:
         except WriterError as err:  # created by someone else in between
             raise BagExistsError(f"{self.path}: {err}") from err
         except OSError as err:
-            raise BagError(f"cannot create the bag {self.path}: {err}") from err
+            raise BagWriteError(f"cannot create the bag {self.path}: {err}") from err
         self._connections: dict[str, Connection] = {}
         self._closed = False
 
@@ -233,7 +236,7 @@ class BagWriter:
 
     def _check_open(self) -> None:
         if self._closed:
-            raise BagError(f"the bag {self.path} is closed; nothing more can be written to it")
+            raise BagWriteError(f"the bag {self.path} is closed; nothing more can be written to it")
 
     def add_topic(
         self, topic: str, msgtype: str, *, offered_qos_profiles: Sequence[Qos] = ()
@@ -246,13 +249,13 @@ class BagWriter:
         """
         self._check_open()
         if not isinstance(topic, str) or not topic:
-            raise BagError(f"topic={topic!r} must be a non-empty string")
+            raise BagWriteError(f"topic={topic!r} must be a non-empty string")
         if topic in self._connections:
-            raise BagError(
+            raise BagWriteError(
                 f"topic {topic!r} is registered already (type {self._connections[topic].msgtype})"
             )
         if msgtype not in self._store.types:
-            raise BagError(
+            raise BagWriteError(
                 f"message type {msgtype!r} of topic {topic!r} is not in the type store "
                 "(ROS 2 Kilted types and twotank_validation_msgs); write 'pkg/msg/Name'"
             )
@@ -267,7 +270,7 @@ class BagWriter:
         try:
             return self._connections[topic]
         except KeyError:
-            raise BagError(
+            raise BagWriteError(
                 f"topic {topic!r} is not registered; call add_topic first "
                 f"(registered: {sorted(self._connections)})"
             ) from None
@@ -275,10 +278,12 @@ class BagWriter:
     @staticmethod
     def _check_time(topic: str, log_time_ns: int) -> int:
         if isinstance(log_time_ns, bool) or not hasattr(log_time_ns, "__index__"):
-            raise BagError(f"log time {log_time_ns!r} on {topic!r} must be integer nanoseconds")
+            raise BagWriteError(
+                f"log time {log_time_ns!r} on {topic!r} must be integer nanoseconds"
+            )
         t = int(log_time_ns)
         if not 0 <= t <= _MAX_LOG_TIME_NS:
-            raise BagError(f"log time {t} ns on {topic!r} is outside 0 .. 2**63 - 1 ns")
+            raise BagWriteError(f"log time {t} ns on {topic!r} is outside 0 .. 2**63 - 1 ns")
         return t
 
     def write(self, topic: str, log_time_ns: int, msg: object) -> None:
@@ -291,7 +296,7 @@ class BagWriter:
         t = self._check_time(topic, log_time_ns)
         msgtype = getattr(msg, "__msgtype__", None)
         if msgtype != conn.msgtype:
-            raise BagError(
+            raise BagWriteError(
                 f"topic {topic!r} carries {conn.msgtype}, got a message of type "
                 f"{msgtype or type(msg).__name__}; build it from this writer's typestore"
             )
@@ -306,7 +311,7 @@ class BagWriter:
         conn = self._connection(topic)
         t = self._check_time(topic, log_time_ns)
         if not isinstance(data, bytes | bytearray | memoryview) or len(data) < 4:
-            raise BagError(
+            raise BagWriteError(
                 f"data on {topic!r} must be serialised CDR bytes (>= 4 bytes), got "
                 f"{type(data).__name__}"
             )
@@ -316,7 +321,7 @@ class BagWriter:
         """Store a string under ``key`` in the bag's ``custom_data`` (metadata.yaml)."""
         self._check_open()
         if not isinstance(value, str):
-            raise BagError(f"custom data {key!r} must be a string, got {type(value).__name__}")
+            raise BagWriteError(f"custom data {key!r} must be a string, got {type(value).__name__}")
         self._writer.set_custom_data(key, value)
 
 
@@ -325,10 +330,10 @@ class BagWriter:
 
 def _header(store: Typestore, stamp_ns: int) -> Any:
     if isinstance(stamp_ns, bool) or not hasattr(stamp_ns, "__index__"):
-        raise BagError(f"stamp {stamp_ns!r} must be integer nanoseconds")
+        raise BagWriteError(f"stamp {stamp_ns!r} must be integer nanoseconds")
     ns = int(stamp_ns)
     if not 0 <= ns <= _MAX_STAMP_NS:
-        raise BagError(f"stamp {ns} ns is outside builtin_interfaces/Time (0 .. 2**31 s)")
+        raise BagWriteError(f"stamp {ns} ns is outside builtin_interfaces/Time (0 .. 2**31 s)")
     time_cls = store.types["builtin_interfaces/msg/Time"]
     header_cls = store.types["std_msgs/msg/Header"]
     return header_cls(
