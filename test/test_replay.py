@@ -257,3 +257,50 @@ def test_record_command_writes_what_it_received(tmp_path) -> None:
     with reader.open_bag(out) as bag:
         got = [m.msg.fluid_pressure for m in bag.messages(["height"])]
     assert got == [4600.0 + k for k in range(sent)]
+
+
+def test_plain_mcap_of_another_tool_replays_like_the_rosbag2_bag(workdir, tmp_path) -> None:
+    """A plain MCAP file (mcap_ros2 writer, no metadata.yaml) with the same samples gives the
+    same reports as the rosbag2 bag written by `simulate`."""
+    import sys  # noqa: PLC0415
+
+    from twotank_validation.ros.interfaces import RigUnits  # noqa: PLC0415
+
+    sys.path.insert(0, str(Path(__file__).parent / "data"))
+    import make_bags as mb  # noqa: PLC0415
+
+    stamps, u, y = sc.simulate_scenario(fast_scenario())
+    units = RigUnits()
+    msgs = []
+    for k, t in enumerate(stamps.tolist()):
+        msgs.append(
+            mb.Sample("flow_cmd", mb.FLOW_CMD_TYPE, t, t, {"hot": u[k, 0], "cold": u[k, 1]})
+        )
+        p = units.pressure_from_level(float(y[k, 0]))
+        msgs.append(
+            mb.Sample("height", mb.HEIGHT_TYPE, t, t, {"fluid_pressure": p, "variance": 0.0})
+        )
+        c = units.celsius_from_temperature(float(y[k, 1]))
+        msgs.append(
+            mb.Sample("temperature", mb.TEMPERATURE_TYPE, t, t, {"temperature": c, "variance": 0.0})
+        )
+    plain = mb.write_plain_mcap(tmp_path / "plain.mcap", msgs)
+    cfg = replay.ReplayConfig(monitor=FAST)
+    got = replay.replay_bag(plain, models(), cfg)
+    ref = replay.replay_bag(nominal_bag(workdir), models(), cfg)
+    assert got.complete, got.problems
+    assert [r.beta for r in got.reports if r.judged] == [r.beta for r in ref.reports if r.judged]
+
+
+def test_report_folder_has_timeline_and_windows_of_interest(workdir, tmp_path) -> None:
+    out = tmp_path / "figs"
+    assert cli.main(["validate", str(nominal_bag(workdir)), "--report", str(out), *FAST_ARGS]) == 0
+    names = {p.name for p in out.glob("*.png")}
+    assert "alarm_timeline.png" in names
+    for kind in ("nyquist", "per_bin", "time_signals"):
+        assert f"{kind}_A_max_beta.png" in names
+        assert f"{kind}_A_first_alarm.png" in names  # Model A alarms on the nominal rig
+        assert f"{kind}_B_max_beta.png" in names
+    assert not any(
+        n.startswith(("nyquist_B_first", "per_bin_B_first")) for n in names
+    )  # B never alarms
