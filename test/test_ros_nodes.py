@@ -332,3 +332,10 @@ def test_plant_faults_switch_at_run_time_through_parameters() -> None:
         plant.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_entry_point_refuses_invalid_parameters(capsys) -> None:
+    from twotank_validation.ros import validator_node  # noqa: PLC0415
+
+    assert validator_node.main(["validator", "--ros-args", "-p", "period_samples:=2"]) == 1
+    assert "period_samples" in capsys.readouterr().err

@@ -13,17 +13,22 @@ Custom types are rebuilt from the definitions stored in the bag. Where a bag car
 ``twotank_validation_msgs`` (from ``<sys.prefix>/share/twotank_validation_msgs/msg``, a colcon
 prefix in ``AMENT_PREFIX_PATH``, or the repository's ``msg/``) are used instead.
 
-Damage. When the index of a bag cannot be read (an MCAP file cut short by a killed recorder
-has no summary and no footer; a truncated SQLite3 file fails the index queries), the reader
-falls back to a linear scan that recovers everything before the damage: for MCAP every
-complete record up to the cut, including the complete messages of an uncompressed chunk
-that was cut in the middle, with each chunk's messages sorted by log time (chunks follow in
-file order); for SQLite3 every row the database still returns in time order. ``info.damage``
-then says what was found. :meth:`BagReader.messages` yields the readable messages first and
-raises :class:`BagCorruptError` (with ``messages_read`` and ``last_good_ns``) where the
-damage starts. Every error of this module is a :class:`BagError`; errors of the underlying
+Damage. When the index of a bag cannot be used (an MCAP file cut short by a killed recorder
+has no summary and no footer; a truncated SQLite3 file fails the index queries; counts or
+time ranges contradict each other), the reader falls back to a scan that recovers everything
+before the damage. MCAP: every complete record up to the first bad one, including the
+complete messages at the head of an uncompressed chunk the file cuts short; the scan at open
+notes each chunk's byte and time range (an index rebuilt from the data) and the messages are
+then merged in log-time order, chunk by chunk. SQLite3: every row SQLite still returns, in
+time order through the timestamp index, or in insertion order through the table if that
+reaches further (``writable_schema`` lets SQLite use the pages a truncated file has).
+``info.damage`` says what was found. :meth:`BagReader.messages` yields the readable messages
+first and raises :class:`BagCorruptError` (``messages_read``, ``last_good_ns``) where the
+damage starts; through an index, reading fewer messages than it lists or going back in time
+is damage too. Every error of this module is a :class:`BagError`; errors of the underlying
 libraries (rosbags, mcap, sqlite3, yaml, struct, decompressors) are wrapped ``from`` the
-original. The reader never loops on garbage: every loop advances through a file of known size.
+original. The reader never loops on garbage: every loop advances through a file of known
+size, record lengths are checked against it, and decompression stops at the declared size.
 
 This module imports rosbags, mcap and mcap-ros2-support, never rclpy.
 """
@@ -446,9 +451,13 @@ class _RosbagsBackend(_Backend):
                 types.setdefault(c.topic, set()).add(_norm_type(c.msgtype))
                 self.counts[c.topic] = self.counts.get(c.topic, 0) + int(c.msgcount)
             self.topics = {t: tuple(sorted(v)) for t, v in types.items()}
-            if self._reader.message_count:
+            total = int(self._reader.message_count)
+            if total:
                 self.start_ns = int(self._reader.start_time)
                 self.end_ns = int(self._reader.end_time) - 1  # rosbags: one past the last
+            _check_index(self.counts, total, self.start_ns, self.end_ns)
+            if not total and next(self._reader.messages(), None) is not None:
+                raise _NeedScan("its metadata counts no message but the storage holds some")
         except BaseException:
             self._reader.close()
             raise
@@ -580,6 +589,9 @@ class _PlainMcapBackend(_Backend):
         if stats.message_count:
             self.start_ns = int(stats.message_start_time)
             self.end_ns = int(stats.message_end_time)
+        _check_index(self.counts, int(stats.message_count), self.start_ns, self.end_ns)
+        if not stats.message_count and summary.chunk_indexes:
+            raise _NeedScan("its statistics count no message but it has chunks")
 
     def _msgtype(self, schema_id: int) -> str:
         schema = self._schemas.get(schema_id)
@@ -619,6 +631,19 @@ class _NeedScan(Exception):  # noqa: N818 - internal signal
     def __init__(self, reason: str, *, benign: bool = False) -> None:
         super().__init__(reason)
         self.benign = benign
+
+
+def _check_index(
+    counts: Mapping[str, int], total: int, start_ns: int | None, end_ns: int | None
+) -> None:
+    """Raise _NeedScan if an index's counts and time range contradict each other."""
+    if sum(counts.values()) != total or any(n < 0 for n in counts.values()):
+        raise _NeedScan(
+            f"its index is inconsistent: {total} messages in all, "
+            f"{sum(counts.values())} counted per topic"
+        )
+    if start_ns is not None and end_ns is not None and start_ns > end_ns:
+        raise _NeedScan("its index is inconsistent: its time range ends before it starts")
 
 
 class _Cursor:
@@ -1274,7 +1299,7 @@ def _open_rosbag2(bagdir: Path, info: Mapping[str, Any] | None = None) -> _Backe
     try:
         return _RosbagsBackend(bagdir, storage, bagdir)
     except Exception as err:  # any failure of the index path: scan instead
-        reason = f"its index could not be read ({_short(err)})"
+        reason = _why(err)
         if mode == "file":
             raise BagCorruptError(
                 f"bag {bagdir} cannot be read: {reason}; its files are compressed whole, so "
@@ -1292,6 +1317,13 @@ def _open_rosbag2(bagdir: Path, info: Mapping[str, Any] | None = None) -> _Backe
         return _SqliteScanBackend(
             files, bagdir, reason=reason, message_compression=mode == "message"
         )
+
+
+def _why(err: Exception) -> str:
+    """Why the index path failed, for ``info.damage``."""
+    if isinstance(err, _NeedScan):
+        return str(err)
+    return f"its index could not be read ({_short(err)})"
 
 
 def _head(path: Path) -> bytes:
@@ -1336,7 +1368,7 @@ def _open_file(path: Path) -> _Backend:  # noqa: PLR0911 - one return per kind o
                     [path],
                     STORAGE_MCAP,
                     path,
-                    reason=f"its index could not be read ({_short(err)})",
+                    reason=_why(err),
                 )
         try:
             return _PlainMcapBackend(path)
@@ -1345,14 +1377,14 @@ def _open_file(path: Path) -> _Backend:  # noqa: PLR0911 - one return per kind o
                 [path], STORAGE_MCAP_PLAIN, path, reason=str(err), benign=err.benign
             )
         except Exception as err:  # an unreadable summary: scan instead
-            why = f"its index could not be read ({_short(err)})"
+            why = _why(err)
             return _McapScanBackend([path], STORAGE_MCAP_PLAIN, path, reason=why)
     if _is_sqlite(head, path):
         if path.suffix == ".db3":
             try:
                 return _RosbagsBackend(path, STORAGE_SQLITE3, path)
             except Exception as err:  # scan instead
-                reason = f"its index could not be read ({_short(err)})"
+                reason = _why(err)
         else:
             reason = "a SQLite3 file without the .db3 suffix"
         return _SqliteScanBackend([path], path, reason=reason, message_compression=False)
@@ -1555,8 +1587,8 @@ class BagReader:
 
         Memory stays bounded whatever the bag's length. On a damaged bag every message
         readable before the damage is yielded first, then :class:`BagCorruptError` is raised.
-        (After damage found at open, ``info.damage``, the order is log time within each MCAP
-        chunk, chunks in file order.)
+        (One exception: a SQLite3 file whose time index is damaged is read in insertion
+        order, the recorder's write order; ``info.damage`` says so.)
 
         Args:
             topics: topic names (a single string is one topic).

@@ -10,14 +10,13 @@ import sys
 from typing import Any
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 
 from twotank_validation import excitation, rig
 from twotank_validation.errors import TwotankError
 from twotank_validation.monitor import NS_PER_S
 from twotank_validation.ros import interfaces as itf
-from twotank_validation.ros.params import Param, ParameterError, declare
+from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 
 EXCITATION_PARAMS = (
     Param(
@@ -90,22 +89,7 @@ class ExcitationNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_excitation`` entry point."""
-    rclpy.init(args=args)
-    try:
-        node = ExcitationNode()
-    except ParameterError as err:
-        print(f"ERROR: {err}", file=sys.stderr)
-        rclpy.shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(ExcitationNode, args)
 
 
 if __name__ == "__main__":

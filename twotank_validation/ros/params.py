@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
@@ -66,3 +68,28 @@ def declare(node: Node, params: Sequence[Param]) -> dict[str, Any]:
             raise ParameterError(f"parameter {p.name!r} = {value} is outside [{p.low}, {p.high}]")
         values[p.name] = value
     return values
+
+
+def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Entry point body shared by the nodes: init, build (invalid parameters -> exit 1), spin.
+
+    Args:
+        factory: builds the node (raises :class:`ParameterError` on bad parameters).
+        args: command-line arguments for ``rclpy.init`` (``--ros-args ...``).
+    """
+    rclpy.init(args=args)
+    try:
+        node = factory()
+    except ParameterError as err:
+        print(f"ERROR: {err}", file=sys.stderr)
+        rclpy.shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

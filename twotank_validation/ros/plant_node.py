@@ -31,7 +31,7 @@ from twotank_validation.errors import TwotankError
 from twotank_validation.fault_spec import parse_fault
 from twotank_validation.monitor import NS_PER_S
 from twotank_validation.ros import interfaces as itf
-from twotank_validation.ros.params import Param, ParameterError, declare
+from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 
 PLANT_PARAMS = (
     Param("ts_s", 0.1, "sample period (s)", 1e-3, 60.0),
@@ -163,22 +163,7 @@ class PlantNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_plant`` entry point."""
-    rclpy.init(args=args)
-    try:
-        node = PlantNode()
-    except ParameterError as err:
-        print(f"ERROR: {err}", file=sys.stderr)
-        rclpy.shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(PlantNode, args)
 
 
 if __name__ == "__main__":

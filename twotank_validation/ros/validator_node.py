@@ -20,7 +20,6 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
@@ -42,7 +41,7 @@ from twotank_validation.monitor import (
     WindowReport,
 )
 from twotank_validation.ros import interfaces as itf
-from twotank_validation.ros.params import Param, ParameterError, declare
+from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 
 VALIDATOR_PARAMS = (
     Param("models", ["A", "B"], "models to validate: built-in names (A, B) or YAML file paths"),
@@ -366,22 +365,7 @@ class ValidatorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_validator`` entry point."""
-    rclpy.init(args=args)
-    try:
-        node = ValidatorNode()
-    except ParameterError as err:
-        print(f"ERROR: {err}", file=sys.stderr)
-        rclpy.shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(ValidatorNode, args)
 
 
 if __name__ == "__main__":
