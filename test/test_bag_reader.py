@@ -13,9 +13,11 @@ import contextlib
 import importlib.util
 import json
 import random
+import re
 import shutil
 import signal
 import sqlite3
+import struct
 import sys
 import tempfile
 import tracemalloc
@@ -477,6 +479,36 @@ def test_corrupt_db3_pages(tmp_path):
         got, err = read_all(path)
         assert err is None or isinstance(err, BagCorruptError | BagFormatError), (page, err)
         assert set(got) <= want
+
+
+def test_inconsistent_mcap_statistics_fall_back_to_the_scan(tmp_path, samples):
+    """Statistics claiming no message must not make a full file look empty."""
+    path = write("plain", tmp_path / "bag", samples, chunk_size=300)
+    data = bytearray(path.read_bytes())
+    (summary_start,) = struct.unpack_from("<Q", data, len(data) - 8 - 20)  # footer
+    at = summary_start
+    while data[at] != 0x0B:  # walk the summary records to the statistics record
+        at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+    struct.pack_into("<Q", data, at + 9, 0)  # its message_count
+    path.write_bytes(bytes(data))
+    with open_bag(path) as bag:
+        assert "inconsistent" in (bag.info.damage or "")
+        assert bag.info.message_counts == dict.fromkeys(TOPICS, 6)
+    got, err = read_all(path)
+    assert err is None
+    assert got == [expected_tuple(s) for s in sorted(samples, key=lambda s: s.log_time_ns)]
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_metadata_counting_no_message_does_not_hide_the_data(tmp_path, samples, storage):
+    path = write(storage, tmp_path / "bag", samples)
+    meta = path / "metadata.yaml"
+    meta.write_text(re.sub(r"message_count: \d+", "message_count: 0", meta.read_text()))
+    with open_bag(path) as bag:
+        assert "counts no message" in (bag.info.damage or "")
+    got, err = read_all(path)
+    assert err is None
+    assert len(got) == len(samples)
 
 
 def test_crc_mismatch_in_a_chunk_stops_the_read(tmp_path, samples):

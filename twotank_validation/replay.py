@@ -126,7 +126,7 @@ def replay_bag(
         except (bag_reader.TopicMissingError, bag_reader.TopicTypeError) as err:
             result.complete = False
             result.problems.append(str(err))
-            present = {t for t in wanted if bag.info.topics.get(t) in expected[_stream_of(cfg, t)]}
+            present = {t for t in wanted if _usable(bag, t, expected[_stream_of(cfg, t)])}
             if not present:
                 return result
             wanted = {t: v for t, v in wanted.items() if t in present}
@@ -136,7 +136,7 @@ def replay_bag(
             return result
         stream_of = {cfg.topics[s]: s for s in STREAMS}
         extract = {t: extractor(stream_of[t], cfg.units) for t in wanted}
-        total = sum(bag.info.message_counts.get(t, 0) for t in wanted)
+        total = sum(bag.info.message_counts.get(bag.resolve_topic(t) or t, 0) for t in wanted)
         t_dec = t_val = 0.0
         tick = time.perf_counter()
         try:
@@ -172,6 +172,16 @@ def replay_bag(
     if progress is not None:
         progress(result.messages, max(result.messages, 1))
     return result
+
+
+def _usable(bag: bag_reader.BagReader, topic: str, types: tuple[str, ...]) -> bool:
+    """The bag holds messages of ``topic`` (``x`` also matches ``/x``) of an accepted type."""
+    name = bag.resolve_topic(topic)
+    return (
+        name is not None
+        and bag.info.topics.get(name) in types
+        and bag.info.message_counts.get(name, 0) > 0
+    )
 
 
 def _stream_of(cfg: ReplayConfig, topic: str) -> str:
