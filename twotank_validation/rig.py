@@ -710,6 +710,23 @@ def _regrown(history: list[float], j: int, capacity: int, current: float) -> lis
     return grown
 
 
+def _read_back(history: list[float], j: int, back: float) -> float:
+    """Ring-buffer value ``back`` steps before index ``j``, linearly interpolated.
+
+    ``history[k % len(history)]`` holds step ``k``; reads older than the buffer return its
+    oldest retained value.
+    """
+    capacity = len(history)
+    pos = j - back
+    lo = math.floor(pos)
+    oldest = j - capacity + 1
+    if lo < oldest:
+        lo, frac = oldest, 0.0
+    else:
+        frac = pos - lo
+    return (1.0 - frac) * history[lo % capacity] + frac * history[(lo + 1) % capacity]
+
+
 class TankSimulator:
     """Steppable nonlinear simulator (the ROS plant node will step it live, one sample at a time).
 
@@ -921,17 +938,8 @@ class TankSimulator:
             return
         self._delay_per_height = delay_per_height
         history = self._history
-        capacity = len(history)
-        j = self._grid_index
-        if capacity > 1:
-            pos = j - delay_per_height * self._h
-            lo = math.floor(pos)
-            oldest = j - capacity + 1
-            if lo < oldest:
-                lo, frac = oldest, 0.0
-            else:
-                frac = pos - lo
-            delayed = (1.0 - frac) * history[lo % capacity] + frac * history[(lo + 1) % capacity]
+        if len(history) > 1:
+            delayed = _read_back(history, self._grid_index, delay_per_height * self._h)
         else:
             delayed = self._e / self._h
         self._delayed = delayed
@@ -940,17 +948,7 @@ class TankSimulator:
 
     def _delayed_sensor(self, channel: int, delay_s: float) -> float:
         """Fault-free measurement of ``channel`` ``delay_s`` seconds ago (linear interpolation)."""
-        history = self._sensor_history[channel]
-        capacity = len(history)
-        j = self._grid_index
-        pos = j - delay_s / self._dt
-        lo = math.floor(pos)
-        oldest = j - capacity + 1
-        if lo < oldest:
-            lo, frac = oldest, 0.0
-        else:
-            frac = pos - lo
-        return (1.0 - frac) * history[lo % capacity] + frac * history[(lo + 1) % capacity]
+        return _read_back(self._sensor_history[channel], self._grid_index, delay_s / self._dt)
 
     def _clean(self) -> tuple[float, float]:
         """[height, temperature] as measured now without noise, sensor faults included."""
@@ -1079,17 +1077,7 @@ class TankSimulator:
             bulk = e / h
             if capacity > 1:
                 history[j % capacity] = bulk
-                lag = delay_per_height * h  # in substeps
-                pos = j - lag
-                lo = math.floor(pos)
-                oldest = j - capacity + 1
-                if lo < oldest:
-                    lo, frac = oldest, 0.0
-                else:
-                    frac = pos - lo
-                new_delayed = (1.0 - frac) * history[lo % capacity] + frac * history[
-                    (lo + 1) % capacity
-                ]
+                new_delayed = _read_back(history, j, delay_per_height * h)  # lag in substeps
             else:
                 new_delayed = bulk
             measured = decay * measured + (1.0 - decay) * delayed + ramp * (new_delayed - delayed)
