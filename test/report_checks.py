@@ -1,0 +1,25 @@
+"""Shared assertion for tests that compare two runs' window reports."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from twotank_validation.monitor import WindowReport
+
+
+def assert_same_reports(got: Sequence[WindowReport], want: Sequence[WindowReport]) -> None:
+    """Pairwise equal windows, verdicts and reasons; judged windows bit for bit (beta, w_min)."""
+    for a, b in zip(got, want, strict=False):
+        assert (a.model, a.start_ns, a.end_ns, a.judged, a.alarm, a.data_quality) == (
+            b.model,
+            b.start_ns,
+            b.end_ns,
+            b.judged,
+            b.alarm,
+            b.data_quality,
+        )
+        if a.judged:
+            assert a.beta == b.beta  # bit for bit
+            np.testing.assert_array_equal(a.w_min, b.w_min)
