@@ -102,6 +102,7 @@ def replay_bag(
     config: ReplayConfig | None = None,
     *,
     progress: Callable[[int, int], None] | None = None,
+    on_window: Callable[[WindowReport, WindowSnapshot], None] | None = None,
 ) -> ReplayResult:
     """Run a bag through the validator.
 
@@ -110,6 +111,8 @@ def replay_bag(
         models: models to validate.
         config: topics, units and validator settings.
         progress: called with (messages read, messages expected) now and then.
+        on_window: called with each judged window's report and its data (stamps, u, y in
+            model units), e.g. to diagnose the windows afterwards (``diagnose``).
 
     Raises:
         BagNotFoundError, BagFormatError: the path is not a readable bag (nothing to report).
@@ -150,6 +153,9 @@ def replay_bag(
                 for rep in reports:
                     result.reports.append(rep)
                     _keep_if_interesting(result, core, rep)
+                    if on_window is not None and rep.judged:
+                        stamps, u, y = core.monitor.last_window()
+                        on_window(rep, WindowSnapshot(rep, stamps, u, y))
                 tick = time.perf_counter()
                 t_val += tick - now
                 if progress is not None and result.messages % 5000 == 0:
