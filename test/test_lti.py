@@ -368,3 +368,56 @@ def test_impulse_response_static_gain():
     got = lti.impulse_response(sys, 4)
     np.testing.assert_array_equal(got[0], [[1.0, 2.0]])
     np.testing.assert_array_equal(got[1:], 0.0)
+
+
+# --------------------------------------------------------------------------- output delays
+
+
+@given(
+    delay_samples=st.integers(min_value=0, max_value=6),
+    pole=st.floats(min_value=0.1, max_value=0.9),
+)
+def test_integer_output_delay_equals_shift_register(delay_samples, pole):
+    """A delay of k samples on the output is the system followed by a k-state shift register."""
+    dt = 0.5
+    sys = StateSpace([[pole]], [[1.0]], [[2.0]], [[0.3]], dt, (delay_samples * dt,))
+    # Reference: plant state x0 then registers r_i(k) = y(k - i), i = 1..k_delay, where
+    # y = 2 x0 + 0.3 u; the output is the last register (or y itself without delay).
+    n = 1 + delay_samples
+    a = np.zeros((n, n))
+    b = np.zeros((n, 1))
+    c = np.zeros((1, n))
+    a[0, 0], b[0, 0] = pole, 1.0
+    if delay_samples == 0:
+        c[0, 0], d = 2.0, np.array([[0.3]])
+    else:
+        a[1, 0], b[1, 0] = 2.0, 0.3
+        for i in range(2, n):
+            a[i, i - 1] = 1.0
+        c[0, n - 1], d = 1.0, np.zeros((1, 1))
+    ref = StateSpace(a, b, c, d, dt)
+    theta = np.linspace(0.01, np.pi, 37)
+    np.testing.assert_allclose(
+        lti.frequency_response(sys, theta), lti.frequency_response(ref, theta), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        lti.impulse_response(sys, 20), lti.impulse_response(ref, 20), atol=1e-12
+    )
+
+
+def test_fractional_delay_is_a_pure_phase_and_survives_discretisation():
+    cont = StateSpace([[-0.5]], [[1.0]], [[1.0]], [[0.0]], None, (1.25,))
+    disc = lti.discretise(cont, 0.5)
+    assert disc.output_delays_s == (1.25,)
+    plain = lti.discretise(StateSpace([[-0.5]], [[1.0]], [[1.0]], [[0.0]]), 0.5)
+    theta = np.linspace(0.0, np.pi, 11)
+    ratio = lti.frequency_response(disc, theta) / lti.frequency_response(plain, theta)
+    np.testing.assert_allclose(ratio[:, 0, 0], np.exp(-1j * theta * 2.5), atol=1e-12)
+
+
+def test_bad_output_delays_are_refused():
+    with pytest.raises(DimensionError, match="one delay"):
+        StateSpace([[-1.0]], [[1.0]], [[1.0], [2.0]], [[0.0], [0.0]], None, (1.0,))
+    with pytest.raises(ModelError, match=">= 0"):
+        StateSpace([[-1.0]], [[1.0]], [[1.0]], [[0.0]], None, (-1.0,))
+    assert StateSpace([[-1.0]], [[1.0]], [[1.0]], [[0.0]], None, (0.0,)).output_delays_s == ()

@@ -492,3 +492,45 @@ def test_rig_params_ambient_temperature_default_and_validation():
     assert RigParams().ambient_temperature == 0.3
     with pytest.raises(ModelError, match="ambient_temperature"):
         RigParams(ambient_temperature=float("nan"))
+
+
+# ------------------------------------------------- permanent leak and heat loss (diagnosis)
+
+
+@given(
+    lam=st.floats(min_value=0.0, max_value=1.0),
+    q=st.floats(min_value=0.0, max_value=1.0),
+)
+def test_permanent_leak_and_heat_loss_change_the_jacobian_as_derived_by_hand(lam, q):
+    """Leak lambda h1 and loss q (t1 - t_amb): d/dh and d/dE terms derived by hand.
+
+    A1 dh/dt = ... - lambda h          -> dA[h, h] = -lambda / A1
+    A1 dE/dt = ... - lambda h (E/h) - q (E/h - t_amb)
+             -> dA[E, E] = -(lambda + q / h0) / A1,  dA[E, h] = + q t0 / (h0 A1)
+    """
+    base = RigParams()
+    params = RigParams(leak_per_level=lam, heat_loss_coeff=q)
+    op0, op = operating_point(base), operating_point(params)
+    assert op.height == op0.height
+    assert op.temperature == op0.temperature
+    delta = linearise_model_b(params, op).a - linearise_model_b(base, op0).a
+    expect = np.zeros((4, 4))
+    expect[2, 2] = -lam / A1
+    expect[3, 3] = -(lam + q / H0) / A1
+    expect[3, 2] = q * T0 / (H0 * A1)
+    np.testing.assert_allclose(delta, expect, atol=1e-12)
+    # Model A (height held in the energy balance): the temperature state decays faster by the
+    # same total rate; the height row as in B.
+    delta_a = linearise_model_a(params, op).a - linearise_model_a(base, op0).a
+    expect_a = np.zeros((4, 4))
+    expect_a[2, 2] = -lam / A1
+    expect_a[3, 3] = -(lam + q / H0) / A1
+    np.testing.assert_allclose(delta_a, expect_a, atol=1e-12)
+
+
+def test_operating_point_with_leak_and_heat_loss_is_an_equilibrium_of_the_simulator():
+    params = RigParams(leak_per_level=0.6, heat_loss_coeff=0.5)
+    op = operating_point(params)
+    cmds = np.tile(op.commands, (3000, 1))
+    sim = simulate(params, cmds, 0.5, op=op)
+    np.testing.assert_allclose(sim.measured[-1], [op.height, op.temperature], atol=1e-9)

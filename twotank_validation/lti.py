@@ -29,6 +29,11 @@ class StateSpace:
         c: (n_outputs, n_states) float.
         d: (n_outputs, n_inputs) float.
         dt_s: sample period in seconds for a discrete-time system, ``None`` when continuous.
+        output_delays_s: per-output transport delay in seconds (each >= 0) applied after the
+            rational part, ``y_i(t) = [C x + D u]_i(t - tau_i)``; empty for none. Kept by
+            :func:`discretise`; exact in :func:`frequency_response` (``exp(-j theta tau/dt)``,
+            also for fractional delays, i.e. the band-limited delay of a periodic signal);
+            rounded to whole samples in :func:`impulse_response`.
     """
 
     a: _FloatArray
@@ -36,6 +41,7 @@ class StateSpace:
     c: _FloatArray
     d: _FloatArray
     dt_s: float | None = None
+    output_delays_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         a, b, c, d = (
@@ -58,6 +64,18 @@ class StateSpace:
                 raise ModelError(f"state-space matrix {name} holds NaN or inf: fix the model file")
         if self.dt_s is not None and not (np.isfinite(self.dt_s) and self.dt_s > 0):
             raise ModelError(f"sample period must be positive and finite, found {self.dt_s}")
+        delays = tuple(float(t) for t in self.output_delays_s)
+        if delays:
+            if len(delays) != d.shape[0]:
+                raise DimensionError(
+                    f"output_delays_s has {len(delays)} entries but the system has "
+                    f"{d.shape[0]} outputs: give one delay (s) per output"
+                )
+            if not all(np.isfinite(t) and t >= 0.0 for t in delays):
+                raise ModelError(f"output delays must be finite and >= 0 s, found {delays}")
+            if not any(delays):
+                delays = ()
+        object.__setattr__(self, "output_delays_s", delays)
         object.__setattr__(self, "a", a)
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "c", c)
@@ -129,9 +147,9 @@ def discretise(sys: StateSpace, dt_s: float) -> StateSpace:
             )
         return sys
     if sys.n_states == 0:
-        return StateSpace(sys.a, sys.b, sys.c, sys.d, dt_s)
+        return StateSpace(sys.a, sys.b, sys.c, sys.d, dt_s, sys.output_delays_s)
     ad, bd, cd, dd, _ = scipy.signal.cont2discrete((sys.a, sys.b, sys.c, sys.d), dt_s, method="zoh")
-    return StateSpace(ad, bd, cd, dd, dt_s)
+    return StateSpace(ad, bd, cd, dd, dt_s, sys.output_delays_s)
 
 
 def check_stable(sys: StateSpace, what: str) -> None:
@@ -169,6 +187,15 @@ def frequency_response(sys: StateSpace, theta: _FloatArray) -> np.ndarray:
     if not sys.is_discrete:
         raise ModelError("frequency_response needs a discrete system: call discretise() first")
     theta = np.asarray(theta, dtype=float)
+    rational = _rational_response(sys, theta)
+    if sys.output_delays_s:
+        tau = np.asarray(sys.output_delays_s) / float(sys.dt_s)  # type: ignore[arg-type]
+        rational *= np.exp(-1j * theta[:, None] * tau[None, :])[:, :, None]
+    return rational
+
+
+def _rational_response(sys: StateSpace, theta: _FloatArray) -> np.ndarray:
+    """``C (zI - A)^-1 B + D`` at ``z = exp(j theta)``: (n_bins, n_outputs, n_inputs)."""
     z = np.exp(1j * theta)
     p, m = sys.shape
     if sys.n_states == 0:
@@ -194,8 +221,20 @@ def impulse_response(sys: StateSpace, n_samples: int) -> np.ndarray:
         n_samples: number of coefficients.
 
     Returns:
-        (n_samples, n_outputs, n_inputs) float; p(0) = D, p(k) = C A^(k-1) B.
+        (n_samples, n_outputs, n_inputs) float; p(0) = D, p(k) = C A^(k-1) B, each output
+        row shifted by its delay rounded to whole samples.
     """
+    out = _rational_impulse(sys, n_samples)
+    for i, tau in enumerate(sys.output_delays_s):
+        shift = min(round(tau / float(sys.dt_s)), n_samples)  # type: ignore[arg-type]
+        out[:, i, :] = np.concatenate(
+            [np.zeros((shift, out.shape[2])), out[: n_samples - shift, i, :]]
+        )
+    return out
+
+
+def _rational_impulse(sys: StateSpace, n_samples: int) -> np.ndarray:
+    """Pulse response of the rational part (delays ignored)."""
     p, m = sys.shape
     out = np.zeros((n_samples, p, m))
     out[0] = sys.d

@@ -281,7 +281,8 @@ class LFTModel:
         assert self.generalized is not None
         g = lti.discretise(self.generalized, dt_s)
         nz, c0 = self.blocks.nz, self.blocks.nv + self.nw
-        return StateSpace(g.a, g.b[:, c0:], g.c[nz:], g.d[nz:, c0:], g.dt_s)
+        delays = g.output_delays_s[nz:] if g.output_delays_s else ()
+        return StateSpace(g.a, g.b[:, c0:], g.c[nz:], g.d[nz:, c0:], g.dt_s, delays)
 
     def response(self, theta: np.ndarray, dt_s: float) -> PlantResponse:
         """Evaluate P at ``z = exp(j theta)``.
@@ -387,7 +388,9 @@ def parse_lti(node: Any, source: str, where: str) -> StateSpace:
     if key == "ss":
         if not isinstance(body, Mapping):
             raise _err(source, f"{where}.ss", "expected a mapping with A, B, C, D")
-        _check_keys(body, {"A", "B", "C", "D", "dt_s"}, source, f"{where}.ss")
+        _check_keys(
+            body, {"A", "B", "C", "D", "dt_s", "output_delays_s", "states"}, source, f"{where}.ss"
+        )
         missing = {"A", "B", "C", "D"} - set(body)
         if missing:
             raise _err(source, f"{where}.ss", f"missing {sorted(missing)}")
@@ -399,8 +402,22 @@ def parse_lti(node: Any, source: str, where: str) -> StateSpace:
             raise _err(
                 source, f"{where}.ss.dt_s", f"expected a sample period in s, found {dt!r}"
             ) from err
+        delays = body.get("output_delays_s") or []
+        states = body.get("states")
+        if not isinstance(delays, list):
+            raise _err(
+                source, f"{where}.ss.output_delays_s", "expected a list, one delay (s) per output"
+            )
+        if states is not None and (
+            not isinstance(states, list) or len(states) != np.atleast_2d(mats[0]).shape[0]
+        ):
+            raise _err(source, f"{where}.ss.states", "expected a list of names, one per state")
         try:
-            return StateSpace(mats[0], mats[1], mats[2], mats[3], dt_s)
+            delay_values = tuple(float(t) for t in delays)
+        except (TypeError, ValueError) as err:
+            raise _err(source, f"{where}.ss.output_delays_s", f"expected numbers: {err}") from err
+        try:
+            return StateSpace(mats[0], mats[1], mats[2], mats[3], dt_s, delay_values)
         except ModelError as err:
             raise _err(source, f"{where}.ss", str(err)) from err
     raise _err(source, where, f"unknown LTI kind {key!r}; use gain, tf or ss")
@@ -608,6 +625,16 @@ def load_model(path_or_name: str | Path) -> LFTModel:
     Raises:
         ModelFileError: missing file, YAML syntax error, schema violation.
     """
+    doc, source = load_model_document(path_or_name)
+    return model_from_dict(doc, source)
+
+
+def load_model_document(path_or_name: str | Path) -> tuple[Any, str]:
+    """The parsed YAML document of a model file or built-in model, and its source label.
+
+    Raises:
+        ModelFileError: missing file or YAML syntax error (the schema is not checked here).
+    """
     key = str(path_or_name)
     if key in BUILTIN_MODELS:
         text = (
@@ -628,4 +655,4 @@ def load_model(path_or_name: str | Path) -> LFTModel:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise ModelFileError(f"{source}: not valid YAML: {err}") from err
-    return model_from_dict(doc, source)
+    return doc, source

@@ -98,7 +98,15 @@ class RigParams:
         noise_std_height: Standard deviation of the level sensor noise, >= 0.
         noise_std_temperature: Standard deviation of the temperature sensor noise, >= 0.
         ambient_temperature: Ambient temperature (model units) towards which a ``heat_loss``
-            fault cools the tank; unused without that fault.
+            fault or ``heat_loss_coeff`` cools the tank.
+        leak_per_level: A permanent leak whose outflow grows with the level,
+            ``leak_per_level * h1`` (model flow units per level unit), >= 0; 0 = none. Unlike
+            the constant ``leak`` fault it changes the level dynamics (an undeclared effect for
+            the diagnosis of Models A and B). :func:`operating_point` raises the inflows to hold
+            the level.
+        heat_loss_coeff: Permanent heat loss to ambient, ``q (t1 - ambient_temperature)`` in
+            the energy balance (model flow units), >= 0; 0 = none. :func:`operating_point`
+            retunes the inflows to hold the temperature.
     """
 
     area: float = 91.4
@@ -113,6 +121,8 @@ class RigParams:
     noise_std_height: float = 0.0
     noise_std_temperature: float = 0.0
     ambient_temperature: float = 0.3
+    leak_per_level: float = 0.0
+    heat_loss_coeff: float = 0.0
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
@@ -127,7 +137,14 @@ class RigParams:
                     f"RigParams.{name}={getattr(self, name)!r} must be positive; "
                     "pass a value > 0 in model units / seconds"
                 )
-        for name in ("mixing_delay_s", "mixing_lag_s", "noise_std_height", "noise_std_temperature"):
+        for name in (
+            "mixing_delay_s",
+            "mixing_lag_s",
+            "noise_std_height",
+            "noise_std_temperature",
+            "leak_per_level",
+            "heat_loss_coeff",
+        ):
             if getattr(self, name) < 0.0:
                 raise ModelError(
                     f"RigParams.{name}={getattr(self, name)!r} must be >= 0 (0 switches it off)"
@@ -204,8 +221,9 @@ def operating_point(
 ) -> OperatingPoint:
     """Return the equilibrium of tank 1 at a given level and temperature.
 
-    At equilibrium f_h + f_c = f1 = (h1 + beta) / alpha and f_h t_h + f_c t_c = f1 t1, so
-    f_h = f1 (t1 - t_c) / (t_h - t_c) and f_c = f1 - f_h.
+    At equilibrium f_h + f_c = F = (h1 + beta) / alpha + lambda h1 (outlet plus the permanent
+    leak ``leak_per_level``) and f_h t_h + f_c t_c = F t1 + q (t1 - t_amb) (permanent heat loss
+    ``heat_loss_coeff``), so f_h = (F (t1 - t_c) + q (t1 - t_amb)) / (t_h - t_c), f_c = F - f_h.
 
     Args:
         params: Rig parameters.
@@ -227,9 +245,10 @@ def operating_point(
             f"height={height!r} is outside the range {lo}..{hi} over which the outlet law "
             "h1 = alpha f1 - beta is valid; choose a level inside it"
         )
-    out_flow = params.outlet_flow(height)
+    out_flow = params.outlet_flow(height) + params.leak_per_level * height
     span = params.hot_supply_temp - params.cold_supply_temp
-    hot_flow = out_flow * (temperature - params.cold_supply_temp) / span
+    loss = params.heat_loss_coeff * (temperature - params.ambient_temperature)
+    hot_flow = (out_flow * (temperature - params.cold_supply_temp) + loss) / span
     cold_flow = out_flow - hot_flow
     for name, value in (("hot", hot_flow), ("cold", cold_flow)):
         if not 0.0 <= value <= 1.0:
@@ -450,6 +469,9 @@ class _Coefficients(NamedTuple):
     beta: float
     hot_temp: float
     cold_temp: float
+    leak_per_level: float
+    heat_loss: float
+    ambient: float
 
     @classmethod
     def of(cls, params: RigParams) -> _Coefficients:
@@ -460,6 +482,9 @@ class _Coefficients(NamedTuple):
             beta=params.outlet_beta,
             hot_temp=params.hot_supply_temp,
             cold_temp=params.cold_supply_temp,
+            leak_per_level=params.leak_per_level,
+            heat_loss=params.heat_loss_coeff,
+            ambient=params.ambient_temperature,
         )
 
 
@@ -471,12 +496,13 @@ def _rhs(  # noqa: PLR0917 - positional floats: this is the simulator's hot loop
     Written with arithmetic only so that it is analytic: the linearisations differentiate it
     by complex step.
     """
-    f1 = (h + k.beta) * k.inv_alpha
+    out = (h + k.beta) * k.inv_alpha + k.leak_per_level * h
+    t = e / h
     return (
         (uh - fh) * k.inv_tau,
         (uc - fc) * k.inv_tau,
-        (fh + fc - f1) * k.inv_area,
-        (fh * k.hot_temp + fc * k.cold_temp - f1 * (e / h)) * k.inv_area,
+        (fh + fc - out) * k.inv_area,
+        (fh * k.hot_temp + fc * k.cold_temp - out * t - k.heat_loss * (t - k.ambient)) * k.inv_area,
     )
 
 
@@ -491,6 +517,7 @@ class _FaultyCoefficients(NamedTuple):
     hot_temp: float
     cold_temp: float
     leak: float
+    leak_per_level: float
     heat_loss: float
     ambient: float
 
@@ -506,7 +533,8 @@ class _FaultyCoefficients(NamedTuple):
             hot_temp=params.hot_supply_temp,
             cold_temp=params.cold_supply_temp,
             leak=effects.leak,
-            heat_loss=effects.heat_loss,
+            leak_per_level=params.leak_per_level,
+            heat_loss=effects.heat_loss + params.heat_loss_coeff,
             ambient=params.ambient_temperature,
         )
 
@@ -518,7 +546,7 @@ def _rhs_faulty(  # noqa: PLR0917 - same signature as _rhs
 
     Weak valves are applied by the caller, which scales the commands [uh, uc].
     """
-    out = (h + k.beta) * k.inv_alpha + k.leak
+    out = (h + k.beta) * k.inv_alpha + k.leak_per_level * h + k.leak
     t = e / h
     return (
         (uh - fh) * k.inv_tau_hot,

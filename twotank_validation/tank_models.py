@@ -78,7 +78,13 @@ def model_document(which: str, params: rig.RigParams | None = None) -> dict[str,
         "outputs": list(lin.output_names),
         "operating_point": {"height": op.height, "temperature": op.temperature},
         "nominal": {
-            "ss": {"A": _round(lin.a), "B": _round(lin.b), "C": _round(lin.c), "D": _round(lin.d)}
+            "ss": {
+                "A": _round(lin.a),
+                "B": _round(lin.b),
+                "C": _round(lin.c),
+                "D": _round(lin.d),
+                "states": list(lin.state_names),
+            }
         },
         "perturbations": [
             {

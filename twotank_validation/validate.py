@@ -132,13 +132,14 @@ def check_compatible(datum: Datum, model: LFTModel) -> None:
 def pulse_response(model: LFTModel, ts_s: float, max_samples: int = 200_000) -> np.ndarray:
     """(n, ny, nu) pulse response of the discretised nominal, long enough to decay to 1e-12."""
     sys = model.nominal_discrete(ts_s)
+    lag = max((round(t / ts_s) for t in sys.output_delays_s), default=0)  # delayed rows
     if sys.n_states == 0:
-        return lti.impulse_response(sys, 1)
+        return lti.impulse_response(sys, 1 + lag)
     rad = float(np.max(np.abs(np.linalg.eigvals(sys.a))))
     if rad >= 1.0:
         raise ModelError(f"nominal of {model.name!r} is unstable: no pulse response bound")
     n = int(min(max_samples, max(16, np.ceil(np.log(_PULSE_DECAY) / np.log(max(rad, 1e-300))) + 2)))
-    return lti.impulse_response(sys, n)
+    return lti.impulse_response(sys, n + lag)
 
 
 def pulse_moment(model: LFTModel, ts_s: float) -> np.ndarray:
