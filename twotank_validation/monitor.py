@@ -21,7 +21,7 @@ import enum
 import math
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -144,6 +144,44 @@ class Sample:
     flag: str | None = None
 
 
+@dataclass(frozen=True)
+class SampleBlock:
+    """Consecutive grid samples as arrays (what the aligner's batch path hands out).
+
+    Attributes:
+        first_index: grid index of the first row; row i is index ``first_index + i``.
+        stamps_ns: (m,) int64, grid times.
+        u: (m, n_inputs) float, held commands.
+        y: (m, n_outputs) float, measurements.
+        flags: m entries, ``None`` for a clean sample, else why it cannot be used.
+    """
+
+    first_index: int
+    stamps_ns: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    flags: list[str | None]
+
+    def __len__(self) -> int:
+        """Number of samples."""
+        return len(self.flags)
+
+    def samples(self) -> list[Sample]:
+        """The rows as :class:`Sample` objects (copies)."""
+        return [
+            Sample(self.first_index + i, int(t), self.u[i].copy(), self.y[i].copy(), f)
+            for i, (t, f) in enumerate(zip(self.stamps_ns.tolist(), self.flags, strict=True))
+        ]
+
+
+COMMAND = -1
+"""Event kind of a command in :meth:`SampleAligner.push_events` (measurements: channel)."""
+
+_MIN_RUN = 8  # groups: shorter regular runs go event by event
+_MAX_RUN = 4096  # groups examined at once
+_MAX_BACKOFF = 1 << 12  # events before the next look for a regular run, at most
+
+
 @dataclass
 class AlignerCounters:
     """What the aligner refused or repaired, for diagnostics."""
@@ -156,15 +194,24 @@ class AlignerCounters:
     clock_resets: int = 0
 
 
-@dataclass
 class _Pending:
-    y: np.ndarray
-    seen: np.ndarray
-    flag: str | None = None
+    """Measurements of one grid index received so far (plain Python: no per-sample arrays)."""
+
+    __slots__ = ("flag", "n_seen", "seen", "y")
+
+    def __init__(self, n_outputs: int) -> None:
+        self.y = [math.nan] * n_outputs
+        self.seen = [False] * n_outputs
+        self.n_seen = 0
+        self.flag: str | None = None
 
 
 class SampleAligner:
     """Put stamped commands and per-channel measurements on the sample grid.
+
+    Every event costs a few microseconds: the state is plain Python (lists, tuples, a dict of
+    pending grid indices and the largest of them), and numpy arrays are made only for the
+    samples handed out.
 
     Args:
         ts_s: sample period (s).
@@ -195,15 +242,23 @@ class SampleAligner:
         self.tol_ns = round(jitter_fraction * self.ts_ns)
         self.reset_ns = round(reset_after_s * NS_PER_S)
         self.counters = AlignerCounters()
+        self._half_ns = self.ts_ns // 2
+        self._n_outputs = len(self.output_names)
         self._clear()
 
     def _clear(self) -> None:
         self.t0_ns: int | None = None
         self.next_index = 0
         self._pending: dict[int, _Pending] = {}
-        self._commands: deque[tuple[int, np.ndarray]] = deque()
-        self._held = np.full(self.n_inputs, np.nan)
+        # largest pending index; exact while _pending is non-empty (entries leave only from
+        # the front, at next_index), and below every future index once it is empty
+        self._newest = -1
+        self._commands: deque[tuple[int, tuple[float, ...], bool]] = deque()
+        self._held: tuple[float, ...] = (math.nan,) * self.n_inputs
+        self._held_finite = self.n_inputs == 0
         self.last_command_ns: int | None = None
+        self._retry_at = 0  # event (of the current batch) from which to look for a run
+        self._backoff = self._n_outputs + 1
 
     def reset(self) -> None:
         """Start over (new grid origin); counters are kept."""
@@ -214,29 +269,44 @@ class SampleAligner:
         assert self.t0_ns is not None
         return self.t0_ns + index * self.ts_ns
 
-    def push_command(self, stamp_ns: int, values: Sequence[float]) -> list[Sample]:
-        """Add a command (held from ``stamp_ns`` on). Returns samples it completes."""
+    def _command_tuple(self, values: Sequence[float]) -> tuple[float, ...]:
+        # exact types only: anything else converts through numpy, as before
+        if (
+            (type(values) is tuple or type(values) is list)
+            and len(values) == self.n_inputs
+            and all(type(v) is float for v in values)
+        ):
+            return tuple(values)
         u = np.asarray(values, dtype=float)
         if u.shape != (self.n_inputs,):
             raise DatumError(f"command needs {self.n_inputs} values, found shape {u.shape}")
-        if self.last_command_ns is not None and stamp_ns <= self.last_command_ns:
-            if stamp_ns == self.last_command_ns:
+        return tuple(u.tolist())
+
+    def push_command(self, stamp_ns: int, values: Sequence[float]) -> list[Sample]:
+        """Add a command (held from ``stamp_ns`` on). Returns samples it completes."""
+        u = self._command_tuple(values)
+        last = self.last_command_ns
+        if last is not None and stamp_ns <= last:
+            if stamp_ns == last:
                 self.counters.duplicates += 1
             else:
                 self.counters.out_of_order += 1
             return []
-        if not np.all(np.isfinite(u)):
+        finite = all(map(math.isfinite, u))
+        if not finite:
             self.counters.non_finite += 1
-        self._commands.append((stamp_ns, u))
+        self._commands.append((stamp_ns, u, finite))
         self.last_command_ns = stamp_ns
-        return self._finalise()
+        return self._finalise() if self._pending else []
 
     def push_measurement(self, channel: int, stamp_ns: int, value: float) -> list[Sample]:
         """Add one measurement of output ``channel``. Returns the samples now complete."""
-        if self.t0_ns is None:
-            self.t0_ns = stamp_ns
-        offset = stamp_ns - self.t0_ns
-        k = (offset + self.ts_ns // 2) // self.ts_ns
+        t0 = self.t0_ns
+        if t0 is None:
+            self.t0_ns = t0 = stamp_ns
+        ts = self.ts_ns
+        offset = stamp_ns - t0
+        k = (offset + self._half_ns) // ts
         if k < self.next_index:
             if stamp_ns < self.grid_time(self.next_index) - self.reset_ns:
                 self.counters.clock_resets += 1
@@ -246,69 +316,231 @@ class SampleAligner:
             return []
         pend = self._pending.get(k)
         if pend is None:
-            pend = _Pending(
-                np.full(len(self.output_names), np.nan), np.zeros(len(self.output_names), bool)
-            )
-            self._pending[k] = pend
-        if pend.seen[channel]:
+            pend = self._pending[k] = _Pending(self._n_outputs)
+            self._newest = max(self._newest, k)
+        seen = pend.seen
+        if seen[channel]:
             self.counters.duplicates += 1
             return []
-        pend.seen[channel] = True
-        if abs(offset - k * self.ts_ns) > self.tol_ns:
+        seen[channel] = True
+        pend.n_seen += 1
+        if abs(offset - k * ts) > self.tol_ns:
             self.counters.off_grid += 1
             pend.flag = pend.flag or (
                 f"{self.output_names[channel]} stamp {stamp_ns} ns is off the sample grid by "
-                f"{(offset - k * self.ts_ns) / 1e6:.1f} ms"
+                f"{(offset - k * ts) / 1e6:.1f} ms"
             )
         if math.isfinite(value):
-            pend.y[channel] = value
+            pend.y[channel] = float(value)
         else:
             self.counters.non_finite += 1
             pend.flag = pend.flag or f"non-finite {self.output_names[channel]} ({value})"
         return self._finalise()
 
-    def _held_at(self, t_ns: int) -> np.ndarray:
-        while self._commands and self._commands[0][0] <= t_ns + self.tol_ns:
-            self._held = self._commands.popleft()[1]
-        return self._held.copy()
-
     def _finalise(self) -> list[Sample]:
         out: list[Sample] = []
-        while self._pending:
+        pending = self._pending
+        n_out = self._n_outputs
+        while pending:
             k = self.next_index
-            newest = max(self._pending)
-            pend = self._pending.get(k)
-            t_k = self.grid_time(k)
-            cmd_known = (
-                self.last_command_ns is not None and self.last_command_ns >= t_k - self.tol_ns
-            )
-            if pend is not None and pend.seen.all() and (cmd_known or newest > k + 1):
+            pend = pending.get(k)
+            t_k = self.t0_ns + k * self.ts_ns  # type: ignore[operator]  # set with _pending
+            later = self._newest > k + 1
+            if pend is not None and pend.n_seen == n_out:
+                if not later:
+                    last = self.last_command_ns
+                    if last is None or last < t_k - self.tol_ns:
+                        break  # wait for the command of this instant
                 flag = pend.flag
                 y = pend.y
-            elif newest > k + 1 and (pend is None or not pend.seen.all()):
+            elif later:
                 # later samples are complete or arriving: this one will not be completed
                 self.counters.missing += 1
-                missing = [
-                    n
-                    for n, s in zip(self.output_names, pend.seen if pend else [], strict=False)
-                    if not s
-                ]
-                names = ", ".join(missing) if pend else ", ".join(self.output_names)
+                if pend is not None:
+                    names = ", ".join(
+                        n for n, s in zip(self.output_names, pend.seen, strict=True) if not s
+                    )
+                    y = pend.y
+                else:
+                    names = ", ".join(self.output_names)
+                    y = [math.nan] * n_out
                 flag = f"gap: no {names} sample at t = {t_k / NS_PER_S:.3f} s"
-                y = pend.y if pend else np.full(len(self.output_names), np.nan)
             else:
                 break
-            u = self._held_at(t_k)
-            if flag is None and not np.all(np.isfinite(u)):
+            cmds = self._commands
+            limit = t_k + self.tol_ns
+            while cmds and cmds[0][0] <= limit:
+                _, self._held, self._held_finite = cmds.popleft()
+            if flag is None and not self._held_finite:
                 flag = (
                     "no valid valve command yet"
                     if self.last_command_ns is None
                     else "non-finite valve command"
                 )
-            self._pending.pop(k, None)
-            self.next_index += 1
-            out.append(Sample(k, t_k, u, y, flag))
+            if pend is not None:
+                del pending[k]
+            self.next_index = k + 1
+            out.append(
+                Sample(k, t_k, np.array(self._held, dtype=float), np.array(y, dtype=float), flag)
+            )
         return out
+
+    # -- batches
+
+    def push_events(
+        self, kinds: np.ndarray, stamps_ns: np.ndarray, values: np.ndarray
+    ) -> list[Sample | SampleBlock]:
+        """Add a batch of events in arrival order; returns what they complete, in order.
+
+        Exactly the same as pushing the events one by one (:meth:`push_command` for kind
+        :data:`COMMAND`, :meth:`push_measurement` for a channel), only faster: a regular run
+        (per grid index one finite command and one finite, on-grid measurement per channel,
+        each sample completed within its group of events) is aligned with array operations
+        and handed out as one :class:`SampleBlock`; anything else goes event by event.
+
+        Args:
+            kinds: (n,) int, :data:`COMMAND` or the measurement channel.
+            stamps_ns: (n,) int64 stamps.
+            values: (n, w) float, w >= max(n_inputs, 1): a command's values in the first
+                ``n_inputs`` columns, a measurement in the first.
+        """
+        n = len(kinds)
+        group = self._n_outputs + 1
+        nu = self.n_inputs
+        out: list[Sample | SampleBlock] = []
+        # events taken one by one are converted to Python values a slice at a time
+        base = 0
+        kinds_l: list[int] = []
+        stamps_l: list[int] = []
+        rows: list[list[float]] = []
+        i = 0
+        while i < n:
+            if (
+                i >= self._retry_at
+                and not self._pending
+                and self.t0_ns is not None
+                and n - i >= group * _MIN_RUN
+            ):
+                block = self._regular_run(kinds, stamps_ns, values, i)
+                if block is not None:
+                    out.append(block)
+                    i += group * len(block)
+                    self._backoff = group
+                    continue
+                self._retry_at = i + self._backoff
+                self._backoff = min(2 * self._backoff, _MAX_BACKOFF)
+            if not base <= i < base + len(kinds_l):
+                base = i
+                kinds_l = kinds[i : i + 64].tolist()
+                stamps_l = stamps_ns[i : i + 64].tolist()
+                rows = values[i : i + 64].tolist()
+            kind = kinds_l[i - base]
+            if kind == COMMAND:
+                out.extend(self.push_command(stamps_l[i - base], rows[i - base][:nu]))
+            else:
+                out.extend(self.push_measurement(kind, stamps_l[i - base], rows[i - base][0]))
+            i += 1
+        self._retry_at -= n
+        return out
+
+    def _regular_run(
+        self, kinds: np.ndarray, stamps_ns: np.ndarray, values: np.ndarray, start: int
+    ) -> SampleBlock | None:
+        """Align the longest regular run of event groups at ``start`` at once (None if short).
+
+        Precondition: nothing pending and the grid origin set. Group j (grid index
+        k = next_index + j, time t) has one command and one measurement per channel, in any
+        order. Event by event, such a group would complete sample k at its last measurement
+        if the latest command then known is stamped >= t - tol, else at its command if that
+        comes last and is stamped >= t - tol; otherwise the run ends before the group. Each
+        sample holds the last command pushed by then with stamp <= t + tol (commands are
+        pushed in increasing stamp order, so that is a prefix of them all).
+        """
+        ny, nu = self._n_outputs, self.n_inputs
+        group = ny + 1
+        m = min((len(kinds) - start) // group, _MAX_RUN)
+        stop = start + group * m
+        kk = kinds[start:stop].reshape(m, group)
+        ss = stamps_ns[start:stop].astype(np.int64, copy=False).reshape(m, group)
+        vv = values[start:stop].reshape(m, group, values.shape[1])
+        t0, ts, tol, first = self.t0_ns, self.ts_ns, self.tol_ns, self.next_index
+        assert t0 is not None
+        rows = np.arange(m)
+        ok = (np.sort(kk, axis=1) == np.arange(-1, ny)).all(axis=1)
+        cmd_pos = np.argmin(kk, axis=1)
+        grid = t0 + (first + rows) * ts  # t of each group
+        is_meas = kk != COMMAND
+        offset = ss - t0
+        index = (offset + self._half_ns) // ts
+        dev = offset - (first + rows)[:, None] * ts
+        meas_ok = (index == (first + rows)[:, None]) & (np.abs(dev) <= tol)
+        meas_ok &= np.isfinite(vv[:, :, 0])
+        ok &= (meas_ok | ~is_meas).all(axis=1)
+        cmd = ss[rows, cmd_pos]
+        cmd_u = vv[rows, cmd_pos, :nu]
+        ok &= np.isfinite(cmd_u).all(axis=1)
+        last = self.last_command_ns
+        prev = np.empty(m, dtype=np.int64)
+        prev[1:] = cmd[:-1]
+        has_prev = np.ones(m, dtype=bool)
+        if last is None:
+            has_prev[0] = False
+            prev[0] = 0
+        else:
+            prev[0] = last
+        ok &= ~has_prev | (cmd > prev)
+        cmd_last = cmd_pos == group - 1
+        known_before = has_prev & (prev >= grid - tol)  # at the last measurement, if cmd last
+        known_own = cmd >= grid - tol
+        # command pushed when the sample completes (event by event)
+        pushed = ~cmd_last | ~known_before
+        ok &= np.where(cmd_last, known_before | known_own, known_own)
+        bad = np.flatnonzero(~ok)
+        m = int(bad[0]) if len(bad) else m
+        if m < _MIN_RUN:
+            return None
+        rows, cmd, cmd_u, pushed, grid = rows[:m], cmd[:m], cmd_u[:m], pushed[:m], grid[:m]
+        # held command of each sample: index into (pending commands, run's commands)
+        queued = list(self._commands)
+        d = len(queued)
+        seq_t = np.concatenate([np.array([c[0] for c in queued], dtype=np.int64), cmd])
+        seq_u = np.concatenate(
+            [np.array([c[1] for c in queued], dtype=float).reshape(d, nu), cmd_u]
+        )
+        seq_finite = np.concatenate(
+            [np.array([c[2] for c in queued], dtype=bool), np.ones(m, bool)]
+        )
+        n_pushed = rows + pushed
+        held_i = np.minimum(d + n_pushed, np.searchsorted(seq_t, grid + tol, side="right")) - 1
+        u = np.empty((m, nu))
+        finite = np.empty(m, dtype=bool)
+        have = held_i >= 0
+        u[have] = seq_u[held_i[have]]
+        finite[have] = seq_finite[held_i[have]]
+        u[~have] = self._held
+        finite[~have] = self._held_finite
+        flags: list[str | None] = [None] * m
+        for j in np.flatnonzero(~finite).tolist():
+            none_yet = last is None and n_pushed[j] == 0
+            flags[j] = "no valid valve command yet" if none_yet else "non-finite valve command"
+        y = np.empty((m, ny))
+        kk, vv = kk[:m], vv[:m]
+        for c in range(ny):
+            y[:, c] = vv[rows, np.argmax(kk == c, axis=1), 0]
+        # the state event-by-event processing would leave
+        top = int(held_i[-1])
+        if top >= 0:
+            self._held = tuple(seq_u[top].tolist())
+            self._held_finite = bool(seq_finite[top])
+        self._commands = deque(
+            (int(t), tuple(r), True) if k >= d else queued[k]
+            for k, (t, r) in enumerate(zip(seq_t.tolist(), seq_u.tolist(), strict=True))
+            if k > top
+        )
+        self.last_command_ns = int(cmd[-1])
+        self.next_index = first + m
+        self._newest = first + m - 1
+        return SampleBlock(first, grid.astype(np.int64), u, y, flags)
 
 
 # --------------------------------------------------------------------------- windows
@@ -445,7 +677,9 @@ class WindowMonitor:
                     f"{m.name} is {m.ny}x{m.nu}"
                 )
         self.n_inputs, self.n_outputs = nu, ny
-        cap = config.span_samples
+        cap = self._cap = config.span_samples
+        self._period = config.period_samples
+        self._window = config.window_samples
         self._u = np.zeros((cap, nu))
         self._y = np.zeros((cap, ny))
         self._stamp = np.zeros(cap, dtype=np.int64)
@@ -470,21 +704,61 @@ class WindowMonitor:
 
     def push(self, sample: Sample) -> list[WindowReport]:
         """Add one aligned sample; returns one report per model at each period boundary."""
-        if self._last_index is not None and sample.index != self._last_index + 1:
+        index = sample.index
+        if self._last_index is not None and index != self._last_index + 1:
             # the aligner restarted (clock reset): periods restart from here
             self._count = 0
-        self._last_index = sample.index
-        cap = self.config.span_samples
-        pos = self._count % cap
+        self._last_index = index
+        count = self._count
+        pos = count % self._cap
         self._u[pos] = sample.u
         self._y[pos] = sample.y
         self._stamp[pos] = sample.stamp_ns
         self._flag[pos] = sample.flag
-        self._count += 1
-        cfg = self.config
-        if self._count % cfg.period_samples or self._count < cfg.window_samples:
+        self._count = count = count + 1
+        if count % self._period or count < self._window:
             return []
         return self._evaluate()
+
+    def push_block(
+        self, block: SampleBlock, on_report: Callable[[WindowReport], None] | None = None
+    ) -> list[WindowReport]:
+        """Add consecutive samples at once: the same reports as pushing them one by one.
+
+        ``on_report`` is called with each report as soon as its window is evaluated, while
+        :meth:`last_window` still returns that window.
+        """
+        m = len(block)
+        if m == 0:
+            return []
+        if self._last_index is not None and block.first_index != self._last_index + 1:
+            self._count = 0  # the aligner restarted (clock reset)
+        self._last_index = block.first_index + m - 1
+        out: list[WindowReport] = []
+        cap, period = self._cap, self._period
+        i = 0
+        while i < m:
+            count = self._count
+            take = min(m - i, period - count % period)
+            pos = count % cap
+            while take:  # at most two pieces: up to the end of the ring, then from its start
+                piece = min(take, cap - pos)
+                self._u[pos : pos + piece] = block.u[i : i + piece]
+                self._y[pos : pos + piece] = block.y[i : i + piece]
+                self._stamp[pos : pos + piece] = block.stamps_ns[i : i + piece]
+                self._flag[pos : pos + piece] = block.flags[i : i + piece]
+                i += piece
+                take -= piece
+                count += piece
+                pos = 0
+            self._count = count
+            if count % period == 0 and count >= self._window:
+                reports = self._evaluate()
+                out.extend(reports)
+                if on_report is not None:
+                    for rep in reports:
+                        on_report(rep)
+        return out
 
     def last_window(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies."""
@@ -653,6 +927,8 @@ def monitor_record(
 
 
 STREAMS = ("flow_cmd", "height", "temperature")
+STREAM_KINDS = {"flow_cmd": COMMAND, "height": 0, "temperature": 1}
+"""Event kind of each stream in :meth:`OnlineValidator.feed_many`."""
 
 
 class OnlineValidator:
@@ -682,16 +958,64 @@ class OnlineValidator:
         """One event in, the reports of any window it completes out."""
         if stream == "flow_cmd":
             samples = self.aligner.push_command(stamp_ns, value)
-        elif stream in ("height", "temperature"):
-            samples = self.aligner.push_measurement(
-                0 if stream == "height" else 1, stamp_ns, float(value)
-            )
+        elif stream == "height":
+            samples = self.aligner.push_measurement(0, stamp_ns, float(value))
+        elif stream == "temperature":
+            samples = self.aligner.push_measurement(1, stamp_ns, float(value))
         else:
             raise DatumError(f"unknown stream {stream!r}; expected one of {STREAMS}")
+        if not samples:
+            return []
+        return self._deliver(samples, None)
+
+    def feed_many(
+        self,
+        kinds: np.ndarray,
+        stamps_ns: np.ndarray,
+        values: np.ndarray,
+        on_report: Callable[[WindowReport], None] | None = None,
+    ) -> list[WindowReport]:
+        """A batch of events in arrival order; the same reports as :meth:`feed` one by one.
+
+        Args:
+            kinds: (n,) int, :data:`STREAM_KINDS` of each event's stream.
+            stamps_ns: (n,) int64 stamps.
+            values: (n, 2) float: ``(hot, cold)`` of a command; a measurement (model units)
+                in column 0.
+            on_report: called with each report as soon as its window is evaluated (while
+                ``monitor.last_window()`` still returns that window).
+        """
+        kinds = np.asarray(kinds)
+        if len(kinds) and (kinds.min() < COMMAND or kinds.max() > 1):
+            raise DatumError(f"unknown event kind in {np.unique(kinds)}; expected -1, 0 or 1")
+        values = np.asarray(values, dtype=float)
+        if values.shape != (len(kinds), 2) or len(stamps_ns) != len(kinds):
+            raise DatumError(
+                f"feed_many needs (n,) kinds and stamps and (n, 2) values, found "
+                f"{kinds.shape}, {np.shape(stamps_ns)}, {values.shape}"
+            )
+        pieces = self.aligner.push_events(kinds, np.asarray(stamps_ns, dtype=np.int64), values)
+        return self._deliver(pieces, on_report)
+
+    def _deliver(
+        self,
+        pieces: Sequence[Sample | SampleBlock],
+        on_report: Callable[[WindowReport], None] | None,
+    ) -> list[WindowReport]:
         out: list[WindowReport] = []
-        for s in samples:
+        monitor = self.monitor
+        for piece in pieces:
+            if isinstance(piece, SampleBlock):
+                self.samples_seen += len(piece)
+                out.extend(monitor.push_block(piece, on_report))
+                continue
             self.samples_seen += 1
-            out.extend(self.monitor.push(s))
+            reports = monitor.push(piece)
+            if reports:
+                out.extend(reports)
+                if on_report is not None:
+                    for rep in reports:
+                        on_report(rep)
         return out
 
     def restart(self) -> None:
