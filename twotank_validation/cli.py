@@ -144,15 +144,14 @@ def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
     return topics
 
 
-def _cmd_validate(args: argparse.Namespace) -> int:
-    from twotank_validation import replay, report  # noqa: PLC0415
-    from twotank_validation.model import load_model  # noqa: PLC0415
+def _replay_config(args: argparse.Namespace) -> object:
+    """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
+    from twotank_validation import replay  # noqa: PLC0415
     from twotank_validation.monitor import AlarmConfig, MonitorConfig  # noqa: PLC0415
     from twotank_validation.ros.interfaces import RigUnits  # noqa: PLC0415
 
-    models = [load_model(m) for m in (args.model or ["A", "B"])]
     try:
-        cfg = replay.ReplayConfig(
+        return replay.ReplayConfig(
             monitor=MonitorConfig(
                 ts_s=args.ts,
                 period_samples=args.period,
@@ -168,6 +167,15 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         )
     except ValueError as err:
         raise UsageError(str(err)) from err
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from twotank_validation import replay, report  # noqa: PLC0415
+    from twotank_validation.model import load_model  # noqa: PLC0415
+
+    models = [load_model(m) for m in (args.model or ["A", "B"])]
+    cfg = _replay_config(args)
+    assert isinstance(cfg, replay.ReplayConfig)
     bar = None
     if not args.quiet:
         bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5, disable=None)
@@ -213,6 +221,45 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0 if result.complete else EXIT_INCOMPLETE
+
+
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    import yaml  # noqa: PLC0415
+
+    from twotank_validation import diagnose as dg  # noqa: PLC0415
+    from twotank_validation import replay, report  # noqa: PLC0415
+    from twotank_validation.model import load_model_document, model_from_dict  # noqa: PLC0415
+
+    doc, source = load_model_document(args.model)
+    model = model_from_dict(doc, source)
+    cfg = _replay_config(args)
+    assert isinstance(cfg, replay.ReplayConfig)
+    windows, replayed = dg.windows_from_bag(args.bag, model, cfg)
+    for problem in replayed.problems:
+        print(f"WARNING: {problem}", file=sys.stderr)
+    print(f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}")
+    diag = dg.diagnose(
+        windows,
+        doc,
+        dg.DiagnosisConfig(max_effects=args.max_effects),
+        source=source,
+        convention=NormConvention(args.norm),
+    )
+    model_file = None
+    if diag.document is not None and args.out_model:
+        Path(args.out_model).write_text(
+            "# Written by twotank-validation diagnose; validate with --model this file.\n"
+            + yaml.safe_dump(diag.document, sort_keys=False, width=100)
+        )
+        model_file = str(args.out_model)
+    out = diag.to_json(model_file)
+    print(report.diagnosis_text(diag, model_file))
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2))
+    if args.report:
+        report.write_diagnosis_report(diag, Path(args.report))
+        print(f"figures in {args.report}")
+    return 0 if replayed.complete else EXIT_INCOMPLETE
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -290,6 +337,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     val.add_argument("--json", help="write the per-window results as JSON to this file")
     val.add_argument("--report", help="write figures (alarm timeline, windows of interest) here")
+    _add_bag_options(val)
+    val.set_defaults(func=_cmd_validate)
+
+    dia = sub.add_parser(
+        "diagnose",
+        help="trace a model's residual on a bag to the effect it lacks, add it, compare",
+    )
+    dia.add_argument("bag", help="rosbag2 directory (MCAP or SQLite3) or a plain .mcap file")
+    dia.add_argument("--model", required=True, help="model name (A, B) or YAML path")
+    dia.add_argument("--json", help="write the diagnosis as JSON to this file")
+    dia.add_argument("--report", help="write the evidence figures to this folder")
+    dia.add_argument("--out-model", help="write the changed model (YAML) to this file")
+    dia.add_argument(
+        "--max-effects", type=int, choices=[0, 1, 2], default=2, help="effects combined (<= 2)"
+    )
+    _add_bag_options(dia)
+    dia.set_defaults(func=_cmd_diagnose)
+    return parser
+
+
+def _add_bag_options(val: argparse.ArgumentParser) -> None:
+    """Topic, unit and window options shared by ``validate`` and ``diagnose``."""
     val.add_argument(
         "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
     )
@@ -306,8 +375,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     val.add_argument("--temperature-span-c", type=float, default=50.0, help="degC per model unit")
     val.add_argument("--quiet", action="store_true", help="no progress bar")
-    val.set_defaults(func=_cmd_validate)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -23,6 +23,7 @@ import numpy as np
 from twotank_validation import excitation, rig, stats
 from twotank_validation.datum import Datum, NormConvention, make_datum
 from twotank_validation.model import LFTModel, load_model
+from twotank_validation.rig import Fault
 from twotank_validation.validate import ValidationResult, inverse_dft, validate
 
 
@@ -50,6 +51,7 @@ class ExperimentConfig:
         max_lag: lags of the probabilistic residual tests.
         alpha: level of the probabilistic residual tests.
         seed: sensor-noise seed of the simulator.
+        faults: faults and undeclared effects switched on during the run (``rig.Fault``).
     """
 
     rig: rig.RigParams = field(default_factory=_default_rig)
@@ -61,6 +63,7 @@ class ExperimentConfig:
     max_lag: int = 25
     alpha: float = 0.01
     seed: int = 0
+    faults: tuple[Fault, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -124,7 +127,9 @@ def simulate_datum(
     """
     op = rig.operating_point(config.rig, config.height, config.temperature)
     commands = excitation.excitation_commands(config.excitation, op.commands)
-    sim = rig.simulate(config.rig, commands, config.excitation.ts_s, op=op, seed=config.seed)
+    sim = rig.simulate(
+        config.rig, commands, config.excitation.ts_s, op=op, seed=config.seed, faults=config.faults
+    )
     rec = excitation.record_slice(config.excitation)
     levels = sim.states[:, 2]
     return (

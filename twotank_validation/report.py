@@ -15,9 +15,10 @@ import numpy as np
 
 from twotank_validation import lti
 from twotank_validation.datum import Datum
+from twotank_validation.diagnose import Diagnosis, excited_bins
 from twotank_validation.experiment import ExperimentResult
 from twotank_validation.model import LFTModel, load_model
-from twotank_validation.validate import ValidationResult
+from twotank_validation.validate import ValidationResult, inverse_dft
 
 PAPER_BETA = {"A": 1.32, "B": 0.53}
 
@@ -324,3 +325,157 @@ def write_replay_report(
                 out_dir / f"{kind}_{stem}.png" for kind in ("nyquist", "per_bin", "time_signals")
             ]
     return written
+
+
+# --------------------------------------------------------------------------- diagnosis
+
+
+def diagnosis_text(diag: Diagnosis, model_file: str | None = None) -> str:
+    """The diagnosis as plain text (console and ``diagnosis.md``)."""
+    lines = [diag.summary, ""]
+    b, a = diag.before, diag.after
+    lines.append(f"{'held-out data':<28}{'before':>12}{'after':>12}")
+    lines.append(f"{'beta (max over windows)':<28}{b.beta:>12.3f}{a.beta:>12.3f}")
+    for o in diag.outputs:
+        lines.append(f"{'RMS error ' + o:<28}{b.rms[o]:>12.4g}{a.rms[o]:>12.4g}")
+    for side, name in ((b, "before"), (a, "after")):
+        tests = side.residual_tests
+        if isinstance(tests, Mapping):
+            white = tests.get("whiteness", {})
+            parts = [f"{o} p={white[o]['p_value']:.2g}" for o in diag.outputs if o in white]
+            lines.append(f"residual whiteness {name}: " + ", ".join(parts))
+    lines.append("")
+    if diag.effects:
+        lines.append("Added:")
+        for e in diag.effects:
+            entry = e.to_dict(diag.outputs)
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in entry["parameters"].items())
+            lines.append(f"  + {e.spec.label(diag.outputs)} ({params})")
+            lines.append(f"    why: {e.evidence}")
+    else:
+        lines.append("Nothing added: the model is adequate for this datum.")
+    lines.append("Rejected:")
+    for label, _, why in diag.rejected:
+        lines.append(f"  - {label}: {why}")
+    for label, why in diag.not_applicable:
+        lines.append(f"  - {label}: {why}")
+    if model_file:
+        lines.append(f"Changed model written to {model_file}")
+    return "\n".join(lines)
+
+
+def _periodic_output(d: Datum, err: np.ndarray) -> np.ndarray:
+    """(N, ny) model output (periodic steady state) = measured minus the raw error."""
+    sim_bins = d.y_bins - err
+    return inverse_dft(sim_bins, d.n_samples, d.convention) + d.y_bias[None, :]
+
+
+def plot_diagnosis_spectra(diag: Diagnosis, path: Path) -> None:
+    """Scaled residual |E(n)| at the excited bins of the held-out windows, before and after."""
+    fig, axes = plt.subplots(1, len(diag.outputs), figsize=(5 * len(diag.outputs), 4))
+    axes = np.atleast_1d(axes)
+    for k, o in enumerate(diag.outputs):
+        ax = axes[k]
+        for side, label, mark in ((diag.before, "before", "o"), (diag.after, "after", "x")):
+            for i, (d, r) in enumerate(zip(diag.heldout, side.results, strict=True)):
+                idx = excited_bins(d, 1e-4)
+                ax.loglog(
+                    d.freqs_hz[idx],
+                    np.abs(r.error[idx, k]),
+                    mark,
+                    ms=4,
+                    color="C0" if label == "before" else "C1",
+                    label=label if i == 0 else None,
+                )
+        d0 = diag.heldout[0]
+        odd = np.arange(1, d0.theta.size - 1, 2)
+        ax.loglog(d0.freqs_hz[odd], np.abs(d0.y_bins[odd, k]), ",", color="0.6", label="noise")
+        ax.set_title(f"{o}: |Y - G U| at the excited bins")
+        ax.set_xlabel("frequency (Hz)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_diagnosis_outputs(diag: Diagnosis, path: Path) -> None:
+    """Measured outputs of the first held-out window against both models' simulations."""
+    d = diag.heldout[0]
+    t = np.arange(d.n_samples) * d.ts_s
+    y = inverse_dft(d.y_bins, d.n_samples, d.convention) + d.y_bias[None, :]
+    before = _periodic_output(d, diag.before.results[0].error)
+    after = _periodic_output(d, diag.after.results[0].error)
+    fig, axes = plt.subplots(len(diag.outputs), 1, figsize=(9, 3 * len(diag.outputs)), sharex=True)
+    axes = np.atleast_1d(axes)
+    for k, o in enumerate(diag.outputs):
+        ax = axes[k]
+        ax.plot(t, y[:, k], lw=0.6, color="0.4", label="measured")
+        ax.plot(t, before[:, k], lw=1.0, label=f"{diag.model} (RMS err {diag.before.rms[o]:.3g})")
+        if diag.effects:
+            ax.plot(
+                t,
+                after[:, k],
+                lw=1.0,
+                ls="--",
+                label=f"diagnosed (RMS err {diag.after.rms[o]:.3g})",
+            )
+        ax.set_ylabel(f"{o} (model units)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time in the first held-out window (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
+    """Measured/modelled ratio at the fit bins and the fitted effect's ratio, per channel.
+
+    Only bins where the modelled output exceeds five times the noise amplitude are shown.
+    """
+    data, before, after = diag.fit_bins, diag.nominal_before, diag.nominal_after
+    if data is None or before is None or after is None or not diag.effects:
+        return
+    ts = diag.heldout[0].ts_s
+    channels = sorted({e.spec.channel for e in diag.effects})
+    fig, axes = plt.subplots(2, len(channels), figsize=(5 * len(channels), 6), squeeze=False)
+    order = np.argsort(data.theta)
+    f = data.theta[order] / ts / (2 * np.pi)
+    g0 = before.response(data.theta, ts)
+    g1 = after.response(data.theta, ts)
+    yb = np.einsum("kij,kj->ki", g0, data.u)[order]
+    ya = np.einsum("kij,kj->ki", g1, data.u)[order]
+    ym = data.y[order]
+    noise_amp = np.sqrt(data.noise[order]) * data.scale[order]
+    for col, ch in enumerate(channels):
+        # bins where the modelled output stands clear of the noise (ratios elsewhere are noise)
+        ok = np.abs(yb[:, ch]) > 5.0 * noise_amp[:, ch]
+        meas = ym[ok, ch] / yb[ok, ch]
+        fit = ya[ok, ch] / yb[ok, ch]
+        axes[0, col].semilogx(f[ok], np.abs(meas), "o", ms=4, label="measured / model")
+        axes[0, col].semilogx(f[ok], np.abs(fit), "-", label="fitted effect")
+        axes[1, col].semilogx(f[ok], np.degrees(np.unwrap(np.angle(meas))), "o", ms=4)
+        axes[1, col].semilogx(f[ok], np.degrees(np.unwrap(np.angle(fit))), "-")
+        labels = ", ".join(e.spec.label(diag.outputs) for e in diag.effects if e.spec.channel == ch)
+        axes[0, col].set_title(f"{diag.outputs[ch]}: {labels}")
+        axes[0, col].set_ylabel("magnitude ratio")
+        axes[1, col].set_ylabel("phase (deg)")
+        axes[1, col].set_xlabel("frequency (Hz)")
+        axes[0, col].legend(fontsize=8)
+        for ax in axes[:, col]:
+            ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_diagnosis_report(diag: Diagnosis, out_dir: Path, model_file: str | None = None) -> None:
+    """``diagnosis.md`` and the evidence figures (spectra, outputs, fitted effect)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "diagnosis.md").write_text(
+        "# Diagnosis\n\n```\n" + diagnosis_text(diag, model_file) + "\n```\n"
+    )
+    plot_diagnosis_spectra(diag, out_dir / "diagnosis_spectra.png")
+    plot_diagnosis_outputs(diag, out_dir / "diagnosis_outputs.png")
+    plot_diagnosis_effect(diag, out_dir / "diagnosis_effect.png")

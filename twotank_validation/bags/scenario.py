@@ -166,6 +166,10 @@ class Scenario:
         noise_std_temperature: Temperature sensor noise, standard deviation, >= 0.
         mixing_delay_s: The rig's unmodelled transport delay of the measured temperature at
             h1 = 0.47 (grows with level), >= 0.
+        leak_per_level: A permanent leak of outflow ``leak_per_level * h1`` (undeclared in
+            Models A and B; the inflows are retuned to hold the level), >= 0.
+        heat_loss_coeff: A permanent heat loss to ambient (undeclared in the models; the
+            inflows are retuned to hold the temperature), >= 0.
         faults: Fault specs ``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``
             (:func:`twotank_validation.fault_spec.parse_fault`), each with its onset inside
             the run.
@@ -194,6 +198,8 @@ class Scenario:
     noise_std_height: float = 0.003
     noise_std_temperature: float = 0.01
     mixing_delay_s: float = 15.0
+    leak_per_level: float = 0.0
+    heat_loss_coeff: float = 0.0
     faults: tuple[str, ...] = ()
     seed: int = 0
     units: RigUnits = field(default_factory=RigUnits)
@@ -248,6 +254,8 @@ class Scenario:
             "mixing_delay_s",
             _real(where, "mixing_delay_s", self.mixing_delay_s, lo=0.0, hi=rig.MAX_FAULT_DELAY_S),
         )
+        for key in ("leak_per_level", "heat_loss_coeff"):
+            put(self, key, _real(where, key, getattr(self, key), lo=0.0, hi=5.0))
         if not isinstance(self.units, RigUnits):
             raise ScenarioError(f"{where}: units={self.units!r} must be a RigUnits")
         faults: object = self.faults  # YAML gives lists; anything else is refused
@@ -301,11 +309,13 @@ class Scenario:
         return max(4, math.ceil(self.ts_s / MAX_SUBSTEP_S - 1e-9))
 
     def rig_params(self) -> rig.RigParams:
-        """Rig parameters: defaults plus this scenario's mixing delay and sensor noise."""
+        """Rig parameters: defaults plus this scenario's delay, noise, leak and heat loss."""
         return rig.RigParams(
             mixing_delay_s=self.mixing_delay_s,
             noise_std_height=self.noise_std_height,
             noise_std_temperature=self.noise_std_temperature,
+            leak_per_level=self.leak_per_level,
+            heat_loss_coeff=self.heat_loss_coeff,
         )
 
     def operating_point(self) -> rig.OperatingPoint:
