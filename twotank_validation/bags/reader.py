@@ -50,17 +50,18 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 from types import TracebackType
-from typing import Any, Final, NamedTuple, Self
+from typing import Any, Final, Self
 from urllib.parse import quote
 
 import lz4.frame
+import numpy as np
 import yaml
 import zstandard
 from mcap.reader import SeekingReader
 from mcap.records import Schema as McapSchema
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
-from rosbags.interfaces import ConnectionExtRosbag2
+from rosbags.interfaces import ConnectionExtRosbag2, Nodetype
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -78,6 +79,7 @@ __all__ = [
     "BagMessage",
     "BagNotFoundError",
     "BagReader",
+    "FieldBatch",
     "TopicMissingError",
     "TopicTypeError",
     "expected_types",
@@ -199,6 +201,32 @@ class BagMessage:
     msgtype: str
     log_time_ns: int
     msg: Any
+
+
+@dataclass(frozen=True)
+class FieldBatch:
+    """Consecutive messages (log-time order) reduced to their stamps and float fields.
+
+    Attributes:
+        topics: the requested topic names; ``topic`` indexes into it.
+        topic: (n,) int, topic of each message.
+        log_time_ns: (n,) int64, log times.
+        stamp_ns: (n,) int64, ``header.stamp`` in nanoseconds.
+        values: (n, w) float64, the requested fields of each message's topic in the order
+            asked for (NaN in the columns its topic did not ask for).
+        bulk_decoded: messages decoded by the fixed-layout path (the rest generically).
+    """
+
+    topics: tuple[str, ...]
+    topic: np.ndarray
+    log_time_ns: np.ndarray
+    stamp_ns: np.ndarray
+    values: np.ndarray
+    bulk_decoded: int
+
+    def __len__(self) -> int:
+        """Number of messages."""
+        return len(self.topic)
 
 
 @dataclass(frozen=True)
@@ -394,11 +422,128 @@ class _Damage(Exception):  # noqa: N818 - internal signal, never leaves the modu
         return f"{self.path.name} is {what}{at} ({self.detail})"
 
 
-class _Raw(NamedTuple):
-    topic: str
-    msgtype: str
-    log_time_ns: int
-    msg: Any
+class _Codec:
+    """How one channel's messages are decoded.
+
+    ``decode`` is the generic deserialiser (rosbags, or mcap_ros2 for plain MCAP files):
+    every message goes through it unless :meth:`layout` applies. ``layout`` reads the type's
+    definition as the generic deserialiser sees it (``fielddefs``, rosbags' form) and
+    returns the names of its float64 fields when the type is ``std_msgs/Header header``
+    followed by float64 fields only, the fixed layout :func:`_fixed_layout_rows` reads.
+    """
+
+    __slots__ = ("_defs", "_layout", "_looked", "decode", "msgtype")
+
+    def __init__(
+        self,
+        decode: Callable[[Any], Any],
+        msgtype: str,
+        fielddefs: Callable[[], Mapping[str, Any] | None],
+    ) -> None:
+        self.decode = decode
+        self.msgtype = msgtype
+        self._defs = fielddefs
+        self._layout: tuple[str, ...] | None = None
+        self._looked = False
+
+    def layout(self) -> tuple[str, ...] | None:
+        if not self._looked:
+            self._looked = True
+            try:
+                defs = self._defs()
+                self._layout = None if defs is None else _header_float_layout(defs, self.msgtype)
+            except Exception:  # no usable definition: the generic path only
+                self._layout = None
+        return self._layout
+
+
+_BASE, _NAME = int(Nodetype.BASE), int(Nodetype.NAME)
+_HEADER_FIELDS: Final = [
+    ("stamp", (_NAME, "builtin_interfaces/msg/Time")),
+    ("frame_id", (_BASE, ("string", 0))),
+]
+_TIME_FIELDS: Final = [("sec", (_BASE, ("int32", 0))), ("nanosec", (_BASE, ("uint32", 0)))]
+
+
+def _plain(fields: Sequence[Any]) -> list[tuple[str, tuple[int, Any]]]:
+    return [(str(name), (int(desc[0]), desc[1])) for name, desc in fields]
+
+
+def _header_float_layout(fielddefs: Mapping[str, Any], msgtype: str) -> tuple[str, ...] | None:
+    """Float64 field names of ``msgtype`` if it is ``Header header`` + float64 fields, else None."""
+    fields = _plain(fielddefs[msgtype][1])
+    if not fields or fields[0] != ("header", (_NAME, "std_msgs/msg/Header")):
+        return None
+    if _plain(fielddefs["std_msgs/msg/Header"][1]) != _HEADER_FIELDS:
+        return None
+    if _plain(fielddefs["builtin_interfaces/msg/Time"][1]) != _TIME_FIELDS:
+        return None
+    if any(desc != (_BASE, ("float64", 0)) for _, desc in fields[1:]):
+        return None
+    return tuple(name for name, _ in fields[1:])
+
+
+def _fixed_layout_rows(
+    datas: Sequence[bytes | memoryview], n_floats: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Vectorised CDR decoding of equal-length ``Header header`` + float64 messages.
+
+    Why: rosbags' (and mcap_ros2's) deserialisers are generic, a few microseconds of Python
+    per message; for the three fixed layouts of the validator's inputs this reads a whole
+    batch with a handful of numpy operations. It only reads what the generic deserialiser
+    would give: little-endian CDR, the float64 fields right after the aligned frame_id,
+    nothing after them. Every message must repeat the first one's bytes except the stamp and
+    the float64 fields (same encapsulation, frame_id and padding); the caller checks the first
+    one against the generic deserialiser, which then accepts all of them alike. Rows that
+    differ come back flagged in ``ok``; the caller decodes those generically.
+
+    Returns:
+        ``(stamp_ns (n,) int64, values (n, n_floats) float64, ok (n,) bool)``, or None if
+        the first message does not have this layout.
+    """
+    n = len(datas)
+    size = len(datas[0])
+    if size < 16:
+        return None
+    first = bytes(datas[0][:16])
+    if first[:2] != b"\x00\x01":  # CDR little endian (big endian: generic path)
+        return None
+    strlen = int.from_bytes(first[12:16], "little")
+    at = 4 + ((12 + strlen + 7) & ~7)  # first float64, 8-aligned after the frame_id
+    if strlen < 1 or at + 8 * n_floats != size:
+        return None
+    buf = b"".join(datas)
+    rows = np.frombuffer(buf, dtype=np.uint8).reshape(n, size)
+    fixed = np.r_[0:4, 12:at]  # all but the stamp and the float64 fields
+    ok = (rows[:, fixed] == rows[0, fixed]).all(axis=1)
+    sec = np.ndarray((n,), dtype="<i4", buffer=buf, offset=4, strides=(size,))
+    nanosec = np.ndarray((n,), dtype="<u4", buffer=buf, offset=8, strides=(size,))
+    stamps = sec.astype(np.int64) * _NS_PER_S + nanosec.astype(np.int64)
+    values = np.ndarray((n, n_floats), dtype="<f8", buffer=buf, offset=at, strides=(size, 8))
+    return stamps, values.astype(np.float64), ok
+
+
+def _header_stamp_ns(msg: Any) -> int:
+    st = msg.header.stamp
+    return int(st.sec) * _NS_PER_S + int(st.nanosec)
+
+
+_Raw = tuple[str, str, int, Any, _Codec]
+"""What a backend yields: bag topic, message type, log time (ns), CDR bytes, codec."""
+
+
+@dataclass
+class _RawBatch:
+    """Consecutive undecoded messages, column by column."""
+
+    topic: list[str]
+    msgtype: list[str]
+    log_time_ns: list[int]
+    data: list[Any]
+    codec: list[_Codec]
+
+    def __len__(self) -> int:
+        return len(self.topic)
 
 
 # --------------------------------------------------------------------------- backends
@@ -478,12 +623,35 @@ class _RosbagsBackend(_Backend):
         if not conns:
             return
         reader = self._reader
+        store = reader.typestore
+        codecs: dict[int, tuple[str, str, _Codec]] = {}
+        for c in conns:
+            dec = functools.partial(_rosbags_decode, reader, c.msgtype)
+            codecs[id(c)] = (
+                c.topic,
+                _norm_type(c.msgtype),
+                _Codec(dec, c.msgtype, lambda: store.fielddefs),
+            )
         for conn, log_ns, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
-            yield _Raw(conn.topic, _norm_type(conn.msgtype), int(log_ns), msg)
+            topic, msgtype, codec = codecs[id(conn)]
+            yield topic, msgtype, int(log_ns), raw, codec
 
     def close(self) -> None:
         self._reader.close()
+
+
+def _rosbags_decode(reader: AnyReader, msgtype: str, data: Any) -> Any:
+    return reader.deserialize(data, msgtype)
+
+
+def _schema_fielddefs(name: str, encoding: str, text: str) -> Mapping[str, Any] | None:
+    """Field definitions parsed from one stored schema alone (None if it cannot be parsed)."""
+    types = _types_from_definition(name, encoding, text)
+    if not types:
+        return None
+    store = get_typestore(Stores.EMPTY)
+    store.register(types)
+    return store.fielddefs
 
 
 class _Decoders:
@@ -492,7 +660,7 @@ class _Decoders:
     def __init__(self, prefer_rosbags: bool) -> None:
         self._prefer_rosbags = prefer_rosbags
         self._factories: dict[int, DecoderFactory] = {}
-        self._decoders: dict[tuple[int, int], Callable[[bytes], Any]] = {}
+        self._decoders: dict[tuple[int, int], _Codec] = {}
         self._store: Typestore | None = None
         self._definitions: dict[str, tuple[str, str, str]] = {}
 
@@ -502,23 +670,25 @@ class _Decoders:
             text = bytes(schema.data).decode("utf-8", errors="replace")
             self._definitions[schema.name] = (schema.name, enc, text)
 
-    def _rosbags(self, msgtype: str) -> Callable[[bytes], Any] | None:
+    def _rosbags(self, msgtype: str) -> _Codec | None:
         if self._store is None or msgtype not in self._store.fielddefs:
             self._store = _typestore_from(self._definitions.values(), [msgtype])
         store = self._store
         if msgtype not in store.fielddefs:
             return None
-        return lambda data: store.deserialize_cdr(data, msgtype)
+        return _Codec(
+            lambda data: store.deserialize_cdr(data, msgtype), msgtype, lambda: store.fielddefs
+        )
 
     def get(
         self, key: tuple[int, int], encoding: str, schema: McapSchema | None, msgtype: str
-    ) -> Callable[[bytes], Any] | str:
+    ) -> _Codec | str:
         """The decoder of channel ``key`` = (file index, channel id), or why there is none."""
         if (dec := self._decoders.get(key)) is not None:
             return dec
         if encoding != "cdr":
             return f"it is encoded as {encoding!r}, not ROS 2 CDR"
-        found: Callable[[bytes], Any] | None = None
+        found: _Codec | None = None
         if self._prefer_rosbags:
             found = self._rosbags(msgtype)
         if found is None and schema is not None:
@@ -526,9 +696,18 @@ class _Decoders:
             try:
                 # mcap_ros2's vendored parser prints the lines it rejects to stderr
                 with contextlib.redirect_stderr(io.StringIO()):
-                    found = factory.decoder_for(encoding, schema)
+                    mcap_dec = factory.decoder_for(encoding, schema)
             except Exception:  # unparsable stored schema: try rosbags below
-                found = None
+                mcap_dec = None
+            if mcap_dec is not None:
+                # the layout as this schema alone defines it (what mcap_ros2 decodes by)
+                enc = "ros2idl" if schema.encoding in ("ros2idl", "omgidl") else schema.encoding
+                text = bytes(schema.data).decode("utf-8", errors="replace")
+                found = _Codec(
+                    mcap_dec,
+                    msgtype,
+                    functools.partial(_schema_fielddefs, schema.name, enc, text),
+                )
         if found is None and not self._prefer_rosbags:
             found = self._rosbags(msgtype)
         if found is None:
@@ -597,7 +776,7 @@ class _PlainMcapBackend(_Backend):
         schema = self._schemas.get(schema_id)
         return _norm_type(schema.name) if schema is not None else "(no schema)"
 
-    def _decoder(self, channel_id: int) -> Callable[[bytes], Any] | str:
+    def _decoder(self, channel_id: int) -> _Codec | str:
         ch = self._channels[channel_id]
         schema = self._schemas.get(ch.schema_id)
         return self._decoders.get(
@@ -616,7 +795,7 @@ class _PlainMcapBackend(_Backend):
             if isinstance(dec, str):  # pragma: no cover - problem() ran before
                 raise BagFormatError(dec)
             msgtype = self._msgtype(channel.schema_id)
-            yield _Raw(channel.topic, msgtype, int(message.log_time), dec(message.data))
+            yield channel.topic, msgtype, int(message.log_time), message.data, dec
 
     def close(self) -> None:
         self._file.close()
@@ -788,7 +967,7 @@ class _McapScanBackend(_Backend):
         schema = self._schemas.get((key[0], self._channels[key][2]))
         return _norm_type(schema.name) if schema is not None else "(no schema)"
 
-    def _decoder(self, key: tuple[int, int]) -> Callable[[bytes], Any] | str:
+    def _decoder(self, key: tuple[int, int]) -> _Codec | str:
         _, enc, schema_id = self._channels[key]
         schema = self._schemas.get((key[0], schema_id))
         return self._decoders.get(key, enc, schema, self._msgtype(key))
@@ -1048,7 +1227,7 @@ class _McapScanBackend(_Backend):
             if isinstance(dec, str):  # pragma: no cover - problem() ran before
                 raise BagFormatError(dec)
             raw = _unzstd(data) if self._message_compression else bytes(data)
-            yield _Raw(self._channels[key][0], self._msgtype(key), log_ns, dec(raw))
+            yield self._channels[key][0], self._msgtype(key), log_ns, raw, dec
         if self._damage is not None:
             raise self._damage
 
@@ -1211,14 +1390,16 @@ class _SqliteScanBackend(_Backend):
         finally:
             conn.close()
 
-    def _decode(self, msgtype: str) -> Callable[[bytes], Any] | None:
+    def _decode(self, msgtype: str) -> _Codec | None:
         if self._store is None or msgtype not in self._store.fielddefs:
             wanted = {t for _, t in self._topic_of.values()}
             self._store = _typestore_from(self._definitions, wanted)
         store = self._store
         if msgtype not in store.fielddefs:
             return None
-        return lambda data: store.deserialize_cdr(data, msgtype)
+        return _Codec(
+            lambda data: store.deserialize_cdr(data, msgtype), msgtype, lambda: store.fielddefs
+        )
 
     def problem(self, topic: str) -> str | None:
         for t, msgtype in self._topic_of.values():
@@ -1227,7 +1408,7 @@ class _SqliteScanBackend(_Backend):
         return None
 
     def iter(self, topics: frozenset[str]) -> Iterator[_Raw]:
-        decoders: dict[str, Callable[[bytes], Any] | None] = {}
+        decoders: dict[str, _Codec | None] = {}
         for key, log_ns, data in self._rows(topics):
             topic, msgtype = self._topic_of[key]
             if msgtype not in decoders:
@@ -1236,7 +1417,7 @@ class _SqliteScanBackend(_Backend):
             if dec is None:  # pragma: no cover - problem() ran before
                 raise BagFormatError(_unknown_type(msgtype))
             raw = _unzstd(data) if self._message_compression else data
-            yield _Raw(topic, _norm_type(msgtype), log_ns, dec(raw))
+            yield topic, _norm_type(msgtype), log_ns, raw, dec
         if self._damage is not None:
             raise self._damage
 
@@ -1582,23 +1763,8 @@ class BagReader:
                 )
 
     # -- messages
-    def messages(self, topics: Sequence[str]) -> Iterator[BagMessage]:
-        """Stream the decoded messages of ``topics`` in log-time order.
-
-        Memory stays bounded whatever the bag's length. On a damaged bag every message
-        readable before the damage is yielded first, then :class:`BagCorruptError` is raised.
-        (One exception: a SQLite3 file whose time index is damaged is read in insertion
-        order, the recorder's write order; ``info.damage`` says so.)
-
-        Args:
-            topics: topic names (a single string is one topic).
-
-        Raises:
-            BagEmptyError: The bag (undamaged) holds no message at all.
-            TopicMissingError: A topic is not in the bag (checked at the call).
-            BagFormatError: A topic's messages cannot be decoded (unknown type, not CDR).
-            BagCorruptError: While iterating, at the first unreadable data.
-        """
+    def _wanted(self, topics: Sequence[str]) -> dict[str, str]:
+        """Bag topic -> requested name, after the checks :meth:`messages` documents."""
         self._check_open()
         names = [topics] if isinstance(topics, str) else list(dict.fromkeys(topics))
         self._raise_if_empty()
@@ -1621,7 +1787,51 @@ class BagReader:
                 raise BagFormatError(
                     f"bag {self.info.path}: topic {bag_name!r} cannot be decoded: {problem}"
                 )
-        return self._stream(wanted)
+        return wanted
+
+    def messages(self, topics: Sequence[str]) -> Iterator[BagMessage]:
+        """Stream the decoded messages of ``topics`` in log-time order.
+
+        Memory stays bounded whatever the bag's length. On a damaged bag every message
+        readable before the damage is yielded first, then :class:`BagCorruptError` is raised.
+        (One exception: a SQLite3 file whose time index is damaged is read in insertion
+        order, the recorder's write order; ``info.damage`` says so.)
+
+        Args:
+            topics: topic names (a single string is one topic).
+
+        Raises:
+            BagEmptyError: The bag (undamaged) holds no message at all.
+            TopicMissingError: A topic is not in the bag (checked at the call).
+            BagFormatError: A topic's messages cannot be decoded (unknown type, not CDR).
+            BagCorruptError: While iterating, at the first unreadable data.
+        """
+        return self._stream(self._wanted(topics))
+
+    def field_batches(
+        self, topics: Sequence[str], fields: Mapping[str, Sequence[str]], *, size: int = 4096
+    ) -> Iterator[FieldBatch]:
+        """Stream the header stamps and float fields of ``topics``, many messages at a time.
+
+        The same messages, in the same order, with the same errors as :meth:`messages`,
+        reduced to ``header.stamp`` (ns) and the requested fields (``float(msg.<field>)``).
+        Messages of a type whose definition is ``std_msgs/Header header`` followed by
+        float64 fields (e.g. sensor_msgs/FluidPressure and Temperature) are decoded in bulk
+        with numpy; any message that does not fit that layout goes through the generic
+        deserialiser, as in :meth:`messages`.
+
+        Args:
+            topics: topic names.
+            fields: requested topic name -> names of float fields to read (a topic not
+                listed reads none).
+            size: messages per batch, at most.
+
+        Raises:
+            BagEmptyError, TopicMissingError, BagFormatError, BagCorruptError: as
+                :meth:`messages`.
+        """
+        wanted = self._wanted(topics)
+        return self._field_stream(wanted, fields, max(1, size))
 
     def _corrupt(
         self, what: str, read: int, last: int | None, offset: int | None
@@ -1642,39 +1852,70 @@ class BagReader:
             offset=offset,
         )
 
-    def _stream(self, wanted: dict[str, str]) -> Iterator[BagMessage]:
+    def _undecodable(self, err: Exception, read: int, last: int | None) -> BagCorruptError:
+        return self._corrupt(
+            f"the data cannot be read past this point ({_short(err)})", read, last, None
+        )
+
+    def _raw_batches(self, wanted: dict[str, str], size: int) -> Iterator[_RawBatch]:
+        """The undecoded messages in batches; the checks and errors of :meth:`messages`.
+
+        An error is raised after the batch of the messages read before it.
+        """
         backend = self._backend
         it = backend.iter(frozenset(wanted))
         read = 0
         last: int | None = None
         per_topic: Counter[str] = Counter()
+        failure: BagError | None = None
+        cause: BaseException | None = None
+        ordered = backend.ordered
         try:
-            while True:
+            while failure is None:
                 self._check_open()
+                batch = _RawBatch([], [], [], [], [])
+                add_topic, add_type = batch.topic.append, batch.msgtype.append
+                add_time, add_data = batch.log_time_ns.append, batch.data.append
+                add_codec = batch.codec.append
+                prev = last
                 try:
-                    raw = next(it)
-                except StopIteration:
-                    break
+                    for topic, msgtype, t, data, codec in it:
+                        if ordered and prev is not None and t < prev:
+                            failure = self._corrupt(
+                                f"its index is inconsistent: log time goes back from "
+                                f"{_fmt_ns(prev)} to {_fmt_ns(t)}",
+                                read + len(batch.topic),
+                                prev,
+                                None,
+                            )
+                            break
+                        add_topic(topic)
+                        add_type(msgtype)
+                        add_time(t)
+                        add_data(data)
+                        add_codec(codec)
+                        prev = t
+                        if len(batch.topic) >= size:
+                            break
                 except _Damage as err:
-                    raise self._corrupt(err.where(), read, last, err.offset) from err
+                    failure, cause = (
+                        self._corrupt(err.where(), read + len(batch), prev, err.offset),
+                        err,
+                    )
                 except BagError:
                     raise
                 except Exception as err:  # any library error is damage here
-                    raise self._corrupt(
-                        f"the data cannot be read past this point ({_short(err)})", read, last, None
-                    ) from err
-                if backend.ordered and last is not None and raw.log_time_ns < last:
-                    raise self._corrupt(
-                        f"its index is inconsistent: log time goes back from {_fmt_ns(last)} to "
-                        f"{_fmt_ns(raw.log_time_ns)}",
-                        read,
-                        last,
-                        None,
-                    )
-                yield BagMessage(wanted[raw.topic], raw.msgtype, raw.log_time_ns, raw.msg)
-                read += 1
-                last = raw.log_time_ns
-                per_topic[raw.topic] += 1
+                    failure, cause = self._undecodable(err, read + len(batch), prev), err
+                n = len(batch)
+                if n:
+                    read += n
+                    last = prev
+                    per_topic.update(batch.topic)
+                    yield batch
+                if n < size:
+                    break
+            if failure is not None:
+                raise failure from cause
         finally:
             close = getattr(it, "close", None)
             if close is not None:
@@ -1691,3 +1932,112 @@ class BagReader:
                     last,
                     None,
                 )
+
+    def _stream(self, wanted: dict[str, str]) -> Iterator[BagMessage]:
+        read = 0
+        last: int | None = None
+        for batch in self._raw_batches(wanted, 256):
+            for topic, msgtype, t, data, codec in zip(
+                batch.topic, batch.msgtype, batch.log_time_ns, batch.data, batch.codec, strict=True
+            ):
+                self._check_open()
+                try:
+                    msg = codec.decode(data)
+                except BagError:
+                    raise
+                except Exception as err:  # an undecodable message is damage here
+                    raise self._undecodable(err, read, last) from err
+                yield BagMessage(wanted[topic], msgtype, t, msg)
+                read += 1
+                last = t
+
+    def _field_stream(
+        self, wanted: dict[str, str], fields: Mapping[str, Sequence[str]], size: int
+    ) -> Iterator[FieldBatch]:
+        names = tuple(dict.fromkeys(wanted.values()))
+        index = {bag: names.index(name) for bag, name in wanted.items()}
+        spec = {bag: tuple(fields.get(name, ())) for bag, name in wanted.items()}
+        width = max((len(v) for v in spec.values()), default=0)
+        read = 0
+        last: int | None = None
+        for batch in self._raw_batches(wanted, size):
+            self._check_open()
+            out, failure = _decode_fields(batch, index, spec, width, names)
+            if len(out):
+                yield out
+                read += len(out)
+                last = int(out.log_time_ns[-1])
+            if failure is not None:
+                raise self._undecodable(failure, read, last) from failure
+
+
+def _decode_fields(
+    batch: _RawBatch,
+    index: dict[str, int],
+    spec: dict[str, tuple[str, ...]],
+    width: int,
+    names: tuple[str, ...],
+) -> tuple[FieldBatch, Exception | None]:
+    """One raw batch as a FieldBatch; the first message that cannot be decoded ends it."""
+    n = len(batch)
+    stamps = np.zeros(n, dtype=np.int64)
+    values = np.full((n, width), np.nan)
+    datas, codecs = batch.data, batch.codec
+    # groups of messages with the same codec and size, each in message order
+    codec_ids = np.fromiter(map(id, codecs), dtype=np.uint64, count=n)
+    sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+    order = np.lexsort((sizes, codec_ids))
+    cuts = np.flatnonzero((np.diff(codec_ids[order]) != 0) | (np.diff(sizes[order]) != 0)) + 1
+    slow = np.ones(n, dtype=bool)
+    for rows in np.split(order, cuts):
+        first = int(rows[0])
+        got = _fixed_layout(
+            [datas[i] for i in rows.tolist()], codecs[first], spec[batch.topic[first]]
+        )
+        if got is not None:
+            ok, group_stamps, group_values = got
+            done = rows[ok]
+            stamps[done] = group_stamps[ok]
+            values[done, : group_values.shape[1]] = group_values[ok]
+            slow[done] = False
+    failure: Exception | None = None
+    for i in np.flatnonzero(slow).tolist():
+        try:
+            msg = codecs[i].decode(datas[i])
+        except BagError:
+            raise
+        except Exception as err:  # an undecodable message is damage here
+            failure = err
+            n = i
+            break
+        stamps[i] = _header_stamp_ns(msg)
+        for j, name in enumerate(spec[batch.topic[i]]):
+            values[i, j] = float(getattr(msg, name))
+    topic = np.fromiter(map(index.__getitem__, batch.topic[:n]), dtype=np.intp, count=n)
+    log = np.array(batch.log_time_ns[:n], dtype=np.int64)
+    fast = n - int(np.count_nonzero(slow[:n]))
+    return FieldBatch(names, topic, log, stamps[:n], values[:n], fast), failure
+
+
+def _fixed_layout(
+    datas: list[Any], codec: _Codec, wanted: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Bulk decoding of one group (same codec, same size): (ok, stamps, values)."""
+    layout = codec.layout()
+    if layout is None or any(f not in layout for f in wanted) or len(datas) < 2:
+        return None
+    got = _fixed_layout_rows(datas, len(layout))
+    if got is None:
+        return None
+    stamps, values, ok = got
+    try:  # the first message, through the generic deserialiser, must read the same
+        msg = codec.decode(datas[0])
+        same = _header_stamp_ns(msg) == int(stamps[0]) and np.array_equal(
+            np.array([float(getattr(msg, f)) for f in layout]).view(np.int64),
+            values[0].view(np.int64),
+        )
+    except Exception:  # undecodable: the generic path finds and reports it
+        return None
+    if not same:
+        return None
+    return ok, stamps, values[:, [layout.index(f) for f in wanted]]

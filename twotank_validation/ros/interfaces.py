@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
+
+import numpy as np
 
 from twotank_validation.monitor import NS_PER_S, WindowReport
+
+_V = TypeVar("_V", float, np.ndarray)  # one value, or many at once (same float operations)
 
 FLOW_CMD_TYPE = "twotank_validation_msgs/msg/FlowCommand"
 HEIGHT_TYPE = "sensor_msgs/msg/FluidPressure"
@@ -60,19 +64,19 @@ class RigUnits:
         if self.pascal_per_unit <= 0 or self.temperature_span_c <= 0:
             raise ValueError("pascal_per_unit and temperature_span_c must be positive")
 
-    def level_from_pressure(self, pressure_pa: float) -> float:
+    def level_from_pressure(self, pressure_pa: _V) -> _V:
         """Model-unit level from gauge pressure (Pa)."""
         return pressure_pa / self.pascal_per_unit
 
-    def pressure_from_level(self, level: float) -> float:
+    def pressure_from_level(self, level: _V) -> _V:
         """Gauge pressure (Pa) from model-unit level."""
         return level * self.pascal_per_unit
 
-    def temperature_from_celsius(self, celsius: float) -> float:
+    def temperature_from_celsius(self, celsius: _V) -> _V:
         """Model-unit temperature from °C."""
         return (celsius - self.temperature_offset_c) / self.temperature_span_c
 
-    def celsius_from_temperature(self, temperature: float) -> float:
+    def celsius_from_temperature(self, temperature: _V) -> _V:
         """°C from model-unit temperature."""
         return self.temperature_offset_c + self.temperature_span_c * temperature
 
@@ -102,6 +106,39 @@ def height_value(msg: Any, units: RigUnits) -> float:
 def temperature_value(msg: Any, units: RigUnits) -> float:
     """Model-unit temperature from a sensor_msgs/Temperature."""
     return units.temperature_from_celsius(float(msg.temperature))
+
+
+STREAM_FIELDS: dict[str, tuple[str, ...]] = {
+    "flow_cmd": ("hot", "cold"),
+    "height": ("fluid_pressure",),
+    "temperature": ("temperature",),
+}
+"""Message fields each stream's extractor reads (besides ``header.stamp``)."""
+
+
+def stream_values(stream: str, fields: np.ndarray, units: RigUnits) -> np.ndarray:
+    """Model-unit values of many messages of one stream: the extractors above, on arrays.
+
+    Args:
+        stream: ``flow_cmd``, ``height`` or ``temperature``.
+        fields: (n, k) float, the :data:`STREAM_FIELDS` of the stream, in that order.
+        units: unit conversion.
+
+    Returns:
+        (n, 2) float: ``(hot, cold)`` rows for ``flow_cmd``; the value in column 0 (column 1
+        NaN) for a measurement. The same float operations as :func:`flow_values`,
+        :func:`height_value` and :func:`temperature_value`, so the same values bit for bit.
+    """
+    out = np.full((len(fields), 2), np.nan)
+    if stream == "flow_cmd":
+        out[:] = fields[:, :2]
+    elif stream == "height":
+        out[:, 0] = units.level_from_pressure(fields[:, 0])
+    elif stream == "temperature":
+        out[:, 0] = units.temperature_from_celsius(fields[:, 0])
+    else:
+        raise ValueError(f"unknown stream {stream!r}")
+    return out
 
 
 def report_message(report: WindowReport, cls: Any) -> Any:
