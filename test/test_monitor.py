@@ -259,3 +259,74 @@ def test_monitor_config_rejects_bad_values() -> None:
         monitor.MonitorConfig(period_samples=1)
     with pytest.raises(ValueError, match="alarm_windows"):
         AlarmConfig(alarm_windows=0)
+
+
+# ------------------------------------------------------------------ batches through the monitor
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=st.integers(0, 2**16))
+def test_push_block_equals_push_one_by_one(seed: int) -> None:
+    """Blocks of any size (crossing period boundaries and the ring's end) give the reports and
+    the window data of pushing the same samples one at a time."""
+    stamps, u, y = rig_record()
+    rng = np.random.default_rng(seed)
+    y = y.copy()
+    y[rng.integers(0, len(y), 3), 0] = np.nan  # some unusable samples
+    flags = [None if np.isfinite(y[k]).all() else "non-finite value" for k in range(len(y))]
+    one = monitor.WindowMonitor(FAST, models())
+    many = monitor.WindowMonitor(FAST, models())
+    want, want_windows = [], []
+    for k in range(len(stamps)):
+        reps = one.push(monitor.Sample(k, int(stamps[k]), u[k].copy(), y[k].copy(), flags[k]))
+        want += reps
+        want_windows += [one.last_window() for _ in reps]
+    got, got_windows = [], []
+    k = 0
+    while k < len(stamps):
+        m = int(rng.integers(1, 700))
+        block = monitor.SampleBlock(
+            k, stamps[k : k + m].copy(), u[k : k + m].copy(), y[k : k + m].copy(), flags[k : k + m]
+        )
+        got += many.push_block(block, lambda rep: got_windows.append(many.last_window()))
+        k += m
+    assert len(got) == len(want) >= 8
+    for a, b in zip(got, want, strict=True):
+        assert (a.model, a.start_ns, a.end_ns, a.judged, a.data_quality, a.alarm) == (
+            b.model,
+            b.start_ns,
+            b.end_ns,
+            b.judged,
+            b.data_quality,
+            b.alarm,
+        )
+        assert a.beta == b.beta or (math.isnan(a.beta) and math.isnan(b.beta))
+    assert len(got_windows) == len(want_windows)
+    for ga, wa in zip(got_windows, want_windows, strict=True):
+        for x, z in zip(ga, wa, strict=True):
+            np.testing.assert_array_equal(x, z)
+
+
+def test_window_data_in_time_order_across_the_ring_end() -> None:
+    """last_window() against the samples pushed, at every phase of the ring buffer."""
+    cfg = monitor.MonitorConfig(ts_s=0.8, period_samples=8, periods_per_window=2, settle_periods=1)
+    mon = monitor.WindowMonitor(cfg, models())
+    rows = []
+    for k in range(60):
+        s = monitor.Sample(k, k * 800, np.array([k, -k], float), np.array([2 * k, 0.5]), None)
+        mon.push(s)
+        rows.append(s)
+        stamps, u, y = mon.last_window()
+        recent = rows[-cfg.window_samples :]
+        np.testing.assert_array_equal(stamps, [r.stamp_ns for r in recent])
+        np.testing.assert_array_equal(u, [r.u for r in recent])
+        np.testing.assert_array_equal(y, [r.y for r in recent])
+
+
+def test_model_constants_are_ready_before_the_first_window() -> None:
+    """The pulse-response moment (leakage bound) is computed when the monitor is built, so
+    the first window's report does not wait for it."""
+    ms = [load_model("A"), load_model("B")]
+    monitor.WindowMonitor(FAST, ms)
+    for m in ms:
+        assert ("pulse_moment", FAST.ts_s) in m.cache

@@ -30,7 +30,7 @@ import numpy as np
 from twotank_validation.datum import NormConvention, make_datum
 from twotank_validation.errors import DatumError, ModelError, TwotankError
 from twotank_validation.model import LFTModel, PlantResponse
-from twotank_validation.validate import check_compatible, validate
+from twotank_validation.validate import check_compatible, pulse_moment, validate
 
 NS_PER_S = 1_000_000_000
 
@@ -688,9 +688,14 @@ class WindowMonitor:
         self._last_index: int | None = None
         n = config.window_samples
         theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
+        # everything that depends only on the models and the settings is computed now, not in
+        # the first window (whose report would wait for it): P at the window's bins, and the
+        # leakage bound's pulse-response moment (memoised on the model)
         self._responses: dict[str, PlantResponse] = {
             m.name: m.response(theta, config.ts_s) for m in self.models
         }
+        for m in self.models:
+            pulse_moment(m, config.ts_s)
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
 
     def reset_buffer(self) -> None:
@@ -766,10 +771,19 @@ class WindowMonitor:
         return stamps.copy(), u.copy(), y.copy()
 
     def _ordered(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
-        """Last ``n`` buffered samples in time order."""
-        cap = self.config.span_samples
-        idx = (np.arange(self._count - n, self._count)) % cap
-        return self._u[idx], self._y[idx], self._stamp[idx], [self._flag[i] for i in idx]
+        """Last ``n`` buffered samples in time order (copies)."""
+        cap = self._cap
+        start = (self._count - n) % cap
+        if start + n <= cap:  # one piece of the ring
+            sl = slice(start, start + n)
+            return self._u[sl].copy(), self._y[sl].copy(), self._stamp[sl].copy(), self._flag[sl]
+        head, tail = slice(start, cap), slice(0, start + n - cap)  # two pieces
+        return (
+            np.concatenate([self._u[head], self._u[tail]]),
+            np.concatenate([self._y[head], self._y[tail]]),
+            np.concatenate([self._stamp[head], self._stamp[tail]]),
+            self._flag[head] + self._flag[tail],
+        )
 
     def _quality(self) -> str:
         cfg = self.config
