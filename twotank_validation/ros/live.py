@@ -24,7 +24,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
-from twotank_validation.monitor import NS_PER_S, Sample, WindowReport
+from twotank_validation.monitor import NS_PER_S, Sample, SampleBlock, WindowReport
 from twotank_validation.ros import interfaces as itf
 from twotank_validation.ros.excitation_node import ExcitationNode
 from twotank_validation.ros.plant_node import PlantNode
@@ -46,6 +46,8 @@ class LiveConfig:
         validator: extra validator parameters (name -> value).
         plant: extra plant parameters.
         excitation: extra excitation parameters.
+        record_samples: keep every aligned sample in the result (parity checks; memory
+            grows with the run).
     """
 
     duration_s: float = 3000.0
@@ -58,6 +60,7 @@ class LiveConfig:
     validator: dict[str, Any] = field(default_factory=dict)
     plant: dict[str, Any] = field(default_factory=dict)
     excitation: dict[str, Any] = field(default_factory=dict)
+    record_samples: bool = True
 
     @property
     def n_steps(self) -> int:
@@ -106,18 +109,29 @@ def _sample_arrived(val: ValidatorNode, k: int) -> bool:
 
 
 class _RecordingValidator(ValidatorNode):
-    """Validator that also keeps the aligned samples it consumed (parity checks)."""
+    """Validator that also keeps every report and the aligned samples it consumed (parity)."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, *, record_samples: bool = True, **kwargs: Any) -> None:
         self.samples: list[Sample] = []
+        self.all_reports: list[WindowReport] = []
         super().__init__(**kwargs)
-        push = self.monitor.push
+        self.report_listeners.append(self.all_reports.append)
+        if not record_samples:
+            return
+        push, push_block = self.monitor.push, self.monitor.push_block
 
         def recording_push(sample: Sample) -> list[WindowReport]:
             self.samples.append(sample)
             return push(sample)
 
+        def recording_push_block(
+            block: SampleBlock, on_report: Callable[[WindowReport], None] | None = None
+        ) -> list[WindowReport]:
+            self.samples.extend(block.samples())
+            return push_block(block, on_report)
+
         self.monitor.push = recording_push  # type: ignore[method-assign]
+        self.monitor.push_block = recording_push_block  # type: ignore[method-assign]
 
 
 def run_live(
@@ -167,6 +181,7 @@ def run_live(
         }
         plant = PlantNode(context=ctx, parameter_overrides=[sim, *_overrides(plant_params)])
         val = _RecordingValidator(
+            record_samples=config.record_samples,
             context=ctx,
             parameter_overrides=[
                 sim,
@@ -211,10 +226,10 @@ def run_live(
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.1f} s"
                 )
-            if on_report is not None and len(val.reports) > seen:
-                for rep in val.reports[seen:]:
+            if on_report is not None and len(val.all_reports) > seen:
+                for rep in val.all_reports[seen:]:
                     on_report(rep)
-                seen = len(val.reports)
+                seen = len(val.all_reports)
         # deliver what is still in flight, then let the worker finish
         expected = config.n_steps
         _spin_until(
@@ -222,11 +237,11 @@ def run_live(
         )
         val.wait_idle()
         if on_report is not None:
-            for rep in val.reports[seen:]:
+            for rep in val.all_reports[seen:]:
                 on_report(rep)
         wall = time.monotonic() - start
         counters = dict(vars(val.aligner.counters))
-        return LiveResult(list(val.reports), list(val.samples), wall, counters)
+        return LiveResult(list(val.all_reports), list(val.samples), wall, counters)
     finally:
         for n in nodes:
             n.destroy_node()

@@ -17,9 +17,11 @@ from __future__ import annotations
 import queue
 import sys
 import threading
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
@@ -105,6 +107,28 @@ _EXPECTED_TYPES = {
 }
 
 
+_BLANK_REPORT = WindowReport(
+    model="",
+    start_ns=0,
+    end_ns=0,
+    n_periods=0,
+    n_samples=0,
+    judged=False,
+    data_quality="",
+    beta=0.0,
+    beta_lower=0.0,
+    beta_upper=0.0,
+    margin=0.0,
+    invalidated=False,
+    alarm=Alarm.OK,
+    convention="power",
+    solver="",
+    freqs_hz=np.zeros(1),
+    w_min=np.zeros(1),
+    compute_time_s=0.0,
+)
+
+
 def monitor_config(values: dict[str, Any]) -> MonitorConfig:
     """Build the core config from parameter values (raises ParameterError if inconsistent)."""
     try:
@@ -131,8 +155,13 @@ def monitor_config(values: dict[str, Any]) -> MonitorConfig:
 class ValidatorNode(Node):
     """Online model validation with a fault-detection alarm.
 
+    Memory stays flat however long it runs: besides the window buffer it keeps only the last
+    ``keep_reports`` reports (:attr:`reports`); whoever needs every report registers a
+    listener in :attr:`report_listeners` (called from the worker thread after publishing).
+
     Args:
         models: models to use instead of the ``models`` parameter (tests, composition).
+        keep_reports: reports kept in :attr:`reports` (the most recent ones).
         **kwargs: passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
 
     Raises:
@@ -144,6 +173,7 @@ class ValidatorNode(Node):
         *,
         models: Sequence[LFTModel] | None = None,
         name: str = "twotank_validator",
+        keep_reports: int = 16,
         **kwargs: Any,
     ) -> None:
         super().__init__(name, **kwargs)
@@ -176,10 +206,8 @@ class ValidatorNode(Node):
             m.name: (Alarm.STALE, "waiting for data") for m in self.models
         }
         self._last_report: dict[str, WindowReport] = {}
-        self.reports: list[
-            WindowReport
-        ] = []  # every report published (bounded by the caller's run)
-        self.max_kept_reports = 10_000
+        self.reports: deque[WindowReport] = deque(maxlen=keep_reports)  # the latest published
+        self.report_listeners: list[Callable[[WindowReport], None]] = []
 
         self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 1000)
         self.create_subscription(FluidPressure, "height", self._on_height, 1000)
@@ -202,6 +230,9 @@ class ValidatorNode(Node):
             for m in self.models
         }
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # the first report message costs milliseconds (lazy imports): pay that now, not in
+        # the first window's latency
+        itf.report_message(_BLANK_REPORT, self._report_cls)
         self.create_service(Trigger, "reset_alarm", self._on_reset)
         for m in self.models:
             self._publish_invalidated(m.name, False)
@@ -288,9 +319,6 @@ class ValidatorNode(Node):
 
     def _publish(self, rep: WindowReport) -> None:
         self._last_report[rep.model] = rep
-        self.reports.append(rep)
-        if len(self.reports) > self.max_kept_reports:
-            del self.reports[: len(self.reports) - self.max_kept_reports]
         self._pub_report[rep.model].publish(itf.report_message(rep, self._report_cls))
         self._pub_margin[rep.model].publish(Float64(data=float(rep.margin)))
         self._publish_invalidated(rep.model, rep.alarm == Alarm.ERROR)
@@ -302,6 +330,9 @@ class ValidatorNode(Node):
         )
         self._status[rep.model] = (rep.alarm, text)
         self._publish_diagnostics()
+        self.reports.append(rep)
+        for listener in self.report_listeners:
+            listener(rep)
 
     def _publish_invalidated(self, name: str, value: bool) -> None:
         self._pub_invalid[name].publish(Bool(data=value))

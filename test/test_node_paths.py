@@ -1,0 +1,122 @@
+"""The validator node's report path: what was made faster and bounded stays the same.
+
+Node tests start DDS participants: run them in a private network namespace with only
+loopback up, like test_ros_nodes.py (`scripts/run test` does).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from report_checks import assert_same_reports
+from sensor_msgs.msg import FluidPressure, Temperature
+from test_monitor import rig_record
+
+from twotank_validation.model import load_model
+from twotank_validation.monitor import Alarm, MonitorConfig, WindowReport, monitor_record
+from twotank_validation.ros import interfaces as itf
+from twotank_validation.ros.validator_node import ValidatorNode
+
+FAST = {"ts_s": 0.8, "period_samples": 256}
+
+
+def report(judged: bool) -> WindowReport:
+    rng = np.random.default_rng(1)
+    w = rng.normal(size=129)
+    w[[3, 7]] = [math.nan, -0.0]
+    return WindowReport(
+        model="B",
+        start_ns=5,
+        end_ns=10**18 + 7,
+        n_periods=2,
+        n_samples=256,
+        judged=judged,
+        data_quality="ok" if judged else "settling",
+        beta=0.5 if judged else math.nan,
+        beta_lower=math.nan,
+        beta_upper=math.nan,
+        margin=0.5 if judged else math.nan,
+        invalidated=False,
+        alarm=Alarm.OK if judged else Alarm.STALE,
+        convention="power",
+        solver="closed_form" if judged else "",
+        freqs_hz=np.arange(129) / 204.8 if judged else np.zeros(0),
+        w_min=w if judged else np.zeros(0),
+        compute_time_s=0.001,
+    )
+
+
+def test_report_message_arrays_equal_the_element_by_element_fill() -> None:
+    _, cls = itf.message_classes()
+    for judged in (True, False):
+        rep = report(judged)
+        fast = itf.report_message(rep, cls)
+        slow = itf.report_message(rep, cls)
+        slow.frequencies_hz = [float(x) for x in rep.freqs_hz]  # the fill it replaced
+        slow.w_min = [float(x) for x in rep.w_min]
+        for name in ("frequencies_hz", "w_min"):
+            a, b = getattr(fast, name), getattr(slow, name)
+            assert a.typecode == b.typecode == "d"
+            assert struct.pack(f"<{len(a)}d", *a) == struct.pack(f"<{len(b)}d", *b)
+        for name in cls.get_fields_and_field_types():
+            a, b = getattr(fast, name), getattr(slow, name)
+            if isinstance(a, float):
+                assert struct.pack("<d", a) == struct.pack("<d", b), name
+            elif name not in ("frequencies_hz", "w_min"):
+                assert a == b, name
+
+
+def test_node_history_is_bounded_and_listeners_get_every_report() -> None:
+    """24 hours at 10 Hz are 844 reports: the node keeps only the latest; a listener sees
+    all of them, equal to the core monitor's on the same samples."""
+    stamps, u, y = rig_record(9)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = ValidatorNode(
+            context=ctx,
+            keep_reports=3,
+            parameter_overrides=[
+                Parameter("use_sim_time", value=True),
+                *[Parameter(k, value=v) for k, v in {**FAST, "models": ["A", "B"]}.items()],
+            ],
+        )
+        every: list[WindowReport] = []
+        node.report_listeners.append(every.append)
+        flow_cls, _ = itf.message_classes()
+        units = itf.RigUnits()
+        for k in range(len(stamps)):
+            f, h, t = flow_cls(), FluidPressure(), Temperature()
+            for msg in (f, h, t):
+                itf.set_stamp(msg.header.stamp, int(stamps[k]))
+            f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
+            h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
+            t.temperature = units.celsius_from_temperature(float(y[k, 1]))
+            node._on_flow(f)  # the subscription callbacks, as the executor calls them
+            node._on_height(h)
+            node._on_temperature(t)
+        assert node.wait_idle()
+        cfg = MonitorConfig(ts_s=0.8, period_samples=256)
+        y_rx = np.column_stack(  # what the node gets back from the messages' units
+            [
+                [units.level_from_pressure(units.pressure_from_level(float(v))) for v in y[:, 0]],
+                [
+                    units.temperature_from_celsius(units.celsius_from_temperature(float(v)))
+                    for v in y[:, 1]
+                ],
+            ]
+        )
+        want = monitor_record(stamps, u, y_rx, cfg, [load_model("A"), load_model("B")])
+        want = want[: len(every)]  # the last sample is finalised by the next one
+        assert len(every) >= 14
+        assert len(want) == len(every)
+        assert_same_reports(every, want)
+        assert list(node.reports) == every[-3:]
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
