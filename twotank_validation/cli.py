@@ -40,14 +40,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     cfg = experiment.ExperimentConfig(convention=NormConvention(args.norm))
     if args.seed is not None:
         cfg = replace(cfg, excitation=replace(cfg.excitation, seed=args.seed), seed=args.seed)
-    steps = tqdm(total=3, desc="demo", unit="step", disable=args.quiet)
+    steps = tqdm(total=4, desc="demo", unit="step", disable=args.quiet)
     steps.set_postfix_str("simulating rig and validating")
     res = experiment.run_experiment(
         cfg, sdp_check=not args.no_sdp, progress=_progress_factory(not args.quiet)
     )
     steps.update(1)
+    steps.set_postfix_str("diagnosing Model B")
+    diag = experiment.run_diagnosis(cfg, "B")
+    steps.update(1)
     steps.set_postfix_str("writing figures")
-    numbers = report.write_report(res, Path(args.out))
+    numbers = report.write_report(res, Path(args.out), diag)
     steps.update(2)
     steps.close()
     print(f"norm convention: {numbers['norm_convention']}")
@@ -57,6 +60,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         if "sdp_check" in m:
             line += f"; SDP agrees to {m['sdp_check']['beta_rel_diff']:.1e} relative"
         print(line)
+    print(f"diagnosis: {diag.summary}")
     print(f"report written to {Path(args.out).resolve()}/summary.md")
     return 0
 

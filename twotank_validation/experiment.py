@@ -16,13 +16,14 @@ low-pass (0.006 Hz) filtered noise of 0.05 RMS on the hot valve and 0.2 RMS on t
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from twotank_validation import excitation, rig, stats
 from twotank_validation.datum import Datum, NormConvention, make_datum
-from twotank_validation.model import LFTModel, load_model
+from twotank_validation.diagnose import Diagnosis, Window, diagnose
+from twotank_validation.model import LFTModel, load_model, load_model_document
 from twotank_validation.rig import Fault
 from twotank_validation.validate import ValidationResult, inverse_dft, validate
 
@@ -182,3 +183,30 @@ def run_experiment(
         )
         outcomes[model.name] = ModelOutcome(result, check, residual, tests)
     return ExperimentResult(config, time_s, u, y, h_range, datum, outcomes)
+
+
+def diagnosis_windows(config: ExperimentConfig, n_windows: int = 4) -> list[Window]:
+    """The experiment run for ``2 n_windows`` recorded periods, cut into two-period windows.
+
+    The first window is the demo's datum (same seeds, same settling); the others continue
+    the run, so the diagnosis can fit on some windows and judge on the rest.
+    """
+    exc = replace(config.excitation, record_periods=2 * n_windows)
+    time_s, u, y, _ = simulate_datum(replace(config, excitation=exc))
+    n = 2 * exc.period_samples
+    return [
+        Window(u[i * n : (i + 1) * n], y[i * n : (i + 1) * n], exc.ts_s, exc.period_samples,
+               float(time_s[i * n]))
+        for i in range(n_windows)
+    ]  # fmt: skip
+
+
+def run_diagnosis(
+    config: ExperimentConfig | None = None, model: str = "B", n_windows: int = 4
+) -> Diagnosis:
+    """Diagnose ``model`` on the experiment: the demo finds the rig's mixing delay in B."""
+    config = config or ExperimentConfig()
+    doc, source = load_model_document(model)
+    return diagnose(
+        diagnosis_windows(config, n_windows), doc, source=source, convention=config.convention
+    )

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib as mpl
+import yaml
 
 mpl.use("Agg")
 import matplotlib.pyplot as plt
@@ -238,10 +239,24 @@ def _markdown(numbers: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(res: ExperimentResult, out_dir: Path) -> dict[str, Any]:
-    """Write summary.md, results.json and the PNG figures into ``out_dir``."""
+def write_report(
+    res: ExperimentResult, out_dir: Path, diagnosis: Diagnosis | None = None
+) -> dict[str, Any]:
+    """Write summary.md, results.json and the PNG figures into ``out_dir``.
+
+    With a diagnosis, also its evidence figures, the changed model file and a section of
+    summary.md (error before and after on held-out windows).
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     numbers = experiment_numbers(res)
+    if diagnosis is not None:
+        model_file = None
+        if diagnosis.document is not None:
+            path = out_dir / f"model_{diagnosis.model}_diagnosed.yaml"
+            path.write_text(yaml.safe_dump(diagnosis.document, sort_keys=False, width=100))
+            model_file = path.name
+        numbers["diagnosis"] = diagnosis.to_json(model_file)
+        write_diagnosis_report(diagnosis, out_dir, model_file)
     (out_dir / "results.json").write_text(json.dumps(numbers, indent=2))
     plot_data(res, out_dir / "data.png")
     models = {name: load_model(name) for name in res.outcomes}
@@ -250,8 +265,32 @@ def write_report(res: ExperimentResult, out_dir: Path) -> dict[str, Any]:
         plot_nyquist(model, res.datum, out_dir / f"nyquist_{name}.png")
     plot_per_bin(results, out_dir / "per_bin.png")
     plot_time_signals(results, models, res.time_s, out_dir / "time_signals.png")
-    (out_dir / "summary.md").write_text(_markdown(numbers))
+    text = _markdown(numbers)
+    if diagnosis is not None:
+        text += _diagnosis_markdown(diagnosis, numbers["diagnosis"]["model_file"])
+    (out_dir / "summary.md").write_text(text)
     return numbers
+
+
+def _diagnosis_markdown(diag: Diagnosis, model_file: str | None) -> str:
+    lines = [
+        "",
+        f"## Diagnosis of Model {diag.model}: the effect it lacks",
+        "",
+        f"Fit on the windows starting at {', '.join(f'{t:.0f}' for t in diag.fit_windows)} s, "
+        "judged on the held-out windows at "
+        f"{', '.join(f'{t:.0f}' for t in diag.heldout_windows)} s "
+        '(`twotank-validation diagnose`, README "Diagnosis").',
+        "",
+        "```",
+        diagnosis_text(diag, model_file),
+        "```",
+        "",
+        "Figures: `diagnosis_spectra.png` (residual spectra before/after), "
+        "`diagnosis_outputs.png` (measured output against both models), "
+        "`diagnosis_effect.png` (the fitted effect against the measured/modelled ratio).",
+    ]
+    return "\n".join(lines) + "\n"
 
 
 def plot_alarm_timeline(summary: Mapping[str, Any], path: Path) -> None:
