@@ -614,6 +614,35 @@ BAD_FILES = {
         ModelFileError,
         r"nominal\.ss\.A: expected a number or a list of lists",
     ),
+    "delays_not_a_list": (
+        GOOD_YAML.replace(
+            "D: [[0.0, 0.0], [0.0, 0.0]]", "D: [[0.0, 0.0], [0.0, 0.0]]\n    output_delays_s: 3"
+        ),
+        ModelFileError,
+        r"nominal\.ss\.output_delays_s: expected a list",
+    ),
+    "delays_wrong_count": (
+        GOOD_YAML.replace(
+            "D: [[0.0, 0.0], [0.0, 0.0]]", "D: [[0.0, 0.0], [0.0, 0.0]]\n    output_delays_s: [1.0]"
+        ),
+        ModelFileError,
+        r"nominal\.ss: output_delays_s has 1 entries",
+    ),
+    "delays_negative": (
+        GOOD_YAML.replace(
+            "D: [[0.0, 0.0], [0.0, 0.0]]",
+            "D: [[0.0, 0.0], [0.0, 0.0]]\n    output_delays_s: [1.0, -2.0]",
+        ),
+        ModelFileError,
+        r">= 0 s",
+    ),
+    "states_wrong_count": (
+        GOOD_YAML.replace(
+            "D: [[0.0, 0.0], [0.0, 0.0]]", "D: [[0.0, 0.0], [0.0, 0.0]]\n    states: [x]"
+        ),
+        ModelFileError,
+        r"nominal\.ss\.states: expected a list of names, one per state",
+    ),
     "ss_inconsistent": (
         GOOD_YAML.replace("A: [[-0.1, 0.0], [0.0, -0.2]]", "A: [[-0.1]]"),
         ModelFileError,
@@ -717,3 +746,17 @@ def test_constant_tf_weight_is_accepted(tmp_path):
     )
     m = load_model(_write(tmp_path, text))
     np.testing.assert_allclose(m.response(np.array([0.0, 1.0]), 1.0).p22[:, 0, 0], 0.01)
+
+
+def test_output_delays_in_a_model_file_delay_the_response(tmp_path):
+    """A delayed output: exactly the undelayed response times exp(-j theta tau / ts)."""
+    delayed = GOOD_YAML.replace(
+        "D: [[0.0, 0.0], [0.0, 0.0]]",
+        "D: [[0.0, 0.0], [0.0, 0.0]]\n    output_delays_s: [0.0, 2.5]\n    states: [h, t]",
+    )
+    m = load_model(_write(tmp_path, delayed))
+    ref = load_model(_write(tmp_path, GOOD_YAML))
+    theta = np.linspace(0.0, np.pi, 9)
+    got, want = m.response(theta, 0.5).p23, ref.response(theta, 0.5).p23
+    np.testing.assert_allclose(got[:, 0], want[:, 0])
+    np.testing.assert_allclose(got[:, 1], want[:, 1] * np.exp(-1j * theta * 5.0)[:, None])
