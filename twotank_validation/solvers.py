@@ -614,6 +614,7 @@ def solve_sdp(
     y: np.ndarray,
     *,
     progress: Callable[[int], None] | None = None,
+    u_scale: float | None = None,
 ) -> BinSolutions:
     """General solver: SDP relaxation per bin (cvxpy + Clarabel), bounds and rank-one witness.
 
@@ -622,6 +623,8 @@ def solve_sdp(
         u: (n_bins, nu) complex.
         y: (n_bins, ny) complex.
         progress: called with 1 after each bin (for a progress bar).
+        u_scale: largest ||U(n)|| of the window (default: over these bins); pass it when
+            solving a subset of a window's bins.
     """
     nb = u.shape[0]
     blocks = resp.blocks
@@ -629,7 +632,8 @@ def solve_sdp(
     lower = np.zeros(nb)
     certified = np.zeros(nb, dtype=bool)
     x_cand = np.zeros((nb, nv + resp.nw), dtype=complex)
-    u_scale = float(np.max(np.linalg.norm(u, axis=1))) if nb else 0.0
+    if u_scale is None:
+        u_scale = float(np.max(np.linalg.norm(u, axis=1))) if nb else 0.0
     for n in range(nb):
         hb = homogenise_bin(resp.p[n], u[n], y[n], blocks, resp.nw, u_scale=u_scale)
         if not hb.feasible:

@@ -1,0 +1,323 @@
+"""The batched fast path against independent references: the cvxpy SDP path and the closed form.
+
+Every check compares with a reference computed in the test (the per-bin cvxpy path, the exact
+closed form, or an explicit closed-loop evaluation of the witness), never a stored number.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from twotank_validation import experiment, fast, solvers
+from twotank_validation.datum import Datum, make_datum
+from twotank_validation.model import BlockStructure, PlantResponse, load_model
+
+RTOL = 1e-6  # agreement asked of the fast path with the cvxpy reference
+
+
+def cplx(rng: np.random.Generator, *shape: int) -> np.ndarray:
+    return rng.normal(size=shape) + 1j * rng.normal(size=shape)
+
+
+def random_window(
+    seed: int,
+    shapes: tuple[tuple[int, int], ...],
+    nw: int,
+    ny: int,
+    nu: int,
+    *,
+    coupled: bool,
+    n_bins: int = 8,
+) -> tuple[PlantResponse, np.ndarray, np.ndarray]:
+    """A window of random bins with the awkward cases planted in fixed bins.
+
+    ``coupled``: z depends on v and w (P11 with norm 0.5, P12 non-zero); otherwise z = P13 U
+    (structured models). Bin 1 has no excitation (U = 0), bin 2 an ill-conditioned noise
+    weight (one P22 column 1e-5 of the others), bin 3 is explained by the model alone
+    (Y = P23 U: minimum 0), bin 4 a weak excitation (U scaled by 1e-7), bin 5 a block input
+    with no drive (P13 = 0, so z = 0 unless P11 or P12 move it), bin 6 a large error.
+    """
+    rng = np.random.default_rng(seed)
+    blocks = BlockStructure(shapes)
+    nz, nv = blocks.nz, blocks.nv
+    p = cplx(rng, n_bins, nz + ny, nv + nw + nu)
+    if coupled:
+        p11 = p[:, :nz, :nv]
+        p[:, :nz, :nv] = 0.5 * p11 / np.linalg.norm(p11, 2, axis=(1, 2))[:, None, None]
+    else:
+        p[:, :nz, : nv + nw] = 0.0
+    p[:, nz:, nv : nv + nw] *= 0.2  # noise weights smaller than the rest, as in practice
+    u = cplx(rng, n_bins, nu)
+    y = cplx(rng, n_bins, ny)
+    u[1] = 0.0
+    p[2, nz:, nv] *= 1e-5
+    y[3] = p[3, nz:, nv + nw :] @ u[3]
+    u[4] *= 1e-7
+    p[5, :nz, nv + nw :] = 0.0
+    y[6] *= 30.0
+    return PlantResponse(p, blocks, nw, nu, ny), u, y
+
+
+def unperturbed(resp: PlantResponse, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(n_bins,) ||w|| of the least-norm w with Delta = 0."""
+    rhs = y - np.einsum("kij,kj->ki", resp.p23, u)
+    w = np.einsum("kij,kj->ki", np.linalg.pinv(resp.p22), rhs)
+    return np.linalg.norm(w, axis=1)
+
+
+def bin_scale(resp: PlantResponse, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(n_bins,) the size of each bin's data in units of w: ``||P22^+|| (||Y|| + ||P23 U||)``."""
+    gain = np.linalg.norm(np.linalg.pinv(resp.p22), 2, axis=(1, 2))
+    nominal = np.linalg.norm(np.einsum("kij,kj->ki", resp.p23, u), axis=1)
+    return gain * (np.linalg.norm(y, axis=1) + nominal)
+
+
+def closed_loop_w_norm(
+    resp: PlantResponse, u: np.ndarray, y: np.ndarray, delta: tuple[np.ndarray, ...]
+) -> np.ndarray:
+    """Independent check of a witness: close the loop with Delta and solve for w by lstsq."""
+    out = np.empty(u.shape[0])
+    blocks = resp.blocks
+    for n in range(u.shape[0]):
+        dm = np.zeros((blocks.nv, blocks.nz), dtype=complex)
+        for d, vs, zs in zip(delta, blocks.v_slices, blocks.z_slices, strict=True):
+            dm[vs, zs] = d[n]
+        p11, p12, p13 = resp.p11[n], resp.p12[n], resp.p13[n]
+        p21, p22, p23 = resp.p21[n], resp.p22[n], resp.p23[n]
+        closed = dm @ np.linalg.inv(np.eye(blocks.nz) - p11 @ dm)
+        lhs = p22 + p21 @ closed @ p12
+        rhs = y[n] - p23 @ u[n] - p21 @ closed @ p13 @ u[n]
+        w = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        ok = np.linalg.norm(lhs @ w - rhs) <= 1e-7 * (np.linalg.norm(rhs) + np.linalg.norm(y[n]))
+        out[n] = np.linalg.norm(w) if ok else np.inf
+    return out
+
+
+def assert_close(got: np.ndarray, ref: np.ndarray, floor: np.ndarray, what: str) -> None:
+    """``|got - ref| <= RTOL max(|ref|, floor)`` per bin, ``inf`` where the reference is."""
+    inf = np.isinf(ref)
+    np.testing.assert_array_equal(np.isinf(got), inf, err_msg=f"{what}: infeasible bins differ")
+    err = np.abs(got[~inf] - ref[~inf])
+    tol = RTOL * np.maximum(np.abs(ref[~inf]), floor[~inf])
+    bad = np.flatnonzero(err > tol)
+    assert bad.size == 0, f"{what}: bins {bad} differ: {got[~inf][bad]} vs {ref[~inf][bad]}"
+
+
+def assert_lower_matches(
+    resp: PlantResponse,
+    u: np.ndarray,
+    y: np.ndarray,
+    sol: solvers.BinSolutions,
+    ref: solvers.BinSolutions,
+) -> None:
+    """The lower bound equals the reference's, and never exceeds a feasible value.
+
+    Feasible values, checked independently by closing the loop: Delta = 0, the fast witness
+    and the reference's witness. The reference is the yardstick where it certifies its bound
+    and that bound does not exceed a feasible value (on a bin the nominal explains to 1e-16
+    its certificate's round-off can be amplified); elsewhere the fast bound is held to the
+    feasible values only.
+    """
+    floor = 1e-6 * bin_scale(resp, u, y)
+    feasible_value = np.minimum(
+        unperturbed(resp, u, y),
+        np.minimum(
+            closed_loop_w_norm(resp, u, y, sol.delta), closed_loop_w_norm(resp, u, y, ref.delta)
+        ),
+    )
+    tol = RTOL * np.maximum(feasible_value, floor)
+    assert np.all(sol.lower <= feasible_value + tol), (sol.lower, feasible_value)
+    checkable = ref.certified & ~(ref.lower > feasible_value + tol)
+    assert_close(sol.lower[checkable], ref.lower[checkable], floor[checkable], "lower")
+
+
+def assert_upper_sound(
+    sol: solvers.BinSolutions, ref: solvers.BinSolutions, floor: np.ndarray
+) -> None:
+    """The fast witness is never worse than the reference's, and never below its lower bound.
+
+    Where the reference's bounds meet (and it certifies them) this pins the upper bound to the
+    reference's; where its witness search stopped short (a zero minimum, say) the fast one
+    may be better.
+    """
+    inf = np.isinf(ref.lower)
+    np.testing.assert_array_equal(np.isinf(sol.upper), inf)
+    tol = RTOL * np.maximum(np.abs(ref.upper[~inf]), floor[~inf])
+    assert np.all(sol.upper[~inf] <= ref.upper[~inf] + tol), (sol.upper, ref.upper)
+    cert = ref.certified[~inf]
+    assert np.all(sol.upper[~inf][cert] >= ref.lower[~inf][cert] - tol[cert]), (
+        sol.upper,
+        ref.lower,
+    )
+    assert np.all(sol.gap[~inf] <= ref.gap[~inf] + tol), (sol.gap, ref.gap)
+
+
+def check_solution(
+    resp: PlantResponse, u: np.ndarray, y: np.ndarray, sol: solvers.BinSolutions
+) -> None:
+    """Bounds ordered; the witness is feasible and reproduces its own upper bound."""
+    assert np.all(sol.lower <= sol.upper + 1e-12 * (1.0 + np.abs(sol.upper)))
+    for d in sol.delta:
+        assert np.all(np.linalg.norm(d, 2, axis=(1, 2)) <= 1.0 + 1e-9)
+    fin = np.isfinite(sol.upper)
+    ref = closed_loop_w_norm(resp, u, y, sol.delta)
+    scale = unperturbed(resp, u, y)
+    np.testing.assert_allclose(sol.upper[fin], ref[fin], rtol=1e-8, atol=1e-12 * scale.max())
+    np.testing.assert_allclose(np.linalg.norm(sol.w, axis=1)[fin], sol.upper[fin], rtol=1e-9)
+
+
+# ------------------------------------------------------------------ tank models
+
+
+@cache
+def tank_datum() -> Datum:
+    cfg = experiment.ExperimentConfig()
+    _, u, y, _ = experiment.simulate_datum(cfg)
+    return make_datum(u, y, ts_s=cfg.excitation.ts_s, period_samples=cfg.excitation.period_samples)
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_tank_models_match_closed_form_on_every_bin(name: str) -> None:
+    """The general fast path on the tank models equals the exact closed form (2049 bins)."""
+    datum = tank_datum()
+    resp = load_model(name).response(datum.theta, datum.ts_s)
+    structure, _ = solvers.decoupled_structure(resp)
+    assert structure is not None
+    cf = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, structure)
+    res = fast.solve_fast(resp, datum.u_bins, datum.y_bins)
+    sol = res.solutions
+    assert sol.method == "fast"
+    assert res.stats.n_fallback == 0
+    assert res.stats.n_direct + res.stats.n_dual == datum.theta.size
+    assert sol.certified.all()
+    # round-off bins (the de-biased DC bin) are judged against the window's scale
+    floor = np.full(cf.lower.shape, 1e-6 * float(np.max(cf.lower)))
+    assert_close(sol.lower, cf.lower, floor, "lower")
+    assert_close(sol.upper, cf.lower, floor, "upper")
+    beta_fast = np.sqrt(np.sum(datum.bin_weights * sol.lower**2))
+    beta_cf = np.sqrt(np.sum(datum.bin_weights * cf.lower**2))
+    assert beta_fast == pytest.approx(beta_cf, rel=1e-9)
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_tank_models_match_cvxpy_on_a_spread_of_bins(name: str) -> None:
+    """Against the cvxpy path on 40 bins: the strongest, the weakest excited, unexcited ones."""
+    datum = tank_datum()
+    resp = load_model(name).response(datum.theta, datum.ts_s)
+    u_norm = np.linalg.norm(datum.u_bins, axis=1)
+    order = np.argsort(u_norm)
+    excited = order[u_norm[order] > 0]
+    bins = np.unique(np.concatenate([excited[-15:], excited[:15], order[:10]]))
+    sub = PlantResponse(resp.p[bins], resp.blocks, resp.nw, resp.nu, resp.ny)
+    u, y = datum.u_bins[bins], datum.y_bins[bins]
+    u_scale = float(u_norm.max())
+    ref = solvers.solve_sdp(sub, u, y, u_scale=u_scale)
+    sol = fast.solve_fast(resp, datum.u_bins, datum.y_bins).solutions
+    floor = 1e-6 * bin_scale(sub, u, y)
+    assert_close(sol.lower[bins], ref.lower, floor, "lower")
+    assert_close(sol.upper[bins], ref.upper, floor, "upper")
+
+
+# ------------------------------------------------------------------ random problems
+
+
+@settings(max_examples=20)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_blocks=st.integers(1, 2),
+    full=st.booleans(),
+    coupled=st.booleans(),
+    nw=st.integers(1, 3),
+    nu=st.integers(1, 2),
+)
+def test_random_one_or_two_blocks_match_cvxpy(
+    seed: int, n_blocks: int, full: bool, coupled: bool, nw: int, nu: int
+) -> None:
+    """One or two blocks (the dual is exact): lower and upper bounds equal the cvxpy path's."""
+    shapes = ((2, 1), (1, 2))[:n_blocks] if full else ((1, 1),) * n_blocks
+    ny = min(nw, 2)
+    resp, u, y = random_window(seed, shapes, nw, ny, nu, coupled=coupled)
+    ref = solvers.solve_sdp(resp, u, y)
+    res = fast.solve_fast(resp, u, y)
+    sol = res.solutions
+    floor = 1e-6 * bin_scale(resp, u, y)
+    assert_lower_matches(resp, u, y, sol, ref)
+    assert_upper_sound(sol, ref, floor)
+    tight = ref.gap <= RTOL * np.maximum(ref.upper, floor)
+    assert_close(sol.upper[tight], ref.upper[tight], floor[tight], "upper where cvxpy is tight")
+    check_solution(resp, u, y, sol)
+    assert res.stats.n_fallback <= 2  # the hard-case bins at most (explained, weak)
+
+
+@settings(max_examples=10)
+@given(seed=st.integers(0, 2**32 - 1), coupled=st.booleans())
+def test_random_three_blocks_lower_bound_matches_cvxpy(seed: int, coupled: bool) -> None:
+    """Three blocks, one non-square: the certified lower bound equals the SDP relaxation's;
+    the upper bound is a feasible witness; the gap is reported, not hidden."""
+    shapes = ((1, 1), (2, 1), (1, 1))
+    resp, u, y = random_window(seed, shapes, 2, 2, 2, coupled=coupled)
+    ref = solvers.solve_sdp(resp, u, y)
+    sol = fast.solve_fast(resp, u, y).solutions
+    floor = 1e-6 * bin_scale(resp, u, y)
+    assert_lower_matches(resp, u, y, sol, ref)
+    assert_upper_sound(sol, ref, floor)
+    check_solution(resp, u, y, sol)
+    np.testing.assert_array_equal(sol.gap, np.where(np.isfinite(sol.upper), sol.gap, 0.0))
+
+
+def test_unexcited_window_is_least_norm_noise() -> None:
+    """U = 0 everywhere (z = 0, structured model): every bin is the least-norm w, no dual."""
+    resp, _, y = random_window(7, ((1, 1), (1, 1)), 2, 2, 2, coupled=False)
+    u = np.zeros((y.shape[0], 2), dtype=complex)
+    res = fast.solve_fast(resp, u, y)
+    assert res.stats.n_direct == y.shape[0]
+    expected = unperturbed(resp, u, y)
+    np.testing.assert_allclose(res.solutions.lower, expected, rtol=1e-12)
+    np.testing.assert_allclose(res.solutions.upper, expected, rtol=1e-12)
+    ref = solvers.solve_sdp(resp, u, y)
+    np.testing.assert_allclose(res.solutions.lower, ref.lower, rtol=RTOL)
+
+
+def test_fallback_bins_are_the_cvxpy_answer() -> None:
+    """With no Newton iteration allowed, every dual bin falls back: the cvxpy answer, counted."""
+    resp, u, y = random_window(11, ((1, 1), (1, 1)), 2, 2, 2, coupled=True)
+    res = fast.solve_fast(resp, u, y, max_iter=0)
+    ref = solvers.solve_sdp(resp, u, y)
+    assert res.stats.n_fallback == y.shape[0] - res.stats.n_direct - res.stats.n_dual
+    assert res.stats.n_fallback >= 5
+    floor = 1e-6 * bin_scale(resp, u, y)
+    assert_lower_matches(resp, u, y, res.solutions, ref)
+    assert_upper_sound(res.solutions, ref, floor)
+
+
+def test_output_without_noise_is_infeasible_when_unexplained() -> None:
+    """An output with neither noise nor reach: inf, as the cvxpy path says."""
+    blocks = BlockStructure(((1, 1),))
+    p = np.zeros((2, 2, 3), dtype=complex)
+    p[:, 0, 2] = 1.0
+    p[:, 1, 0] = 0.1
+    p[:, 1, 2] = 1.0
+    resp = PlantResponse(p, blocks, 1, 1, 1)  # noise weight zero
+    u = np.array([[1.0 + 0j], [1.0 + 0j]])
+    y = np.array([[2.0 + 0j], [1.05 + 0j]])
+    res = fast.solve_fast(resp, u, y)
+    ref = solvers.solve_sdp(resp, u, y)
+    assert np.isinf(res.solutions.lower[0])
+    assert res.stats.n_infeasible >= 1
+    np.testing.assert_array_equal(np.isinf(res.solutions.lower), np.isinf(ref.lower))
+    assert res.solutions.lower[1] == pytest.approx(ref.lower[1], abs=1e-9)
+
+
+def test_coverage() -> None:
+    assert fast.coverage(BlockStructure(((1, 1),) * 3), 2)[0]
+    covered, why = fast.coverage(BlockStructure(((1, 1),) * 4), 2)
+    assert not covered
+    assert "4 blocks" in why
+    resp, u, y = random_window(0, ((1, 1),) * 4, 2, 2, 2, coupled=False)
+    with pytest.raises(ValueError, match="does not cover"):
+        fast.solve_fast(resp, u, y)
