@@ -54,15 +54,72 @@ def test_closed_form_refused_where_it_does_not_apply() -> None:
         validate(datum, model, method="newton")
 
 
-def test_coupled_structure_goes_to_sdp_automatically() -> None:
+def test_coupled_structure_goes_to_fast_path_automatically() -> None:
+    """Not decoupled, one block: auto takes the batched fast path, which equals the SDP path."""
     u, rng = periodic_record(3)
     model = model_from_dict(SIMO_INPUT_MULT)
     datum = make_datum(u, rng.normal(size=(u.size, 2)), ts_s=0.1, period_samples=64)
     res = validate(datum, model)
-    assert res.method == "sdp"
+    assert res.method == "fast"
     assert "more than one output" in res.method_reason
+    assert f"{res.fallback_bins} fell back" in res.method_reason
+    assert res.summary()["fallback_bins"] == res.fallback_bins
     assert res.solution.certified.all()
     assert np.max(res.solution.gap) <= 1e-6 * np.max(res.w_upper)  # one block: bounds meet
+    sdp = validate(datum, model, method="sdp")
+    assert sdp.method == "sdp"
+    assert sdp.method_reason == "SDP relaxation (requested)"
+    floor = 1e-6 * float(np.max(sdp.w_upper))
+    np.testing.assert_allclose(res.w_min, sdp.w_min, rtol=1e-6, atol=floor)
+    np.testing.assert_allclose(res.w_upper, sdp.w_upper, rtol=1e-6, atol=floor)
+    assert res.beta == pytest.approx(sdp.beta, rel=1e-6)
+
+
+def test_fast_path_forced_on_a_decoupled_model_matches_closed_form() -> None:
+    """method="fast" on Model A (which auto sends to the closed form): same bins, same beta."""
+    rng = np.random.default_rng(4)
+    period = 128
+    u = np.tile(rng.normal(scale=0.05, size=(period, 2)), (2, 1))
+    y = 0.3 * np.roll(u, 3, axis=0) @ np.array([[1.0, 0.5], [0.2, 1.0]])
+    datum = make_datum(u, y + 0.01 * rng.normal(size=y.shape), ts_s=1.0, period_samples=period)
+    model = load_model("A")
+    auto = validate(datum, model)
+    forced = validate(datum, model, method="fast")
+    assert auto.method == "closed_form"
+    assert forced.method == "fast"
+    assert forced.method_reason.startswith("fast batched dual (requested)")
+    assert forced.fallback_bins == 0
+    floor = 1e-6 * float(np.max(auto.w_min))
+    np.testing.assert_allclose(forced.w_min, auto.w_min, rtol=1e-6, atol=floor)
+    np.testing.assert_allclose(forced.w_upper, auto.w_upper, rtol=1e-6, atol=floor)
+    assert forced.beta == pytest.approx(auto.beta, rel=1e-9)
+
+
+FOUR_BLOCKS = {
+    "name": "four_blocks",
+    "inputs": ["u"],
+    "outputs": ["y"],
+    "nominal": {"tf": {"num": [2.0], "den": [5.0, 1.0]}},
+    "perturbations": [
+        {"kind": "output_multiplicative", "outputs": ["y"], "weight": 0.1},
+        {"kind": "input_multiplicative", "inputs": ["u"], "weight": 0.1},
+        {"kind": "additive", "inputs": ["u"], "outputs": ["y"], "weight": 0.05},
+        {"kind": "additive", "inputs": ["u"], "outputs": ["y"], "weight": 0.02},
+    ],
+    "noise": [{"outputs": ["y"], "weight": 0.05}],
+}
+
+
+def test_structure_beyond_the_fast_path_goes_to_sdp() -> None:
+    """Four blocks: auto falls through to the per-bin SDP and says why; "fast" is refused."""
+    u, rng = periodic_record(5, period=16)
+    model = model_from_dict(FOUR_BLOCKS)
+    datum = make_datum(u, rng.normal(size=u.size), ts_s=0.1, period_samples=16)
+    res = validate(datum, model)
+    assert res.method == "sdp"
+    assert "fast path not applicable (4 blocks" in res.method_reason
+    with pytest.raises(ModelError, match="fast path does not cover"):
+        validate(datum, model, method="fast")
 
 
 def test_siso_input_multiplicative_matches_scalar_formula() -> None:

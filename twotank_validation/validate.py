@@ -9,13 +9,13 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation import lti, solvers
+from twotank_validation import fast, lti, solvers
 from twotank_validation.datum import Datum, NormConvention, leakage_bound
 from twotank_validation.datum import pulse_moment as datum_pulse_moment
 from twotank_validation.errors import DimensionError, ModelError
 from twotank_validation.model import LFTModel, PlantResponse
 
-METHODS = ("auto", "closed_form", "sdp")
+METHODS = ("auto", "closed_form", "fast", "sdp")
 _PULSE_DECAY = 1e-12
 
 
@@ -26,8 +26,9 @@ class ValidationResult:
     Attributes:
         model_name: model name.
         convention: norm convention of ``||w||`` (named in every report).
-        method: solver that ran (``"closed_form"`` or ``"sdp"``).
-        method_reason: why that solver was chosen.
+        method: solver that ran (``"closed_form"``, ``"fast"`` or ``"sdp"``).
+        method_reason: why that solver was chosen (for the fast path, also how many bins
+            fell back to the per-bin SDP).
         freqs_hz: (n_bins,) float, bin frequencies.
         theta: (n_bins,) float, rad/sample.
         bin_weights: (n_bins,) float, multiplicity of each one-sided bin.
@@ -42,6 +43,7 @@ class ValidationResult:
         n_samples: record length.
         ts_s: sample period (s).
         compute_time_s: wall time of the per-bin solve.
+        fallback_bins: bins the fast path handed to the per-bin SDP (0 for other methods).
     """
 
     model_name: str
@@ -61,6 +63,7 @@ class ValidationResult:
     n_samples: int
     ts_s: float
     compute_time_s: float
+    fallback_bins: int = 0
 
     @property
     def invalidated(self) -> bool:
@@ -94,6 +97,7 @@ class ValidationResult:
             "method_reason": self.method_reason,
             "max_bin_gap": float(np.max(self.solution.gap)) if self.solution.gap.size else 0.0,
             "uncertified_bins": int(np.sum(~self.solution.certified)),
+            "fallback_bins": self.fallback_bins,
             "leakage_bound": self.leakage.tolist(),
             "compute_time_s": self.compute_time_s,
         }
@@ -161,38 +165,61 @@ def validate(
 ) -> ValidationResult:
     """Solve Problem 3 at every bin and total it into beta.
 
+    ``method="auto"`` takes the exact closed form where the structure decouples per output,
+    else the batched fast path where it covers the structure (at most
+    :data:`fast.MAX_BLOCKS` blocks), else the per-bin cvxpy SDP; ``result.method_reason``
+    says which and why.
+
     Args:
         datum: the checked, transformed experiment.
         model: the model set.
-        method: ``"auto"`` (closed form where it applies, else SDP), ``"closed_form"`` or
-            ``"sdp"``.
-        progress: per-bin progress callback (SDP path).
+        method: ``"auto"``, ``"closed_form"``, ``"fast"`` (batched dual, any covered
+            structure) or ``"sdp"`` (per-bin cvxpy reference).
+        progress: per-bin progress callback (SDP path; the fast path reports all bins at
+            the end).
         response: P at ``datum.theta`` if already evaluated (saves the evaluation).
 
     Raises:
         DimensionError: model and datum channels differ.
-        ModelError: unknown method, or the closed form asked for where it does not apply.
+        ModelError: unknown method, or the closed form or the fast path asked for where it
+            does not apply.
     """
     if method not in METHODS:
         raise ModelError(f"unknown method {method!r}; use one of {METHODS}")
     check_compatible(datum, model)
     resp = response if response is not None else model.response(datum.theta, datum.ts_s)
-    structure, why = solvers.decoupled_structure(resp)
     start = time.perf_counter()
-    if method == "closed_form" and structure is None:
-        raise ModelError(
-            f"closed form does not apply to model {model.name!r}: {why}; use method='sdp'"
-        )
-    if structure is not None and method != "sdp":
-        sol = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, structure)
-        reason = f"closed form: {why}"
-    else:
+    fallback_bins = 0
+    if method == "sdp":
         sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
-        reason = (
-            "SDP relaxation (requested)"
-            if method == "sdp"
-            else f"SDP relaxation: closed form not applicable ({why})"
-        )
+        reason = "SDP relaxation (requested)"
+    elif method == "fast":
+        covered, cover = fast.coverage(resp.blocks, resp.nw)
+        if not covered:
+            raise ModelError(
+                f"fast path does not cover model {model.name!r}: {cover}; use method='sdp'"
+            )
+        sol, fallback_bins, done = _solve_fast(resp, datum, progress)
+        reason = f"fast batched dual (requested): {cover}; {done}"
+    else:
+        structure, why = solvers.decoupled_structure(resp)
+        if method == "closed_form" and structure is None:
+            raise ModelError(
+                f"closed form does not apply to model {model.name!r}: {why}; use method='sdp'"
+            )
+        covered, cover = fast.coverage(resp.blocks, resp.nw)
+        if structure is not None:
+            sol = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, structure)
+            reason = f"closed form: {why}"
+        elif covered:
+            sol, fallback_bins, done = _solve_fast(resp, datum, progress)
+            reason = f"fast batched dual: closed form not applicable ({why}); {cover}; {done}"
+        else:
+            sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
+            reason = (
+                f"SDP relaxation: closed form not applicable ({why}); "
+                f"fast path not applicable ({cover})"
+            )
     elapsed = time.perf_counter() - start
     error = datum.y_bins - np.einsum("kij,kj->ki", resp.p23, datum.u_bins)
     leak = leakage_bound(
@@ -216,4 +243,20 @@ def validate(
         n_samples=datum.n_samples,
         ts_s=datum.ts_s,
         compute_time_s=elapsed,
+        fallback_bins=fallback_bins,
     )
+
+
+def _solve_fast(
+    resp: PlantResponse, datum: Datum, progress: Callable[[int], None] | None
+) -> tuple[solvers.BinSolutions, int, str]:
+    """The fast path on every bin: solutions, bins that fell back, and a line saying so."""
+    res = fast.solve_fast(resp, datum.u_bins, datum.y_bins)
+    st = res.stats
+    if progress is not None:
+        progress(st.n_bins)
+    line = (
+        f"{st.n_direct + st.n_dual} of {st.n_bins} bins batched, "
+        f"{st.n_fallback} fell back to the per-bin SDP"
+    )
+    return res.solutions, st.n_fallback, line
