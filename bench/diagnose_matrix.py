@@ -1,6 +1,6 @@
 """How often the diagnosis names the right effect, and how well it recovers its parameters.
 
-Usage: scripts/run bench diagnose_matrix.py [--seeds 10] [--rms 0.1,0.1] [--cutoff 0.006]
+Usage: scripts/run bench diagnose_matrix.py [--seeds 10] [--rms 0.1,0.1] [--cutoff 0.01]
        [--windows 4] [--cases SUBSTRING ...]
 
 For every case (an undeclared effect in the simulated rig, or none) and seed, simulates
@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--rms", default="0.1,0.1", help="excitation RMS hot,cold")
     parser.add_argument("--windows", type=int, default=4)
-    parser.add_argument("--cutoff", type=float, default=0.006, help="excitation cutoff (Hz)")
+    parser.add_argument("--cutoff", type=float, default=0.01, help="excitation cutoff (Hz)")
     parser.add_argument("--cases", nargs="*", help="only cases whose name contains one of these")
     args = parser.parse_args()
     rms = tuple(float(x) for x in args.rms.split(","))

@@ -410,9 +410,27 @@ def _periodic_output(d: Datum, err: np.ndarray) -> np.ndarray:
 
 
 def plot_diagnosis_spectra(diag: Diagnosis, path: Path) -> None:
-    """Scaled residual |E(n)| at the excited bins of the held-out windows, before and after."""
-    fig, axes = plt.subplots(1, len(diag.outputs), figsize=(5 * len(diag.outputs), 4))
+    """Residual spectra of the held-out windows, before and after.
+
+    Raw error |E(n)| per output at the excited bins, and the validation's per-bin minimum
+    ||W(n)|| of the first held-out window.
+    """
+    n_out = len(diag.outputs)
+    fig, axes = plt.subplots(1, n_out + 1, figsize=(5 * (n_out + 1), 4))
     axes = np.atleast_1d(axes)
+    d0 = diag.heldout[0]
+    keep = d0.freqs_hz > 0
+    for side, label in ((diag.before, diag.model), (diag.after, "diagnosed")):
+        if side is diag.after and not diag.effects:
+            continue
+        r = side.results[0]
+        axes[n_out].semilogx(  # linear: bins the perturbation absorbs are exactly 0
+            d0.freqs_hz[keep], r.w_min[keep], lw=0.7, label=f"{label} (β = {r.beta:.2f})"
+        )
+    axes[n_out].set_title("min ||W(n)|| (first held-out window)")
+    axes[n_out].set_xlabel("frequency (Hz)")
+    axes[n_out].grid(True, which="both", alpha=0.3)
+    axes[n_out].legend(fontsize=8)
     for k, o in enumerate(diag.outputs):
         ax = axes[k]
         for side, label, mark in ((diag.before, "before", "o"), (diag.after, "after", "x")):
@@ -426,7 +444,6 @@ def plot_diagnosis_spectra(diag: Diagnosis, path: Path) -> None:
                     color="C0" if label == "before" else "C1",
                     label=label if i == 0 else None,
                 )
-        d0 = diag.heldout[0]
         odd = np.arange(1, d0.theta.size - 1, 2)
         ax.loglog(d0.freqs_hz[odd], np.abs(d0.y_bins[odd, k]), ",", color="0.6", label="noise")
         ax.set_title(f"{o}: |Y - G U| at the excited bins")
