@@ -68,7 +68,9 @@ def windows(  # noqa: PLR0917
     t, u, y, _ = experiment.simulate_datum(cfg)
     n = 2 * exc.period_samples
     return [
-        Window(u[i * n : (i + 1) * n], y[i * n : (i + 1) * n], exc.ts_s, exc.period_samples, t[i * n])
+        Window(
+            u[i * n : (i + 1) * n], y[i * n : (i + 1) * n], exc.ts_s, exc.period_samples, t[i * n]
+        )
         for i in range(n_windows)
     ]
 
@@ -114,9 +116,10 @@ def main() -> None:
             b1.append(d.after.beta)
             chans = {k[1] for k in truth} or {"temperature"}
             ratio.append(max(d.after.rms[c] / d.before.rms[c] for c in chans))
-        perr = "; ".join(
-            f"{p} {statistics.median(v):.1%} / {max(v):.1%}" for p, v in errs.items()
-        ) or "-"
+        perr = (
+            "; ".join(f"{p} {statistics.median(v):.1%} / {max(v):.1%}" for p, v in errs.items())
+            or "-"
+        )
         print(
             f"{name:<24}{right:>4}/{args.seeds:<2}  {perr:<44}"
             f"{statistics.median(b0):>9.2f} -> {statistics.median(b1):.2f}"
