@@ -18,6 +18,9 @@ from twotank_validation.datum import Datum, make_datum
 from twotank_validation.model import BlockStructure, PlantResponse, load_model
 
 RTOL = 1e-6  # agreement asked of the fast path with the cvxpy reference
+# Relative agreement is meaningless at a zero minimum: below FLOOR times the bin's data scale
+# (bin_scale) values are compared absolutely, to RTOL * FLOOR = 1e-9 of that scale.
+FLOOR = 1e-3
 
 
 def cplx(rng: np.random.Generator, *shape: int) -> np.ndarray:
@@ -108,53 +111,59 @@ def assert_close(got: np.ndarray, ref: np.ndarray, floor: np.ndarray, what: str)
     assert bad.size == 0, f"{what}: bins {bad} differ: {got[~inf][bad]} vs {ref[~inf][bad]}"
 
 
-def assert_lower_matches(
+def feasible_values(
+    resp: PlantResponse, u: np.ndarray, y: np.ndarray, *sols: solvers.BinSolutions
+) -> np.ndarray:
+    """(n_bins,) the smallest ||w|| among points checked feasible by closing the loop here:
+    Delta = 0 and the witnesses of ``sols`` (``inf`` where none explains the bin)."""
+    zero = tuple(np.zeros((u.shape[0], r, c), dtype=complex) for r, c in resp.blocks.shapes)
+    values = [closed_loop_w_norm(resp, u, y, zero)]
+    values += [closed_loop_w_norm(resp, u, y, s.delta) for s in sols]
+    return np.min(values, axis=0)
+
+
+def compare_with_reference(
     resp: PlantResponse,
     u: np.ndarray,
     y: np.ndarray,
-    sol: solvers.BinSolutions,
+    res: fast.FastSolutions,
     ref: solvers.BinSolutions,
-) -> None:
-    """The lower bound equals the reference's, and never exceeds a feasible value.
+) -> np.ndarray:
+    """The fast path against the cvxpy path and against independently checked feasible points.
 
-    Feasible values, checked independently by closing the loop: Delta = 0, the fast witness
-    and the reference's witness. The reference is the yardstick where it certifies its bound
-    and that bound does not exceed a feasible value (on a bin the nominal explains to 1e-16
-    its certificate's round-off can be amplified); elsewhere the fast bound is held to the
-    feasible values only.
+    * Bins the batch left to the fallback carry the reference's answer.
+    * Every other bin is sound: its lower bound never exceeds a feasible value, and it finds
+      a witness wherever one is known.
+    * Where the reference is trustworthy -- it certifies its bound, and that bound does not
+      exceed a feasible value (its certificate's round-off can be amplified on a bin the
+      nominal explains to 1e-16, and Clarabel can call an ill-conditioned bin infeasible) --
+      the lower bounds agree to ``RTOL``, and the fast witness is never worse than the
+      reference's nor below its bound (where the reference's bounds meet, they pin it).
+
+    Returns:
+        (n_bins,) bool, the bins compared with the reference.
     """
-    floor = 1e-6 * bin_scale(resp, u, y)
-    feasible_value = np.minimum(
-        unperturbed(resp, u, y),
-        np.minimum(
-            closed_loop_w_norm(resp, u, y, sol.delta), closed_loop_w_norm(resp, u, y, ref.delta)
-        ),
-    )
-    tol = RTOL * np.maximum(feasible_value, floor)
-    assert np.all(sol.lower <= feasible_value + tol), (sol.lower, feasible_value)
-    checkable = ref.certified & ~(ref.lower > feasible_value + tol)
-    assert_close(sol.lower[checkable], ref.lower[checkable], floor[checkable], "lower")
-
-
-def assert_upper_sound(
-    sol: solvers.BinSolutions, ref: solvers.BinSolutions, floor: np.ndarray
-) -> None:
-    """The fast witness is never worse than the reference's, and never below its lower bound.
-
-    Where the reference's bounds meet (and it certifies them) this pins the upper bound to the
-    reference's; where its witness search stopped short (a zero minimum, say) the fast one
-    may be better.
-    """
-    inf = np.isinf(ref.lower)
-    np.testing.assert_array_equal(np.isinf(sol.upper), inf)
-    tol = RTOL * np.maximum(np.abs(ref.upper[~inf]), floor[~inf])
-    assert np.all(sol.upper[~inf] <= ref.upper[~inf] + tol), (sol.upper, ref.upper)
-    cert = ref.certified[~inf]
-    assert np.all(sol.upper[~inf][cert] >= ref.lower[~inf][cert] - tol[cert]), (
-        sol.upper,
-        ref.lower,
-    )
-    assert np.all(sol.gap[~inf] <= ref.gap[~inf] + tol), (sol.gap, ref.gap)
+    sol = res.solutions
+    floor = FLOOR * bin_scale(resp, u, y)
+    back = res.fell_back
+    assert_close(sol.lower[back], ref.lower[back], floor[back], "fallback lower")
+    assert_close(sol.upper[back], ref.upper[back], floor[back], "fallback upper")
+    own = ~back
+    feas = feasible_values(resp, u, y, sol, ref)
+    with np.errstate(invalid="ignore"):
+        tol = RTOL * np.maximum(np.where(np.isfinite(feas), feas, 0.0), floor)
+    assert np.all(sol.lower[own] <= feas[own] + tol[own]), (sol.lower, feas)
+    assert not np.any(np.isinf(sol.upper[own]) & np.isfinite(feas[own])), (sol.upper, feas)
+    trust = own & ref.certified & (ref.lower <= feas + tol)
+    trust &= np.isfinite(ref.lower) | np.isinf(feas)
+    assert_close(sol.lower[trust], ref.lower[trust], floor[trust], "lower")
+    with np.errstate(invalid="ignore"):
+        ref_tol = RTOL * np.maximum(np.where(np.isfinite(ref.upper), ref.upper, 0.0), floor)
+    fin = own & np.isfinite(ref.upper)
+    assert np.all(sol.upper[fin] <= ref.upper[fin] + ref_tol[fin]), (sol.upper, ref.upper)
+    fin = trust & np.isfinite(ref.lower)
+    assert np.all(sol.upper[fin] >= ref.lower[fin] - tol[fin]), (sol.upper, ref.lower)
+    return trust
 
 
 def check_solution(
@@ -218,7 +227,7 @@ def test_tank_models_match_cvxpy_on_a_spread_of_bins(name: str) -> None:
     u_scale = float(u_norm.max())
     ref = solvers.solve_sdp(sub, u, y, u_scale=u_scale)
     sol = fast.solve_fast(resp, datum.u_bins, datum.y_bins).solutions
-    floor = 1e-6 * bin_scale(sub, u, y)
+    floor = FLOOR * bin_scale(sub, u, y)
     assert_close(sol.lower[bins], ref.lower, floor, "lower")
     assert_close(sol.upper[bins], ref.upper, floor, "upper")
 
@@ -244,14 +253,13 @@ def test_random_one_or_two_blocks_match_cvxpy(
     resp, u, y = random_window(seed, shapes, nw, ny, nu, coupled=coupled)
     ref = solvers.solve_sdp(resp, u, y)
     res = fast.solve_fast(resp, u, y)
-    sol = res.solutions
-    floor = 1e-6 * bin_scale(resp, u, y)
-    assert_lower_matches(resp, u, y, sol, ref)
-    assert_upper_sound(sol, ref, floor)
-    tight = ref.gap <= RTOL * np.maximum(ref.upper, floor)
-    assert_close(sol.upper[tight], ref.upper[tight], floor[tight], "upper where cvxpy is tight")
-    check_solution(resp, u, y, sol)
-    assert res.stats.n_fallback <= 2  # the hard-case bins at most (explained, weak)
+    compare_with_reference(resp, u, y, res, ref)
+    check_solution(resp, u, y, res.solutions)
+    # only the hard case falls back: a zero minimum (many minimisers, singular H_tt), known
+    # from a feasible point with ||w|| at round-off
+    floor = FLOOR * bin_scale(resp, u, y)
+    zero_min = feasible_values(resp, u, y, res.solutions, ref) <= RTOL * floor
+    assert np.all(zero_min[res.fell_back]), (res.stats, ref.lower)
 
 
 @settings(max_examples=10)
@@ -262,12 +270,9 @@ def test_random_three_blocks_lower_bound_matches_cvxpy(seed: int, coupled: bool)
     shapes = ((1, 1), (2, 1), (1, 1))
     resp, u, y = random_window(seed, shapes, 2, 2, 2, coupled=coupled)
     ref = solvers.solve_sdp(resp, u, y)
-    sol = fast.solve_fast(resp, u, y).solutions
-    floor = 1e-6 * bin_scale(resp, u, y)
-    assert_lower_matches(resp, u, y, sol, ref)
-    assert_upper_sound(sol, ref, floor)
-    check_solution(resp, u, y, sol)
-    np.testing.assert_array_equal(sol.gap, np.where(np.isfinite(sol.upper), sol.gap, 0.0))
+    res = fast.solve_fast(resp, u, y)
+    compare_with_reference(resp, u, y, res, ref)
+    check_solution(resp, u, y, res.solutions)
 
 
 def test_unexcited_window_is_least_norm_noise() -> None:
@@ -290,9 +295,8 @@ def test_fallback_bins_are_the_cvxpy_answer() -> None:
     ref = solvers.solve_sdp(resp, u, y)
     assert res.stats.n_fallback == y.shape[0] - res.stats.n_direct - res.stats.n_dual
     assert res.stats.n_fallback >= 5
-    floor = 1e-6 * bin_scale(resp, u, y)
-    assert_lower_matches(resp, u, y, res.solutions, ref)
-    assert_upper_sound(res.solutions, ref, floor)
+    assert res.fell_back.sum() == res.stats.n_fallback
+    compare_with_reference(resp, u, y, res, ref)
 
 
 def test_output_without_noise_is_infeasible_when_unexplained() -> None:
