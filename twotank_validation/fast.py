@@ -29,6 +29,7 @@ reference code, and counted (:attr:`FastStats.n_fallback`).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +46,7 @@ _RANK_RTOL = 1e-10  # as solvers._RANK_RTOL
 # Noise elimination (w = P22^-1 (...)) only where P22 is this well conditioned: it squares
 # into the objective's forms, whose Schur complement then cancels that many digits more.
 _NOISE_COND = 1e2
+_NOISE_GAIN = 1e3  # and only where ||P22^-1 P21 D||_F stays below this (D: balancing of v)
 _NEGLIGIBLE_Z = 1e-10  # as solvers._NEGLIGIBLE_Z
 _CONSISTENCY_RTOL = 1e-8  # as solvers._CONSISTENCY_RTOL
 _TINY = 1e-300
@@ -153,11 +155,13 @@ def _cholesky(
         positive definite; the factors there are garbage).
     """
     n, g = h.shape[0], h.shape[-1]
+    if scale is None:
+        scale = np.abs(np.diagonal(h).real).T
+    if n <= 2:  # explicit: the common sizes, a third of the numpy calls
+        return _cholesky_small(h, scale)
     work = h.copy()
     low = np.zeros_like(h)
     diag = np.ones((n, g))
-    if scale is None:
-        scale = np.abs(np.diagonal(h).real).T
     ok = np.ones(g, dtype=bool)
     for j in range(n):
         piv = work[j, j].real
@@ -172,9 +176,32 @@ def _cholesky(
     return low, diag, ok
 
 
+def _cholesky_small(h: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_cholesky` for 1x1 and 2x2 batches, written out."""
+    piv = h[0, 0].real
+    ok = piv > _PIVOT_RTOL * scale[0]
+    d0 = np.sqrt(np.where(ok, piv, 1.0))
+    low = np.zeros_like(h)
+    if h.shape[0] == 1:
+        return low, d0[None], ok
+    l10 = h[1, 0] / d0
+    low[1, 0] = l10
+    piv = h[1, 1].real - _sq(l10)
+    ok1 = piv > _PIVOT_RTOL * scale[1]
+    return low, np.stack([d0, np.sqrt(np.where(ok1, piv, 1.0))]), ok & ok1
+
+
 def _chol_solve(low: np.ndarray, diag: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Solve ``L L^H x = b`` for a batch; ``b`` is (n, ..., g) (extra axes: several right sides)."""
     n = diag.shape[0]
+    if n == 1:
+        one: np.ndarray = b / (diag[0] * diag[0])
+        return one
+    if n == 2:
+        l10 = low[1, 0]
+        y0 = b[0] / diag[0]
+        x1 = (b[1] - l10 * y0) / (diag[1] * diag[1])
+        return np.stack([(y0 - l10.conj() * x1) / diag[0], x1])
     y = np.empty_like(b, dtype=complex)
     for i in range(n):
         acc = b[i].astype(complex, copy=True)
@@ -522,7 +549,8 @@ def _homogenise(
 
     Two eliminations, each bin taking the first that applies:
 
-    * noise elimination -- ``P22`` square (up to 3x3) and well conditioned at the bin:
+    * noise elimination -- ``P22`` square (up to 3x3) and well conditioned at the bin, and
+      ``||P22^-1 P21 D||_F <= _NOISE_GAIN`` (``D``: the balancing of ``v``):
       ``w = P22^-1 (Y - P23 U - P21 v)``, the unknowns are ``v`` (balanced);
     * orthonormal elimination -- any bin: see :func:`_forms_orthonormal`.
 
@@ -538,15 +566,22 @@ def _homogenise(
     g = yt.shape[1]
     if inv is None or not np.any(good):
         return _forms_orthonormal(pt, yt, win, blocks, nw)
+    nz, nv = blocks.nz, blocks.nv
+    f = _matmul(inv, pt[nz:, :nv]) * win.col[None, :nv]  # (nw, nv, g): P22^-1 P21 D
+    good = good & (_sq(f).sum(axis=(0, 1)) <= _NOISE_GAIN**2)
     if np.all(good):
-        return _forms_noise(pt, win, blocks, inv)
+        return _forms_noise(pt, win, blocks, inv, f)
+    if not np.any(good):
+        return _forms_orthonormal(pt, yt, win, blocks, nw)
     ig, ib = np.flatnonzero(good), np.flatnonzero(~good)
-    fg = _forms_noise(_cols(pt, ig), _take_window(win, ig), blocks, _cols(inv, ig))
+    fg = _forms_noise(_cols(pt, ig), _take_window(win, ig), blocks, _cols(inv, ig), _cols(f, ig))
     fb = _forms_orthonormal(_cols(pt, ib), _cols(yt, ib), _take_window(win, ib), blocks, nw)
     return _concat_forms([(ig, fg), (ib, fb)], g)
 
 
-def _forms_noise(pt: np.ndarray, win: _Window, blocks: BlockStructure, inv: np.ndarray) -> _Forms:
+def _forms_noise(
+    pt: np.ndarray, win: _Window, blocks: BlockStructure, inv: np.ndarray, f: np.ndarray
+) -> _Forms:
     """Homogenised forms with ``w`` eliminated through ``P22^-1`` (``t`` = balanced ``v``).
 
     ``x = [v; w] = [D t; w0 - F t]`` with ``D = diag(col)``, ``w0 = P22^-1 (Y - P23 U)``,
@@ -560,13 +595,13 @@ def _forms_noise(pt: np.ndarray, win: _Window, blocks: BlockStructure, inv: np.n
         win: the same bins' :class:`_Window`.
         blocks: block structure.
         inv: (nw, nw, g) complex, ``P22^-1``.
+        f: (nw, nv, g) complex, ``F``.
     """
-    nz, nv = blocks.nz, blocks.nv
+    nv = blocks.nv
     nw = inv.shape[0]
     g = pt.shape[-1]
     col_v = win.col[:nv]
     w0 = _matvec(inv, win.r)
-    f = _matmul(inv, pt[nz:, :nv]) * col_v[None]  # (nw, nv, g)
     gram = _gram(f, f)
     for j in range(nv):
         gram[j, j] += 1.0
@@ -742,74 +777,93 @@ class _Point:
         ok: (g,) bool, ``H_tt`` numerically positive definite (else the rest is garbage).
         xh: (K, g) complex, Lagrangian minimiser ``[t; 1]``.
         phi: (g,) float, dual value ``xh^H H xh`` (a certified lower bound where ``ok``).
-        slack: (m, g) float, ``xh^H Q_i xh`` (constraint values; minus the gradient).
-        nv2: (m, g) float, ``xh^H pv_i xh`` (``||v_i||^2`` in the units of ``q_i``).
-        nz2: (m, g) float, ``xh^H pz_i xh`` (``||z_i||^2``, same units).
-        qx, pvx: (m, K, g) complex, ``Q_i xh`` and ``pv_i xh``.
+        px: (2m, K, g) complex, ``pz_i xh`` then ``pv_i xh``.
+        n2: (2m, g) float, ``xh^H pz_i xh`` (``||z_i||^2`` in the units of ``q_i``) then
+            ``xh^H pv_i xh`` (``||v_i||^2``).
         low, diag: Cholesky factors of ``H_tt``.
     """
 
     ok: np.ndarray
     xh: np.ndarray
     phi: np.ndarray
-    slack: np.ndarray
-    nv2: np.ndarray
-    nz2: np.ndarray
-    qx: np.ndarray
-    pvx: np.ndarray
+    px: np.ndarray
+    n2: np.ndarray
     low: np.ndarray
     diag: np.ndarray
+
+    @property
+    def slack(self) -> np.ndarray:
+        """(m, g) float, ``xh^H Q_i xh = ||z_i||^2 - ||v_i||^2`` (minus the gradient)."""
+        m = self.n2.shape[0] // 2
+        out: np.ndarray = self.n2[:m] - self.n2[m:]
+        return out
+
+
+@dataclass(frozen=True)
+class _Kernel:
+    """The forms of the bins being iterated, laid out for :func:`_evaluate`.
+
+    Attributes:
+        a: (K, K, g) complex.
+        q: (m, K, K, g) complex, ``pz_i - pv_i``.
+        pzv: (2m, K, K, g) complex, ``pz_i`` then ``pv_i``.
+        a_diag: (K - 1, g) float, ``|diag A_tt|``.
+        q_diag: (m, K - 1, g) float, ``|diag Q_i,tt|`` (with ``a_diag``, the size of the
+            terms each diagonal entry of ``H_tt`` is summed from).
+    """
+
+    a: np.ndarray
+    q: np.ndarray
+    pzv: np.ndarray
+    a_diag: np.ndarray
+    q_diag: np.ndarray
+
+    @staticmethod
+    def of(forms: _Forms) -> _Kernel:
+        k = forms.a.shape[0] - 1
+        diag_q = np.diagonal(forms.q[:, :k, :k], axis1=1, axis2=2)  # (m, g, k)
+        return _Kernel(
+            a=forms.a,
+            q=forms.q,
+            pzv=np.concatenate([forms.pz, forms.pv]),
+            a_diag=np.ascontiguousarray(np.abs(np.diagonal(forms.a[:k, :k]).real).T),
+            q_diag=np.ascontiguousarray(np.abs(diag_q.real).transpose(0, 2, 1)),
+        )
+
+    def take(self, sel: np.ndarray) -> _Kernel:
+        return _Kernel(*(_cols(getattr(self, f), sel) for f in self.__dataclass_fields__))
 
 
 @dataclass(frozen=True)
 class _Batch:
-    """The data of the bins still iterating: forms, activity, multipliers, current point."""
+    """The bins still iterating: their forms, block activity, multipliers, current point."""
 
-    a: np.ndarray
-    q: np.ndarray
-    pz: np.ndarray
-    pv: np.ndarray
+    kern: _Kernel
     active: np.ndarray
     d: np.ndarray
     pt: _Point
 
 
-def _evaluate(
-    a: np.ndarray, q: np.ndarray, pz: np.ndarray, pv: np.ndarray, d: np.ndarray
-) -> _Point:
-    """Dual function, Lagrangian minimiser and constraint values at ``d`` ((m, g) float)."""
+def _evaluate(kern: _Kernel, d: np.ndarray, *, at_zero: bool = False) -> _Point:
+    """Dual function, Lagrangian minimiser and constraint values at ``d`` ((m, g) float).
+
+    ``at_zero``: the caller knows ``d = 0`` (``H = A``).
+    """
+    a = kern.a
     k = a.shape[0] - 1
-    a_diag = np.abs(np.diagonal(a[:k, :k]).real).T  # (k, g)
-    if np.any(d):
-        h = a - (q * d[:, None, None, :]).sum(axis=0)
-        q_diag = np.abs(np.diagonal(q[:, :k, :k], axis1=1, axis2=2).real)  # (m, g, k)
-        a_diag = a_diag + (d[:, :, None] * q_diag).sum(axis=0).T
+    if at_zero:
+        h, scale = a, kern.a_diag
     else:
-        h = a
+        h = a - (kern.q * d[:, None, None, :]).sum(axis=0)
+        scale = kern.a_diag + (kern.q_diag * d[:, None, :]).sum(axis=0)
     # pivots are compared with the terms H_tt is summed from (A_tt is a Gram matrix, PSD)
-    low, diag, ok = _cholesky(h[:k, :k], a_diag)
+    low, diag, ok = _cholesky(h[:k, :k], scale)
     t = -_chol_solve(low, diag, h[:k, k])
     xh = np.concatenate([t, np.ones((1, a.shape[-1]), dtype=complex)])
     phi = h[k, k].real + (h[k, :k] * t).sum(axis=0).real
-    xb = xh[None, None, :, :]
-    pvx = (pv * xb).sum(axis=2)
-    qx = (pz * xb).sum(axis=2) - pvx
-    xc = xh.conj()[None]
-    nv2 = (xc * pvx).sum(axis=1).real
-    nz2 = (xc * (qx + pvx)).sum(axis=1).real
-    slack = (xc * qx).sum(axis=1).real
-    return _Point(
-        ok=ok & np.isfinite(phi),
-        xh=xh,
-        phi=phi,
-        slack=slack,
-        nv2=nv2,
-        nz2=nz2,
-        qx=qx,
-        pvx=pvx,
-        low=low,
-        diag=diag,
-    )
+    px = (kern.pzv * xh[None, None, :, :]).sum(axis=2)
+    n2 = (xh.conj()[None] * px).sum(axis=1).real
+    return _Point(ok=ok & np.isfinite(phi), xh=xh, phi=phi, px=px, n2=n2, low=low, diag=diag)
 
 
 def _take(pt: _Point, sel: np.ndarray) -> _Point:
@@ -828,13 +882,7 @@ def _merge(pt: _Point, trial: _Point, at: np.ndarray) -> _Point:
 
 def _take_batch(b: _Batch, sel: np.ndarray) -> _Batch:
     return _Batch(
-        a=_cols(b.a, sel),
-        q=_cols(b.q, sel),
-        pz=_cols(b.pz, sel),
-        pv=_cols(b.pv, sel),
-        active=_cols(b.active, sel),
-        d=_cols(b.d, sel),
-        pt=_take(b.pt, sel),
+        kern=b.kern.take(sel), active=_cols(b.active, sel), d=_cols(b.d, sel), pt=_take(b.pt, sel)
     )
 
 
@@ -867,9 +915,9 @@ def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
         forms: the homogenised bins.
         max_iter: Newton iterations at most.
     """
-    a, q, pz, pv, active = forms.a, forms.q, forms.pz, forms.pv, forms.active
+    a, active = forms.a, forms.active
     kk, g = a.shape[0], a.shape[-1]
-    nm = q.shape[0]
+    nm = active.shape[0]
     d_out = np.zeros((nm, g))
     xh_out = np.zeros((kk, g), dtype=complex)
     xh_out[-1] = 1.0
@@ -878,19 +926,16 @@ def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
     if kk == 1:  # nothing to minimise over: xh = [1] (as solvers.solve_bin_sdp)
         return _DualResult(d_out, xh_out, a[0, 0].real.copy(), np.ones(g, dtype=bool), 0)
     d = np.zeros((nm, g))
-    pt = _evaluate(a, q, pz, pv, d)
-    for start in _starts(forms):  # starting multipliers: H_tt positive definite
+    kern = _Kernel.of(forms)
+    pt = _evaluate(kern, d, at_zero=True)
+    for start in _starts(forms) if not np.all(pt.ok) else ():  # H_tt positive definite
         bad = np.flatnonzero(~pt.ok & np.any(active, axis=0))
         if bad.size == 0:
             break
         d[:, bad] = _cols(start, bad)
-        pt = _merge(
-            pt,
-            _evaluate(_cols(a, bad), _cols(q, bad), _cols(pz, bad), _cols(pv, bad), _cols(d, bad)),
-            bad,
-        )
+        pt = _merge(pt, _evaluate(kern.take(bad), _cols(d, bad)), bad)
     live = np.arange(g)
-    bt = _Batch(a, q, pz, pv, active, d, pt)
+    bt = _Batch(kern, active, d, pt)
     if not np.all(pt.ok):
         live = np.flatnonzero(pt.ok)
         bt = _take_batch(bt, live)
@@ -901,40 +946,40 @@ def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
         # a dual growing without bound: no (w, Delta) may explain the bin (left to fallback)
         runaway = bt.pt.phi > _PHI_RUNAWAY
         done = _settled(bt, free | drop) | (flat >= _FLAT_ITERATIONS) | runaway
-        step = secular = None
-        if it < max_iter and not np.all(done):
-            step, secular = _steps(bt, free, drop)
         if np.any(done):
             fin = live[done]
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, done), _cols(bt.pt.xh, done)
             phi_out[fin] = bt.pt.phi[done]
             ok_out[fin] = ~runaway[done]
-            if np.all(done):
-                break
-            keep = ~done
-            live, bt, flat = live[keep], _take_batch(bt, keep), flat[keep]
-            if step is not None and secular is not None:
-                step, secular = _cols(step, keep), _cols(secular, keep)
-        if it == max_iter or step is None or secular is None:
+        if np.all(done) or it == max_iter:
             break
+        if 4 * np.sum(done) >= done.size:  # drop settled bins once it pays
+            keep = np.flatnonzero(~done)
+            live, bt, flat = live[keep], _take_batch(bt, keep), flat[keep]
+            free, drop = _cols(free, keep), _cols(drop, keep)
+            done = np.zeros(keep.size, dtype=bool)
+        # else settled bins ride along, frozen (no move), and are recorded again unchanged
         iterations = it + 1
+        secular, newton = _steps(bt, free & ~done, drop & ~done)
+        secular[:, done] = 0.0
         phi_before = bt.pt.phi
-        bt, stalled = _advance(bt, secular, step)
+        bt, stalled = _advance(bt, secular, newton)
         gain = bt.pt.phi - phi_before
         flat = np.where(gain <= 1e-14 * (1.0 + np.abs(phi_before)), flat + 1, 0)
+        stalled &= ~done
         if np.any(stalled):  # no ascent left: settled where H_tt is PD (the witness judges)
             fin = live[stalled]
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, stalled), _cols(bt.pt.xh, stalled)
             phi_out[fin] = bt.pt.phi[stalled]
             ok_out[fin] = bt.pt.ok[stalled]
-            keep = ~stalled
-            if not np.any(keep):
+            keep = np.flatnonzero(~stalled)
+            if keep.size == 0:
                 break
             live, bt, flat = live[keep], _take_batch(bt, keep), flat[keep]
     return _DualResult(d_out, xh_out, phi_out, ok_out, iterations)
 
 
-def _starts(forms: _Forms) -> list[np.ndarray]:
+def _starts(forms: _Forms) -> Iterator[np.ndarray]:
     """Starting multipliers tried, in order, where ``d = 0`` leaves ``H_tt`` singular.
 
     First the same multiplier ``c`` for every block in the units of the objective
@@ -942,13 +987,19 @@ def _starts(forms: _Forms) -> list[np.ndarray]:
     on the directions ``A`` leaves free, so a small uniform ``c`` works), then the same with
     one or two blocks left at 0 (a block whose ``Q_i`` curves the wrong way), then uniform
     in the normalised units.
+
+    Yields:
+        (m, g) float.
     """
     nm = forms.active.shape[0]
     subsets = [np.ones(nm, dtype=bool)]
     subsets += [np.arange(nm) == i for i in range(nm)] if nm > 1 else []
     subsets += [np.arange(nm) != i for i in range(nm)] if nm > 2 else []
-    out = [c * forms.dscale * sub[:, None] for sub in subsets for c in _STARTS_NATURAL]
-    return out + [c * forms.active for c in _STARTS_SCALED]
+    for sub in subsets:
+        for c in _STARTS_NATURAL:
+            yield c * forms.dscale * sub[:, None]
+    for c in _STARTS_SCALED:
+        yield c * forms.active
 
 
 def _free_set(bt: _Batch) -> tuple[np.ndarray, np.ndarray]:
@@ -978,58 +1029,94 @@ def _settled(bt: _Batch, free: np.ndarray) -> np.ndarray:
     pt = bt.pt
     if not np.any(bt.active):
         return np.ones(pt.phi.shape, dtype=bool)
-    size = pt.nz2 + pt.nv2
-    feasible = np.all((pt.slack >= -1e-12 * size) | ~bt.active, axis=0)
-    gap = (bt.d * np.abs(pt.slack)).sum(axis=0)
+    nm = bt.d.shape[0]
+    size = pt.n2[:nm] + pt.n2[nm:]
+    slack = pt.slack
+    feasible = np.all((slack >= -1e-12 * size) | ~bt.active, axis=0)
+    gap = (bt.d * np.abs(slack)).sum(axis=0)
     out: np.ndarray = (feasible & (gap <= 1e-12 * np.abs(pt.phi) + 1e-15)) | ~np.any(free, axis=0)
     return out
 
 
-def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class _NewtonSystem:
+    """Projected Newton step on the free multipliers, solved only where it is needed.
+
+    Attributes:
+        hess: (m, m, g) float, ``-Hessian`` of ``phi`` on the free multipliers (identity on
+            the others).
+        rhs: (m, g) float, the gradient ``-slack`` on the free multipliers (0 elsewhere).
+        free: (m, g) bool.
+        to_zero: (m, g) float, the move of the dropped multipliers (``-d``; 0 elsewhere).
+    """
+
+    hess: np.ndarray
+    rhs: np.ndarray
+    free: np.ndarray
+    to_zero: np.ndarray
+
+    def step(self, sel: np.ndarray) -> np.ndarray:
+        """(m, len(sel)) float, the step at the bins ``sel``."""
+        free = _cols(self.free, sel)
+        step = _solve_small(_cols(self.hess, sel), _cols(self.rhs, sel))
+        bad = ~np.all(np.isfinite(step), axis=0)
+        out: np.ndarray = np.where(free & ~bad, step, _cols(self.to_zero, sel))
+        return out
+
+    def take(self, sel: np.ndarray) -> _NewtonSystem:
+        return _NewtonSystem(*(_cols(getattr(self, f), sel) for f in self.__dataclass_fields__))
+
+
+def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, _NewtonSystem]:
     """The two candidate moves on the free multipliers (the dropped ones go to 0).
 
-    * Projected Newton ascent on ``phi``: ``-Hessian = 2 Re(R^H H_tt^-1 R)``,
-      ``R = [(Q_i xh)_t]``, gradient ``-slack``.
     * Newton on the secular form ``F_i = 1/||v_i(d)|| - 1/||z_i(d)||`` with
-      ``d t / d d_j = H_tt^-1 R_j``; ``nan`` where it does not apply (a free block with
-      ``v_i`` or ``z_i`` at zero, a singular Jacobian, or no ascent direction).
+      ``d t / d d_j = H_tt^-1 R_j``, ``R = [(Q_i xh)_t]``; ``nan`` where it does not apply
+      (a free block with ``v_i`` or ``z_i`` at zero, a singular Jacobian, or no ascent
+      direction).
+    * Projected Newton ascent on ``phi`` (gradient ``-slack``, ``-Hessian = 2 Re(R^H H_tt^-1
+      R)``), as a system solved later for the bins that need it.
 
     Returns:
-        ``(newton, secular)``: (m, g) float each.
+        ``(secular, newton)``: (m, g) float; the Newton system.
     """
     pt = bt.pt
     k = pt.xh.shape[0] - 1
-    nm = pt.slack.shape[0]
-    r = pt.qx[:, :k]  # (m, k, g)
+    nm = bt.d.shape[0]
+    slack = pt.slack
+    pxt = pt.px[:, :k]  # (2m, k, g): (pz_i xh)_t, (pv_i xh)_t
+    r = pxt[:nm] - pxt[nm:]  # (Q_i xh)_t
     y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
-    y_b = y[None]
-    dslack = 2.0 * (r.conj()[:, :, None, :] * y_b).sum(axis=1).real  # (m, m, g)
+    dn2 = 2.0 * (pxt.conj()[:, :, None, :] * y[None]).sum(axis=1).real  # (2m, m, g)
+    dnz2, dnv2 = dn2[:nm], dn2[nm:]
+    dslack = dnz2 - dnv2  # = 2 Re(R^H H_tt^-1 R)
     both = free[:, None] & free[None, :]
     eye = np.eye(nm)[:, :, None]
-    rhs = np.where(free, -pt.slack, 0.0)
-    step = _solve_small(np.where(both, dslack, eye), rhs)
-    bad = ~np.all(np.isfinite(step), axis=0)
     to_zero = np.where(drop, -bt.d, 0.0)
-    step = np.where(free & ~bad, step, to_zero)
-    nv2, nz2 = pt.nv2, pt.nz2
+    newton = _NewtonSystem(
+        hess=np.where(both, dslack, eye),
+        rhs=np.where(free, -slack, 0.0),
+        free=free,
+        to_zero=to_zero,
+    )
+    nz2, nv2 = pt.n2[:nm], pt.n2[nm:]
     usable = (nv2 > 1e-200) & (nz2 > 1e-200)
-    dnv2 = 2.0 * (pt.pvx[:, :k].conj()[:, :, None, :] * y_b).sum(axis=1).real
     with np.errstate(divide="ignore", invalid="ignore"):
         iv = 1.0 / np.sqrt(nv2)
         iz = 1.0 / np.sqrt(nz2)
-        jac = 0.5 * (iz**3)[:, None] * (dslack + dnv2) - 0.5 * (iv**3)[:, None] * dnv2
+        jac = 0.5 * (iz**3)[:, None] * dnz2 - 0.5 * (iv**3)[:, None] * dnv2
         sec = _solve_small(np.where(both, jac, eye), np.where(free, iz - iv, 0.0))
     sec_ok = np.all(usable | ~free, axis=0) & np.all(np.isfinite(sec), axis=0)
     secular = np.where(free, sec, to_zero)
     # only an ascent direction of phi (gradient -slack) after projection onto d >= 0; when z
     # depends on the unknowns the secular Jacobian can point the wrong way
     moved = np.maximum(bt.d + secular, 0.0) - bt.d
-    sec_ok &= (-pt.slack * moved).sum(axis=0) > 0.0
+    sec_ok &= (-slack * moved).sum(axis=0) > 0.0
     secular = np.where(sec_ok[None], secular, np.nan)
-    return step, secular
+    return secular, newton
 
 
-def _advance(bt: _Batch, secular: np.ndarray, step: np.ndarray) -> tuple[_Batch, np.ndarray]:
+def _advance(bt: _Batch, secular: np.ndarray, newton: _NewtonSystem) -> tuple[_Batch, np.ndarray]:
     """One ascent move per bin: the secular step where it raises ``phi``, else backtracking.
 
     Backtracking on the projected Newton step keeps ``H_tt`` PD and ``phi`` non-decreasing:
@@ -1050,7 +1137,7 @@ def _advance(bt: _Batch, secular: np.ndarray, step: np.ndarray) -> tuple[_Batch,
     usable = np.all(np.isfinite(secular), axis=0)
     if np.all(usable):  # the common case: one evaluation of the whole batch
         cand = np.maximum(bt.d + secular, 0.0)
-        trial = _evaluate(bt.a, bt.q, bt.pz, bt.pv, cand)
+        trial = _evaluate(bt.kern, cand)
         accept = trial.ok & (trial.phi >= floor)
         if np.all(accept):
             return dataclasses.replace(bt, d=cand, pt=trial), np.zeros(g, dtype=bool)
@@ -1060,13 +1147,7 @@ def _advance(bt: _Batch, secular: np.ndarray, step: np.ndarray) -> tuple[_Batch,
     elif np.any(usable):
         try_sec = np.flatnonzero(usable)
         cand = np.maximum(_cols(bt.d, try_sec) + _cols(secular, try_sec), 0.0)
-        trial = _evaluate(
-            _cols(bt.a, try_sec),
-            _cols(bt.q, try_sec),
-            _cols(bt.pz, try_sec),
-            _cols(bt.pv, try_sec),
-            cand,
-        )
+        trial = _evaluate(bt.kern.take(try_sec), cand)
         accept = trial.ok & (trial.phi >= floor[try_sec])
         at = try_sec[accept]
         d_new[:, at] = _cols(cand, accept)
@@ -1074,6 +1155,10 @@ def _advance(bt: _Batch, secular: np.ndarray, step: np.ndarray) -> tuple[_Batch,
         left = np.ones(g, dtype=bool)
         left[at] = False
         pending = np.flatnonzero(left)
+    if pending.size == 0:
+        return dataclasses.replace(bt, d=d_new, pt=out), np.zeros(g, dtype=bool)
+    step = np.zeros_like(bt.d)
+    step[:, pending] = newton.step(pending)
     shrinking = step < 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(
@@ -1089,13 +1174,7 @@ def _advance(bt: _Batch, secular: np.ndarray, step: np.ndarray) -> tuple[_Batch,
         d_p = _cols(bt.d, pending)
         keep = 1e-4 * d_p if trial_no == 1 else 0.0
         cand = np.maximum(d_p + alpha[pending] * _cols(step, pending), keep)
-        trial = _evaluate(
-            _cols(bt.a, pending),
-            _cols(bt.q, pending),
-            _cols(bt.pz, pending),
-            _cols(bt.pv, pending),
-            cand,
-        )
+        trial = _evaluate(bt.kern.take(pending), cand)
         accept = trial.ok & (trial.phi >= floor[pending])
         if np.any(accept):
             at = pending[accept]
