@@ -517,6 +517,8 @@ class _Forms:
         dscale: (n_blocks, g) float, ``||Q_i|| / ||A||`` before normalisation (0 if forced):
             multipliers ``c * dscale`` weigh every block alike in the objective's units.
         feasible: (g,) bool, the output equation has a solution.
+        z_fixed: ``z = P13 U`` at every bin (``P11 = P12 = 0``): each ``pz_i`` is zero but
+            for its homogenising entry.
     """
 
     m: np.ndarray
@@ -529,6 +531,7 @@ class _Forms:
     a_scale: np.ndarray
     dscale: np.ndarray
     feasible: np.ndarray
+    z_fixed: bool = False
 
 
 def _take_window(win: _Window, idx: np.ndarray) -> _Window:
@@ -727,6 +730,7 @@ def _assemble_forms(
         a_scale=a_scale,
         dscale=dscale,
         feasible=feasible,
+        z_fixed=not coupled,
     )
 
 
@@ -763,7 +767,7 @@ def _concat_forms(parts: list[tuple[np.ndarray, _Forms]], g: int) -> _Forms:
             out["a"][j, j, idx] = 1.0
         for name in ("active", "rho", "a_scale", "dscale", "feasible"):
             out[name][..., idx] = getattr(f, name)
-    return _Forms(**out)
+    return _Forms(**out, z_fixed=all(f.z_fixed for _, f in parts))
 
 
 # ------------------------------------------------------------------ batched dual ascent
@@ -806,10 +810,13 @@ class _Kernel:
     Attributes:
         a: (K, K, g) complex.
         q: (m, K, K, g) complex, ``pz_i - pv_i``.
-        pzv: (2m, K, K, g) complex, ``pz_i`` then ``pv_i``.
+        pzv: (2m, K, K, g) complex, ``pz_i`` then ``pv_i``; only ``pv_i`` ((m, K, K, g))
+            where ``zx`` is given.
         a_diag: (K - 1, g) float, ``|diag A_tt|``.
         q_diag: (m, K - 1, g) float, ``|diag Q_i,tt|`` (with ``a_diag``, the size of the
             terms each diagonal entry of ``H_tt`` is summed from).
+        zx: (m, K, g) complex or None: ``pz_i xh``, the same at every ``xh`` when ``z`` does
+            not depend on the unknowns (``pz_i`` lives in the homogenising entry).
     """
 
     a: np.ndarray
@@ -817,21 +824,31 @@ class _Kernel:
     pzv: np.ndarray
     a_diag: np.ndarray
     q_diag: np.ndarray
+    zx: np.ndarray | None
 
     @staticmethod
     def of(forms: _Forms) -> _Kernel:
         k = forms.a.shape[0] - 1
         diag_q = np.diagonal(forms.q[:, :k, :k], axis1=1, axis2=2)  # (m, g, k)
+        fixed = forms.z_fixed
         return _Kernel(
             a=forms.a,
             q=forms.q,
-            pzv=np.concatenate([forms.pz, forms.pv]),
+            pzv=forms.pv if fixed else np.concatenate([forms.pz, forms.pv]),
             a_diag=np.ascontiguousarray(np.abs(np.diagonal(forms.a[:k, :k]).real).T),
             q_diag=np.ascontiguousarray(np.abs(diag_q.real).transpose(0, 2, 1)),
+            zx=np.ascontiguousarray(forms.pz[:, :, k]) if fixed else None,
         )
 
     def take(self, sel: np.ndarray) -> _Kernel:
-        return _Kernel(*(_cols(getattr(self, f), sel) for f in self.__dataclass_fields__))
+        return _Kernel(
+            a=_cols(self.a, sel),
+            q=_cols(self.q, sel),
+            pzv=_cols(self.pzv, sel),
+            a_diag=_cols(self.a_diag, sel),
+            q_diag=_cols(self.q_diag, sel),
+            zx=None if self.zx is None else _cols(self.zx, sel),
+        )
 
 
 @dataclass(frozen=True)
@@ -862,7 +879,13 @@ def _evaluate(kern: _Kernel, d: np.ndarray, *, at_zero: bool = False) -> _Point:
     xh = np.concatenate([t, np.ones((1, a.shape[-1]), dtype=complex)])
     phi = h[k, k].real + (h[k, :k] * t).sum(axis=0).real
     px = (kern.pzv * xh[None, None, :, :]).sum(axis=2)
-    n2 = (xh.conj()[None] * px).sum(axis=1).real
+    if kern.zx is not None:  # pz_i xh does not depend on xh (its last entry is 1)
+        px = np.concatenate([kern.zx, px])
+        n2 = np.concatenate(
+            [kern.zx[:, k].real, (xh.conj()[None] * px[kern.zx.shape[0] :]).sum(axis=1).real]
+        )
+    else:
+        n2 = (xh.conj()[None] * px).sum(axis=1).real
     return _Point(ok=ok & np.isfinite(phi), xh=xh, phi=phi, px=px, n2=n2, low=low, diag=diag)
 
 
@@ -1085,10 +1108,16 @@ def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, 
     nm = bt.d.shape[0]
     slack = pt.slack
     pxt = pt.px[:, :k]  # (2m, k, g): (pz_i xh)_t, (pv_i xh)_t
-    r = pxt[:nm] - pxt[nm:]  # (Q_i xh)_t
-    y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
-    dn2 = 2.0 * (pxt.conj()[:, :, None, :] * y[None]).sum(axis=1).real  # (2m, m, g)
-    dnz2, dnv2 = dn2[:nm], dn2[nm:]
+    if bt.kern.zx is not None:  # (pz_i xh)_t = 0
+        r = -pxt[nm:]  # (Q_i xh)_t
+        y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
+        dnv2 = 2.0 * (pxt[nm:].conj()[:, :, None, :] * y[None]).sum(axis=1).real
+        dnz2 = np.zeros_like(dnv2)
+    else:
+        r = pxt[:nm] - pxt[nm:]  # (Q_i xh)_t
+        y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
+        dn2 = 2.0 * (pxt.conj()[:, :, None, :] * y[None]).sum(axis=1).real  # (2m, m, g)
+        dnz2, dnv2 = dn2[:nm], dn2[nm:]
     dslack = dnz2 - dnv2  # = 2 Re(R^H H_tt^-1 R)
     both = free[:, None] & free[None, :]
     eye = np.eye(nm)[:, :, None]
