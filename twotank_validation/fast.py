@@ -455,6 +455,7 @@ def _classify(
     *,
     nw: int,
     u_scale: float,
+    coupled: bool,
 ) -> _Window:
     """Forced blocks and balancing of every bin, by the rules of :func:`solvers.homogenise_bin`.
 
@@ -469,6 +470,7 @@ def _classify(
         blocks: block structure.
         nw: noise dimension.
         u_scale: largest ||U(n)|| of the window.
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the window.
     """
     nz, nv = blocks.nz, blocks.nv
     nx = nv + nw
@@ -476,7 +478,6 @@ def _classify(
     zu = _matvec(pt[:nz, nx:], ut)
     r = yt - _matvec(pt[nz:, nx:], ut)
     x_scale = _least_norm_size(pt[nz:, :nx], r)
-    coupled = bool(np.any(pt[:nz, :nx]))
     p_norm = np.sqrt(_sq(pt).sum(axis=(0, 1))) + _TINY if coupled else None
     active = np.ones((blocks.n_blocks, nb), dtype=bool)
     col = np.ones((nx, nb))
@@ -547,6 +548,7 @@ def _homogenise(
     nw: int,
     inv: np.ndarray | None,
     good: np.ndarray,
+    coupled: bool,
 ) -> _Forms:
     """Eliminate the output equation and build the quadratic forms of a batch of bins.
 
@@ -565,25 +567,36 @@ def _homogenise(
         nw: noise dimension.
         inv: (nw, nw, g) complex, ``P22^-1`` where ``good`` (None: not square, or too large).
         good: (g,) bool, bins where ``inv`` is trustworthy (see :func:`_inverse_small`).
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch.
     """
     g = yt.shape[1]
     if inv is None or not np.any(good):
-        return _forms_orthonormal(pt, yt, win, blocks, nw)
+        return _forms_orthonormal(pt, yt, win, blocks, nw, coupled=coupled)
     nz, nv = blocks.nz, blocks.nv
     f = _matmul(inv, pt[nz:, :nv]) * win.col[None, :nv]  # (nw, nv, g): P22^-1 P21 D
     good = good & (_sq(f).sum(axis=(0, 1)) <= _NOISE_GAIN**2)
     if np.all(good):
-        return _forms_noise(pt, win, blocks, inv, f)
+        return _forms_noise(pt, win, blocks, inv, f, coupled=coupled)
     if not np.any(good):
-        return _forms_orthonormal(pt, yt, win, blocks, nw)
+        return _forms_orthonormal(pt, yt, win, blocks, nw, coupled=coupled)
     ig, ib = np.flatnonzero(good), np.flatnonzero(~good)
-    fg = _forms_noise(_cols(pt, ig), _take_window(win, ig), blocks, _cols(inv, ig), _cols(f, ig))
-    fb = _forms_orthonormal(_cols(pt, ib), _cols(yt, ib), _take_window(win, ib), blocks, nw)
+    fg = _forms_noise(
+        _cols(pt, ig), _take_window(win, ig), blocks, _cols(inv, ig), _cols(f, ig), coupled=coupled
+    )
+    fb = _forms_orthonormal(
+        _cols(pt, ib), _cols(yt, ib), _take_window(win, ib), blocks, nw, coupled=coupled
+    )
     return _concat_forms([(ig, fg), (ib, fb)], g)
 
 
 def _forms_noise(
-    pt: np.ndarray, win: _Window, blocks: BlockStructure, inv: np.ndarray, f: np.ndarray
+    pt: np.ndarray,
+    win: _Window,
+    blocks: BlockStructure,
+    inv: np.ndarray,
+    f: np.ndarray,
+    *,
+    coupled: bool,
 ) -> _Forms:
     """Homogenised forms with ``w`` eliminated through ``P22^-1`` (``t`` = balanced ``v``).
 
@@ -599,6 +612,7 @@ def _forms_noise(
         blocks: block structure.
         inv: (nw, nw, g) complex, ``P22^-1``.
         f: (nw, nv, g) complex, ``F``.
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch.
     """
     nv = blocks.nv
     nw = inv.shape[0]
@@ -621,12 +635,19 @@ def _forms_noise(
     m[:nv, nv] = x0v / rho
     m[nv:, nv] = x0w / rho
     return _assemble_forms(
-        pt, win, blocks, m, rho=rho, pad=col_v == 0.0, feasible=np.ones(g, dtype=bool)
+        pt,
+        win,
+        blocks,
+        m,
+        rho=rho,
+        pad=col_v == 0.0,
+        feasible=np.ones(g, dtype=bool),
+        coupled=coupled,
     )
 
 
 def _forms_orthonormal(
-    pt: np.ndarray, yt: np.ndarray, win: _Window, blocks: BlockStructure, nw: int
+    pt: np.ndarray, yt: np.ndarray, win: _Window, blocks: BlockStructure, nw: int, *, coupled: bool
 ) -> _Forms:
     """Homogenised forms by orthonormal elimination (any bin, as solvers.homogenise_bin).
 
@@ -641,6 +662,7 @@ def _forms_orthonormal(
         win: the same bins' :class:`_Window`.
         blocks: block structure.
         nw: noise dimension.
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch.
     """
     nz, nv = blocks.nz, blocks.nv
     nx = nv + nw
@@ -662,7 +684,7 @@ def _forms_orthonormal(
     m = np.empty((nx, k + 1, nb), dtype=complex)
     m[:, :k] = null * col[:, None]
     m[:, k] = x0 / rho
-    return _assemble_forms(pt, win, blocks, m, rho=rho, pad=pad, feasible=feasible)
+    return _assemble_forms(pt, win, blocks, m, rho=rho, pad=pad, feasible=feasible, coupled=coupled)
 
 
 def _assemble_forms(
@@ -674,6 +696,7 @@ def _assemble_forms(
     rho: np.ndarray,
     pad: np.ndarray,
     feasible: np.ndarray,
+    coupled: bool,
 ) -> _Forms:
     """``A = M_w^H M_w`` and ``Q_i = G_i^H G_i - M_vi^H M_vi`` (``G = [P11 P12] M + P13 U``).
 
@@ -685,19 +708,22 @@ def _assemble_forms(
         rho: (g,) float.
         pad: (K - 1, g) bool, padded coordinates (zero columns of ``m``).
         feasible: (g,) bool.
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch (else ``G_i`` has
+            only its homogenising column).
     """
     nz, nv = blocks.nz, blocks.nv
     nx, kk, nb = m.shape
     k = kk - 1
-    coupled = bool(np.any(pt[:nz, :nx]))
     zu_r = win.zu / rho
     if coupled:
         gz = _matmul(pt[:nz, :nx], m)  # (nz, K, g)
         gz[:, k] += zu_r
     a = _gram(m[nv:], m[nv:])
-    # forms are scaled by their trace (sum of squared factor entries): any positive scale
-    # does, this one costs no reduction over the K x K entries
-    a_scale = np.maximum(_sq(m[nv:]).sum(axis=(0, 1)), _TINY)
+    # forms are scaled by their trace (any positive scale does; this one is cheap)
+    a_scale = a[0, 0].real.copy()
+    for j in range(1, kk):
+        a_scale += a[j, j].real
+    a_scale = np.maximum(a_scale, _TINY)
     a /= a_scale
     for j in range(k):
         a[j, j] += pad[j]  # padded coordinates: |t_j|^2 in the objective, in no constraint
@@ -1243,6 +1269,7 @@ def _witness(
     nw: int,
     inv: np.ndarray | None,
     good: np.ndarray,
+    coupled: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Exactly feasible witness from candidate unknowns, as :func:`solvers.witness_from_delta`.
 
@@ -1260,6 +1287,7 @@ def _witness(
         inv: (nw, nw, g) complex, ``P22^-1`` where ``good`` (or None), used when ``z`` does
             not depend on the unknowns (then the closed loop is ``P22 w = ...``).
         good: (g,) bool.
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch.
 
     Returns:
         ``(upper, w, v, z, dmat)``: (g,) float (``inf`` where the closed loop cannot explain
@@ -1273,7 +1301,7 @@ def _witness(
     zu = _matvec(p13, ut)
     r = yt - _matvec(p23, ut)
     v_c = x[:nv]
-    z_c = _matvec(p11, v_c) + _matvec(p12, x[nv:]) + zu if nz else zu
+    z_c = _matvec(p11, v_c) + _matvec(p12, x[nv:]) + zu if coupled else zu
     dmat = np.zeros((nv, nz, g), dtype=complex)
     for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True):
         vi, zi = v_c[vs], z_c[zs]
@@ -1283,7 +1311,6 @@ def _witness(
         ratio = np.sqrt(_sq(vi).sum(axis=0) / zn2)
         shrink = np.where(ratio > 1.0, 1.0 / np.maximum(ratio, _TINY), 1.0)
         dmat[vs, zs] = vi[:, None] * zi.conj()[None, :] * np.where(safe, shrink / zn2, 0.0)
-    coupled = bool(np.any(p11) or np.any(p12))
     if coupled:
         eye = np.eye(nz)[:, :, None]
         s = _inverse(eye - _matmul(p11, dmat))
@@ -1312,6 +1339,7 @@ def _lagrangian_agrees(
     x: np.ndarray,
     res: _DualResult,
     forms: _Forms,
+    coupled: bool,
 ) -> np.ndarray:
     """Whether the certified value agrees with the Lagrangian evaluated in original units.
 
@@ -1329,6 +1357,7 @@ def _lagrangian_agrees(
         x: (nv + nw, g) complex, the Lagrangian minimiser ``rho m xh``.
         res: the dual ascent's result.
         forms: the homogenised bins.
+        coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch.
 
     Returns:
         (g,) bool.
@@ -1336,7 +1365,7 @@ def _lagrangian_agrees(
     nz, nv = blocks.nz, blocks.nv
     nx = x.shape[0]
     v, w = x[:nv], x[nv:]
-    z = win.zu + _matvec(pt[:nz, :nx], x) if nz else win.zu
+    z = win.zu + _matvec(pt[:nz, :nx], x) if coupled else win.zu
     mu = np.where(res.d > 0.0, res.d / np.where(forms.dscale > 0.0, forms.dscale, 1.0), 0.0)
     w2 = _sq(w).sum(axis=0)
     lag = w2.copy()
@@ -1401,7 +1430,8 @@ def solve_fast(
     pt = np.ascontiguousarray(resp.p.transpose(1, 2, 0))
     ut, yt = np.ascontiguousarray(u.T), np.ascontiguousarray(y.T)
     u_scale = float(np.sqrt(np.max(_sq(ut).sum(axis=0)))) if nb else 0.0
-    win = _classify(pt, ut, yt, blocks, nw=nw, u_scale=u_scale)
+    coupled = bool(np.any(pt[:nz, :nx]))  # z depends on v or w somewhere
+    win = _classify(pt, ut, yt, blocks, nw=nw, u_scale=u_scale, coupled=coupled)
     ny = resp.ny
     inv22: np.ndarray | None = None
     good22 = np.zeros(nb, dtype=bool)
@@ -1441,14 +1471,16 @@ def solve_fast(
         sub = _take_window(win, dual)
         p_d, u_d, y_d = _cols(pt, dual), _cols(ut, dual), _cols(yt, dual)
         inv_d = None if inv22 is None else _cols(inv22, dual)
-        forms = _homogenise(p_d, y_d, sub, blocks, nw=nw, inv=inv_d, good=good22[dual])
+        forms = _homogenise(
+            p_d, y_d, sub, blocks, nw=nw, inv=inv_d, good=good22[dual], coupled=coupled
+        )
         res = _dual_ascent(forms, max_iter)
         iterations = res.iterations
         x_cand = forms.rho * _matvec(forms.m, res.xh)
         feasible[dual] = forms.feasible
         lower[dual] = np.sqrt(np.maximum(res.phi, 0.0) * forms.a_scale) * forms.rho
         upper[dual], w[:, dual], v[:, dual], z[:, dual], dmat[..., dual] = _witness(
-            p_d, u_d, y_d, x_cand, blocks, nw=nw, inv=inv_d, good=good22[dual]
+            p_d, u_d, y_d, x_cand, blocks, nw=nw, inv=inv_d, good=good22[dual], coupled=coupled
         )
         # as solve_sdp's tightness test, plus 1e-10 of the bin's unknowns (round-off on a bin
         # the nominal explains to a few ulps, where ||Y - P23 U|| is itself round-off)
@@ -1456,7 +1488,9 @@ def solve_fast(
         up, lo = upper[dual], lower[dual]
         with np.errstate(invalid="ignore"):  # no witness (inf): not settled
             tight = np.isfinite(up) & (up - lo <= 1e-9 * (up + scale) + 1e-10 * forms.rho)
-        consistent = _lagrangian_agrees(p_d, sub, blocks, x=x_cand, res=res, forms=forms)
+        consistent = _lagrangian_agrees(
+            p_d, sub, blocks, x=x_cand, res=res, forms=forms, coupled=coupled
+        )
         settled[dual] = res.ok & tight & consistent
     infeasible = ~feasible
     lower[infeasible] = upper[infeasible] = np.inf
