@@ -19,6 +19,7 @@ import sys
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
+from time import perf_counter
 from typing import Any
 
 import numpy as np
@@ -198,7 +199,8 @@ class ValidatorNode(Node):
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
         flow_cls, self._report_cls = itf.message_classes()
 
-        self._queue: queue.Queue[tuple[str, int, Any] | None] = queue.Queue()
+        # (stream, stamp, value, perf_counter at reception), or a control item; None stops
+        self._queue: queue.Queue[tuple[str, int, Any, float] | None] = queue.Queue()
         self._lock = threading.Lock()
         self._last_rx: dict[str, int | None] = dict.fromkeys(_STREAMS)
         self.received: dict[str, int] = dict.fromkeys(_STREAMS, 0)
@@ -208,6 +210,8 @@ class ValidatorNode(Node):
         self._last_report: dict[str, WindowReport] = {}
         self.reports: deque[WindowReport] = deque(maxlen=keep_reports)  # the latest published
         self.report_listeners: list[Callable[[WindowReport], None]] = []
+        # per window: from receiving the message that completed it to its reports published
+        self.report_latency_s: deque[float] = deque(maxlen=1000)
 
         self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 1000)
         self.create_subscription(FluidPressure, "height", self._on_height, 1000)
@@ -257,21 +261,23 @@ class ValidatorNode(Node):
     def _on_flow(self, msg: Any) -> None:
         self._last_rx["flow_cmd"] = self._now_ns()
         self.received["flow_cmd"] += 1
-        self._queue.put(("flow_cmd", itf.stamp_ns(msg), itf.flow_values(msg)))
+        self._queue.put(("flow_cmd", itf.stamp_ns(msg), itf.flow_values(msg), perf_counter()))
 
     def _on_height(self, msg: FluidPressure) -> None:
         self._last_rx["height"] = self._now_ns()
         self.received["height"] += 1
-        self._queue.put(("height", itf.stamp_ns(msg), itf.height_value(msg, self.units)))
+        value = itf.height_value(msg, self.units)
+        self._queue.put(("height", itf.stamp_ns(msg), value, perf_counter()))
 
     def _on_temperature(self, msg: Temperature) -> None:
         self._last_rx["temperature"] = self._now_ns()
         self.received["temperature"] += 1
-        self._queue.put(("temperature", itf.stamp_ns(msg), itf.temperature_value(msg, self.units)))
+        value = itf.temperature_value(msg, self.units)
+        self._queue.put(("temperature", itf.stamp_ns(msg), value, perf_counter()))
 
     def _on_time_jump(self, jump: Any) -> None:
         if jump.delta.nanoseconds < 0:
-            self._queue.put(("__reset__", 0, None))
+            self._queue.put(("__reset__", 0, None, 0.0))
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         with self._lock:
@@ -301,20 +307,23 @@ class ValidatorNode(Node):
                 with self._lock:
                     self.core.restart()
                 continue
+            stream, stamp, value, received = item
             try:
-                reports = self.feed(*item)
+                reports = self.feed(stream, stamp, value)
             except Exception as err:  # keep the node alive; the status says what happened
-                self.get_logger().error(f"validator failed on {item[0]} at {item[1]} ns: {err}")
+                self.get_logger().error(f"validator failed on {stream} at {stamp} ns: {err}")
                 for name in self._status:
                     self._status[name] = (Alarm.STALE, f"internal error: {err}")
                 continue
-            for rep in reports:
-                self._publish(rep)
+            if reports:
+                for rep in reports:
+                    self._publish(rep)
+                self.report_latency_s.append(perf_counter() - received)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Block until the worker has processed every queued event (tests, composition)."""
         done = threading.Event()
-        self._queue.put(("__marker__", 0, done))
+        self._queue.put(("__marker__", 0, done, 0.0))
         return done.wait(timeout_s)
 
     def _publish(self, rep: WindowReport) -> None:
