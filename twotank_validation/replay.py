@@ -5,6 +5,15 @@ the ROS node (:mod:`twotank_validation.ros.interfaces`, ROS-free) and the same
 :class:`twotank_validation.monitor.OnlineValidator` (alignment, windows, gates, alarm). Memory
 stays bounded: only the window buffer and per-window summaries are kept, plus the samples of
 a few windows of interest (largest beta, first alarm) for the figures.
+
+Speed: messages go a few thousand at a time. The reader decodes the three fixed-layout input
+types in bulk (:meth:`~twotank_validation.bags.reader.BagReader.field_batches`, the generic
+deserialiser for anything else), the extractors' unit conversions run on arrays
+(:func:`~twotank_validation.ros.interfaces.stream_values`, the same float operations), and
+:meth:`~twotank_validation.monitor.OnlineValidator.feed_many` aligns regular stretches at once
+(the same samples and reports as feeding the messages one by one, which is what it does with
+anything irregular). A one-hour 10 Hz bag replays for two models in well under 2 s
+(``bench/bench_replay.py``).
 """
 
 from __future__ import annotations
