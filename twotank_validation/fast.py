@@ -852,6 +852,20 @@ class _Kernel:
     q_diag: np.ndarray
     zx: np.ndarray | None
 
+    @property
+    def unit(self) -> np.ndarray:
+        """(g,) float, the objective's unit (the forms are normalised: 1)."""
+        return np.ones(self.a.shape[-1])
+
+    @property
+    def size(self) -> int:
+        """K, the homogenised dimension."""
+        return int(self.a.shape[0])
+
+    def evaluate(self, d: np.ndarray, *, at_zero: bool = False) -> _Point:
+        """See :func:`_evaluate`."""
+        return _evaluate_dense(self, d, at_zero=at_zero)
+
     @staticmethod
     def of(forms: _Forms) -> _Kernel:
         k = forms.a.shape[0] - 1
@@ -878,20 +892,114 @@ class _Kernel:
 
 
 @dataclass(frozen=True)
+class _VKernel:
+    """The dual in ``v`` itself, for bins where ``z = P13 U`` and ``P22`` is invertible.
+
+    ``w = w0 - P v`` (``P = P22^-1 P21``, ``w0 = P22^-1 (Y - P23 U)``), so the bin is
+    ``min ||w0 - P v||^2`` s.t. ``||v_i||^2 <= c_i = ||P13_i U||^2``: ``t = v``, ``H_tt =
+    P^H P + sum_i d_i E_i^T E_i`` (``E_i`` selects block ``i``), ``H_ts = -P^H w0``. The
+    multipliers ``d`` are in the objective's own units, and the dual value is evaluated as
+    the Lagrangian at its minimiser, ``||w0 - P t||^2 + sum_i d_i (||t_i||^2 - c_i)``
+    (no Schur complement, so no cancellation when ``||w0||`` dwarfs the minimum). Forced
+    blocks' coordinates are pinned to 0 (identity rows in ``H_tt``).
+
+    Attributes:
+        gram: (k, k, g) complex, ``P^H P`` (identity on pinned coordinates).
+        b: (k, g) complex, ``P^H w0`` (0 on pinned coordinates).
+        p: (nw, k, g) complex, ``P``.
+        w0: (nw, g) complex.
+        c: (m, g) float.
+        g_diag: (k, g) float, ``|diag gram|`` (pivot scales).
+        zx: (m, K, g) complex, ``pz_i xh = c_i e_K`` (constant).
+        blocks: block structure (the coordinates of each block).
+    """
+
+    gram: np.ndarray
+    b: np.ndarray
+    p: np.ndarray
+    w0: np.ndarray
+    c: np.ndarray
+    g_diag: np.ndarray
+    zx: np.ndarray
+    blocks: BlockStructure
+
+    @property
+    def unit(self) -> np.ndarray:
+        """(g,) float, the objective's unit: ``||w0||^2`` (``||w||^2`` at ``v = 0``)."""
+        out: np.ndarray = np.maximum(_sq(self.w0).sum(axis=0), _TINY)
+        return out
+
+    @property
+    def size(self) -> int:
+        """K = nv + 1."""
+        return int(self.gram.shape[0]) + 1
+
+    def take(self, sel: np.ndarray) -> _VKernel:
+        return _VKernel(
+            gram=_cols(self.gram, sel),
+            b=_cols(self.b, sel),
+            p=_cols(self.p, sel),
+            w0=_cols(self.w0, sel),
+            c=_cols(self.c, sel),
+            g_diag=_cols(self.g_diag, sel),
+            zx=_cols(self.zx, sel),
+            blocks=self.blocks,
+        )
+
+    def evaluate(self, d: np.ndarray, *, at_zero: bool = False) -> _Point:
+        """See :func:`_evaluate`."""
+        k, g = self.b.shape
+        h = self.gram
+        scale = self.g_diag
+        if not at_zero:
+            h = h.copy()
+            scale = scale.copy()
+            for i, vs in enumerate(self.blocks.v_slices):
+                for j in range(vs.start, vs.stop):
+                    h[j, j] += d[i]
+                    scale[j] += d[i]
+        low, diag, ok = _cholesky(h, scale)
+        t = _chol_solve(low, diag, self.b)
+        xh = np.concatenate([t, np.ones((1, g), dtype=complex)])
+        nm = self.c.shape[0]
+        pvx = np.zeros((nm, k + 1, g), dtype=complex)
+        nv2 = np.empty((nm, g))
+        for i, vs in enumerate(self.blocks.v_slices):
+            pvx[i, vs] = t[vs]
+            nv2[i] = _sq(t[vs]).sum(axis=0)
+        w = self.w0 - _matvec(self.p, t)
+        phi = _sq(w).sum(axis=0) - (d * (self.c - nv2)).sum(axis=0)
+        return _Point(
+            ok=ok & np.isfinite(phi),
+            xh=xh,
+            phi=phi,
+            px=np.concatenate([self.zx, pvx]),
+            n2=np.concatenate([self.c, nv2]),
+            low=low,
+            diag=diag,
+        )
+
+
+@dataclass(frozen=True)
 class _Batch:
     """The bins still iterating: their forms, block activity, multipliers, current point."""
 
-    kern: _Kernel
+    kern: _Kernel | _VKernel
     active: np.ndarray
     d: np.ndarray
     pt: _Point
 
 
-def _evaluate(kern: _Kernel, d: np.ndarray, *, at_zero: bool = False) -> _Point:
+def _evaluate(kern: _Kernel | _VKernel, d: np.ndarray, *, at_zero: bool = False) -> _Point:
     """Dual function, Lagrangian minimiser and constraint values at ``d`` ((m, g) float).
 
     ``at_zero``: the caller knows ``d = 0`` (``H = A``).
     """
+    return kern.evaluate(d, at_zero=at_zero)
+
+
+def _evaluate_dense(kern: _Kernel, d: np.ndarray, *, at_zero: bool = False) -> _Point:
+    """:func:`_evaluate` on homogenised forms (phi by Schur complement)."""
     a = kern.a
     k = a.shape[0] - 1
     if at_zero:
@@ -937,16 +1045,22 @@ def _take_batch(b: _Batch, sel: np.ndarray) -> _Batch:
 
 @dataclass(frozen=True)
 class _DualResult:
-    """Per bin: multipliers, Lagrangian minimiser, dual value, success; iteration count."""
+    """Per bin: multipliers, Lagrangian minimiser, dual value, success; iteration count.
+
+    ``cond``: the pivot ratio of ``H_tt`` at the final point (see :func:`_pivot_ratio`).
+    """
 
     d: np.ndarray
     xh: np.ndarray
     phi: np.ndarray
     ok: np.ndarray
     iterations: int
+    cond: np.ndarray
 
 
-def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
+def _dual_ascent(
+    kern: _Kernel | _VKernel, active: np.ndarray, dscale: np.ndarray, max_iter: int = 60
+) -> _DualResult:
     """Maximise the concave dual of every bin at once.
 
     Each iteration tries, per bin, a Newton step on the secular form of the complementarity
@@ -961,23 +1075,26 @@ def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
     iterations, come back with ``ok = False``.
 
     Args:
-        forms: the homogenised bins.
+        kern: the bins' forms (:class:`_Kernel`) or their dual in ``v`` (:class:`_VKernel`).
+        active: (m, g) bool, blocks not forced to ``v_i = 0``.
+        dscale: (m, g) float, multipliers that weigh every block alike in the objective's
+            units (see :func:`_starts`).
         max_iter: Newton iterations at most.
     """
-    a, active = forms.a, forms.active
-    kk, g = a.shape[0], a.shape[-1]
+    kk, g = kern.size, active.shape[-1]
     nm = active.shape[0]
     d_out = np.zeros((nm, g))
     xh_out = np.zeros((kk, g), dtype=complex)
     xh_out[-1] = 1.0
     phi_out = np.zeros(g)
     ok_out = np.zeros(g, dtype=bool)
-    if kk == 1:  # nothing to minimise over: xh = [1] (as solvers.solve_bin_sdp)
-        return _DualResult(d_out, xh_out, a[0, 0].real.copy(), np.ones(g, dtype=bool), 0)
+    cond_out = np.zeros(g)
+    if kk == 1 and isinstance(kern, _Kernel):  # nothing to minimise: xh = [1] (as solve_bin_sdp)
+        ones = np.ones(g)
+        return _DualResult(d_out, xh_out, kern.a[0, 0].real.copy(), ones > 0, 0, ones)
     d = np.zeros((nm, g))
-    kern = _Kernel.of(forms)
     pt = _evaluate(kern, d, at_zero=True)
-    for start in _starts(forms) if not np.all(pt.ok) else ():  # H_tt positive definite
+    for start in _starts(dscale, active) if not np.all(pt.ok) else ():  # H_tt PD
         bad = np.flatnonzero(~pt.ok & np.any(active, axis=0))
         if bad.size == 0:
             break
@@ -993,13 +1110,14 @@ def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
     for it in range(max_iter + 1):
         free, drop = _free_set(bt)
         # a dual growing without bound: no (w, Delta) may explain the bin (left to fallback)
-        runaway = bt.pt.phi > _PHI_RUNAWAY
+        runaway = bt.pt.phi > _PHI_RUNAWAY * bt.kern.unit
         done = _settled(bt, free | drop) | (flat >= _FLAT_ITERATIONS) | runaway
         if np.any(done):
             fin = live[done]
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, done), _cols(bt.pt.xh, done)
             phi_out[fin] = bt.pt.phi[done]
             ok_out[fin] = ~runaway[done]
+            cond_out[fin] = _cols(_pivot_ratio(bt.pt), done)
         if np.all(done) or it == max_iter:
             break
         if 4 * np.sum(done) >= done.size:  # drop settled bins once it pays
@@ -1014,21 +1132,29 @@ def _dual_ascent(forms: _Forms, max_iter: int = 60) -> _DualResult:
         phi_before = bt.pt.phi
         bt, stalled = _advance(bt, secular, newton)
         gain = bt.pt.phi - phi_before
-        flat = np.where(gain <= 1e-14 * (1.0 + np.abs(phi_before)), flat + 1, 0)
+        flat = np.where(gain <= 1e-14 * (bt.kern.unit + np.abs(phi_before)), flat + 1, 0)
         stalled &= ~done
         if np.any(stalled):  # no ascent left: settled where H_tt is PD (the witness judges)
             fin = live[stalled]
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, stalled), _cols(bt.pt.xh, stalled)
             phi_out[fin] = bt.pt.phi[stalled]
             ok_out[fin] = bt.pt.ok[stalled]
+            cond_out[fin] = _cols(_pivot_ratio(bt.pt), stalled)
             keep = np.flatnonzero(~stalled)
             if keep.size == 0:
                 break
             live, bt, flat = live[keep], _take_batch(bt, keep), flat[keep]
-    return _DualResult(d_out, xh_out, phi_out, ok_out, iterations)
+    return _DualResult(d_out, xh_out, phi_out, ok_out, iterations, cond_out)
 
 
-def _starts(forms: _Forms) -> Iterator[np.ndarray]:
+def _pivot_ratio(pt: _Point) -> np.ndarray:
+    """(g,) float, smallest over largest squared Cholesky pivot of ``H_tt`` (conditioning)."""
+    piv = pt.diag * pt.diag
+    out: np.ndarray = np.min(piv, axis=0) / np.maximum(np.max(piv, axis=0), _TINY)
+    return out
+
+
+def _starts(dscale: np.ndarray, active: np.ndarray) -> Iterator[np.ndarray]:
     """Starting multipliers tried, in order, where ``d = 0`` leaves ``H_tt`` singular.
 
     First the same multiplier ``c`` for every block in the units of the objective
@@ -1040,15 +1166,15 @@ def _starts(forms: _Forms) -> Iterator[np.ndarray]:
     Yields:
         (m, g) float.
     """
-    nm = forms.active.shape[0]
+    nm = active.shape[0]
     subsets = [np.ones(nm, dtype=bool)]
     subsets += [np.arange(nm) == i for i in range(nm)] if nm > 1 else []
     subsets += [np.arange(nm) != i for i in range(nm)] if nm > 2 else []
     for sub in subsets:
         for c in _STARTS_NATURAL:
-            yield c * forms.dscale * sub[:, None]
+            yield c * dscale * sub[:, None]
     for c in _STARTS_SCALED:
-        yield c * forms.active
+        yield c * active
 
 
 def _free_set(bt: _Batch) -> tuple[np.ndarray, np.ndarray]:
@@ -1073,7 +1199,7 @@ def _settled(bt: _Batch, free: np.ndarray) -> np.ndarray:
 
     Primal feasibility ``||v_i||^2 <= ||z_i||^2`` within 1e-12 of their size, and duality
     gap ``sum_i d_i xh^H Q_i xh`` (what the objective at ``xh`` exceeds the dual value by)
-    below 1e-12 of the dual value plus 1e-15 (the forms are scaled to unit norm).
+    below 1e-12 of the dual value plus 1e-15 of the objective's unit.
     """
     pt = bt.pt
     if not np.any(bt.active):
@@ -1083,7 +1209,8 @@ def _settled(bt: _Batch, free: np.ndarray) -> np.ndarray:
     slack = pt.slack
     feasible = np.all((slack >= -1e-12 * size) | ~bt.active, axis=0)
     gap = (bt.d * np.abs(slack)).sum(axis=0)
-    out: np.ndarray = (feasible & (gap <= 1e-12 * np.abs(pt.phi) + 1e-15)) | ~np.any(free, axis=0)
+    tol = 1e-12 * np.abs(pt.phi) + 1e-15 * bt.kern.unit
+    out: np.ndarray = (feasible & (gap <= tol)) | ~np.any(free, axis=0)
     return out
 
 
@@ -1187,7 +1314,7 @@ def _advance(bt: _Batch, secular: np.ndarray, newton: _NewtonSystem) -> tuple[_B
     g = bt.d.shape[-1]
     d_new = bt.d.copy()
     out = bt.pt
-    floor = out.phi - 1e-15 * (1.0 + np.abs(out.phi))
+    floor = out.phi - 1e-15 * (bt.kern.unit + np.abs(out.phi))
     pending = np.arange(g)
     usable = np.all(np.isfinite(secular), axis=0)
     if np.all(usable):  # the common case: one evaluation of the whole batch
@@ -1399,6 +1526,159 @@ def _inverse(a: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------ driver
 
 
+@dataclass(frozen=True)
+class _Part:
+    """Solutions of a subset of bins (bin axis last), before the fallback.
+
+    Attributes:
+        lower, upper: (g,) float bounds on ``min ||W(n)||``.
+        w, v, z: (nw, g), (nv, g), (nz, g) complex, the witness.
+        dmat: (nv, nz, g) complex, block-diagonal Delta of the witness.
+        feasible: (g,) bool, the output equation has a solution.
+        settled: (g,) bool, certified and tight (else: fallback).
+        iterations: Newton iterations of the slowest bin.
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    w: np.ndarray
+    v: np.ndarray
+    z: np.ndarray
+    dmat: np.ndarray
+    feasible: np.ndarray
+    settled: np.ndarray
+    iterations: int
+
+
+def _tight(upper: np.ndarray, lower: np.ndarray, win: _Window, unknowns: np.ndarray) -> np.ndarray:
+    """Bounds that meet: as solve_sdp's tightness test, plus 1e-10 of the bin's unknowns.
+
+    (The extra term is round-off on a bin the nominal explains to a few ulps, where
+    ``||Y - P23 U||`` is itself round-off.) A bin without a witness (``inf``) is not tight.
+    """
+    scale = np.sqrt(_sq(win.r).sum(axis=0))
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = np.isfinite(upper) & (
+            upper - lower <= 1e-9 * (upper + scale) + 1e-10 * unknowns
+        )
+    return out
+
+
+def _solve_on_forms(
+    pt: np.ndarray,
+    ut: np.ndarray,
+    yt: np.ndarray,
+    win: _Window,
+    blocks: BlockStructure,
+    *,
+    nw: int,
+    inv: np.ndarray | None,
+    good: np.ndarray,
+    coupled: bool,
+    max_iter: int,
+) -> _Part:
+    """Bins solved on their homogenised forms (any structure): dual, witness, checks."""
+    forms = _homogenise(pt, yt, win, blocks, nw=nw, inv=inv, good=good, coupled=coupled)
+    res = _dual_ascent(_Kernel.of(forms), forms.active, forms.dscale, max_iter)
+    x_cand = forms.rho * _matvec(forms.m, res.xh)
+    lower = np.sqrt(np.maximum(res.phi, 0.0) * forms.a_scale) * forms.rho
+    upper, w, v, z, dmat = _witness(
+        pt, ut, yt, x_cand, blocks, nw=nw, inv=inv, good=good, coupled=coupled
+    )
+    tight = _tight(upper, lower, win, forms.rho)
+    consistent = _lagrangian_agrees(
+        pt, win, blocks, x=x_cand, res=res, forms=forms, coupled=coupled
+    )
+    return _Part(
+        lower=lower,
+        upper=upper,
+        w=w,
+        v=v,
+        z=z,
+        dmat=dmat,
+        feasible=forms.feasible,
+        settled=res.ok & tight & consistent,
+        iterations=res.iterations,
+    )
+
+
+def _solve_in_v(
+    pt: np.ndarray, win: _Window, blocks: BlockStructure, *, inv: np.ndarray, max_iter: int
+) -> _Part:
+    """Bins solved by :class:`_VKernel` (``z = P13 U``, ``P22`` invertible): dual, witness.
+
+    The witness is exact without a further solve: ``v'_i = Delta_i z_i`` (the clipped
+    ``v_i``) and ``w = w0 - P v'``. The dual value is the Lagrangian evaluated at its
+    minimiser; where ``H_tt`` is ill conditioned at the end (pivot ratio below 1e-12) the
+    minimiser is not trusted and the bin falls back.
+
+    Args:
+        pt: (nz + ny, nv + nw + nu, g) complex.
+        win: the same bins' :class:`_Window`.
+        blocks: block structure.
+        inv: (nw, nw, g) complex, ``P22^-1``.
+        max_iter: Newton iterations at most.
+    """
+    nz, nv = blocks.nz, blocks.nv
+    g = pt.shape[-1]
+    pmat = _matmul(inv, pt[nz:, :nv])  # (nw, nv, g)
+    w0 = _matvec(inv, win.r)
+    gram = _gram(pmat, pmat)
+    b = (pmat.conj() * w0[:, None]).sum(axis=0)
+    c = np.empty((blocks.n_blocks, g))
+    for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
+        c[i] = _sq(win.zu[zs]).sum(axis=0)
+        pin = ~win.active[i]  # forced block: v_i = 0
+        if np.any(pin):
+            gram[vs, :, pin] = 0.0
+            gram[:, vs, pin] = 0.0
+            for j in range(vs.start, vs.stop):
+                gram[j, j, pin] = 1.0
+            b[vs, pin] = 0.0
+    zx = np.zeros((blocks.n_blocks, nv + 1, g), dtype=complex)
+    zx[:, nv] = c
+    kern = _VKernel(
+        gram=gram,
+        b=b,
+        p=pmat,
+        w0=w0,
+        c=c,
+        g_diag=np.ascontiguousarray(np.abs(np.diagonal(gram).real).T),
+        zx=zx,
+        blocks=blocks,
+    )
+    dscale = np.where(win.active, np.mean(kern.g_diag, axis=0), 0.0)
+    res = _dual_ascent(kern, win.active, dscale, max_iter)
+    v_c = res.xh[:nv]
+    dmat = np.zeros((nv, nz, g), dtype=complex)
+    v = np.empty_like(v_c)
+    for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True):
+        vi, zi = v_c[vs], win.zu[zs]
+        zn2 = _sq(zi).sum(axis=0)
+        safe = zn2 > _TINY
+        zn2 = np.where(safe, zn2, 1.0)
+        ratio = np.sqrt(_sq(vi).sum(axis=0) / zn2)
+        shrink = np.where(safe, np.where(ratio > 1.0, 1.0 / np.maximum(ratio, _TINY), 1.0), 0.0)
+        dmat[vs, zs] = vi[:, None] * zi.conj()[None, :] * (shrink / zn2)
+        v[vs] = vi * shrink  # Delta_i z_i
+    w = w0 - _matvec(pmat, v)
+    upper = np.sqrt(_sq(w).sum(axis=0))
+    lower = np.sqrt(np.maximum(res.phi, 0.0))
+    tight = _tight(upper, lower, win, np.sqrt(_sq(v_c).sum(axis=0) + _sq(w0).sum(axis=0)))
+    return _Part(
+        lower=lower,
+        upper=upper,
+        w=w,
+        v=v,
+        z=win.zu.copy(),
+        dmat=dmat,
+        feasible=np.ones(g, dtype=bool),
+        # a positive bound needs a trustworthy minimiser; a bound of 0 holds regardless
+        settled=res.ok & tight & ((res.cond >= 1e-12) | (res.phi <= 0.0)),
+        iterations=res.iterations,
+    )
+
+
 def solve_fast(
     resp: PlantResponse,
     u: np.ndarray,
@@ -1467,31 +1747,45 @@ def solve_fast(
     settled[explained] = True  # lower = upper = 0, w = v = 0, Delta = 0, z = P13 U
     dual = np.flatnonzero(~settled)
     iterations = 0
-    if dual.size:
-        sub = _take_window(win, dual)
-        p_d, u_d, y_d = _cols(pt, dual), _cols(ut, dual), _cols(yt, dual)
-        inv_d = None if inv22 is None else _cols(inv22, dual)
-        forms = _homogenise(
-            p_d, y_d, sub, blocks, nw=nw, inv=inv_d, good=good22[dual], coupled=coupled
+    # bins solved in v itself (z fixed, P22 invertible and well conditioned), the others on
+    # the homogenised forms
+    v_route = np.zeros(nb, dtype=bool)
+    if dual.size and inv22 is not None and not coupled:
+        gain = _sq(_matmul(inv22, pt[nz:, :nv])).sum(axis=(0, 1))  # ||P22^-1 P21||_F^2
+        v_route[dual] = good22[dual] & (gain[dual] <= _NOISE_GAIN**2)
+    for idx, route in (
+        (np.flatnonzero(v_route), "v"),
+        (np.flatnonzero(~settled & ~v_route), "forms"),
+    ):
+        if not idx.size:
+            continue
+        sub = _take_window(win, idx)
+        p_d, u_d, y_d = _cols(pt, idx), _cols(ut, idx), _cols(yt, idx)
+        inv_d = None if inv22 is None else _cols(inv22, idx)
+        if route == "v":
+            assert inv_d is not None
+            part = _solve_in_v(p_d, sub, blocks, inv=inv_d, max_iter=max_iter)
+        else:
+            part = _solve_on_forms(
+                p_d,
+                u_d,
+                y_d,
+                sub,
+                blocks,
+                nw=nw,
+                inv=inv_d,
+                good=good22[idx],
+                coupled=coupled,
+                max_iter=max_iter,
+            )
+        iterations = max(iterations, part.iterations)
+        lower[idx], upper[idx], feasible[idx], settled[idx] = (
+            part.lower,
+            part.upper,
+            part.feasible,
+            part.settled,
         )
-        res = _dual_ascent(forms, max_iter)
-        iterations = res.iterations
-        x_cand = forms.rho * _matvec(forms.m, res.xh)
-        feasible[dual] = forms.feasible
-        lower[dual] = np.sqrt(np.maximum(res.phi, 0.0) * forms.a_scale) * forms.rho
-        upper[dual], w[:, dual], v[:, dual], z[:, dual], dmat[..., dual] = _witness(
-            p_d, u_d, y_d, x_cand, blocks, nw=nw, inv=inv_d, good=good22[dual], coupled=coupled
-        )
-        # as solve_sdp's tightness test, plus 1e-10 of the bin's unknowns (round-off on a bin
-        # the nominal explains to a few ulps, where ||Y - P23 U|| is itself round-off)
-        scale = np.sqrt(_sq(sub.r).sum(axis=0))
-        up, lo = upper[dual], lower[dual]
-        with np.errstate(invalid="ignore"):  # no witness (inf): not settled
-            tight = np.isfinite(up) & (up - lo <= 1e-9 * (up + scale) + 1e-10 * forms.rho)
-        consistent = _lagrangian_agrees(
-            p_d, sub, blocks, x=x_cand, res=res, forms=forms, coupled=coupled
-        )
-        settled[dual] = res.ok & tight & consistent
+        w[:, idx], v[:, idx], z[:, idx], dmat[..., idx] = part.w, part.v, part.z, part.dmat
     infeasible = ~feasible
     lower[infeasible] = upper[infeasible] = np.inf
     settled |= infeasible
