@@ -56,7 +56,8 @@ _KKT_TOL = 1e-13  # constraint violation and complementarity at convergence (sca
 _STARTS_NATURAL = (1.0, 1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e2)
 _STARTS_SCALED = (1.0, 0.1, 10.0, 0.01, 100.0, 1e-3)
 _FLAT_ITERATIONS = 4  # iterations in a row without ascent after which a bin stops
-_PHI_RUNAWAY = 1e12  # dual value (objective units) beyond which a bin is left to fallback
+# dual value (in the objective's unit) beyond which a bin counts as unbounded, left to fallback
+_PHI_RUNAWAY = 1e40
 _BACKTRACKS = 16  # step lengths tried per iteration before a bin counts as stalled
 
 
@@ -911,6 +912,7 @@ class _VKernel:
         c: (m, g) float.
         g_diag: (k, g) float, ``|diag gram|`` (pivot scales).
         zx: (m, K, g) complex, ``pz_i xh = c_i e_K`` (constant).
+        unit: (g,) float, the objective's unit: ``||w0||^2`` (``||w||^2`` at ``v = 0``).
         blocks: block structure (the coordinates of each block).
     """
 
@@ -921,13 +923,8 @@ class _VKernel:
     c: np.ndarray
     g_diag: np.ndarray
     zx: np.ndarray
+    unit: np.ndarray
     blocks: BlockStructure
-
-    @property
-    def unit(self) -> np.ndarray:
-        """(g,) float, the objective's unit: ``||w0||^2`` (``||w||^2`` at ``v = 0``)."""
-        out: np.ndarray = np.maximum(_sq(self.w0).sum(axis=0), _TINY)
-        return out
 
     @property
     def size(self) -> int:
@@ -943,6 +940,7 @@ class _VKernel:
             c=_cols(self.c, sel),
             g_diag=_cols(self.g_diag, sel),
             zx=_cols(self.zx, sel),
+            unit=_cols(self.unit, sel),
             blocks=self.blocks,
         )
 
@@ -1112,13 +1110,18 @@ def _dual_ascent(
         # a dual growing without bound: no (w, Delta) may explain the bin (left to fallback)
         runaway = bt.pt.phi > _PHI_RUNAWAY * bt.kern.unit
         done = _settled(bt, free | drop) | (flat >= _FLAT_ITERATIONS) | runaway
+        all_done = bool(np.all(done))
+        if all_done and live.size == g:  # the whole batch at once: no indexing
+            d_out, xh_out, phi_out = bt.d, bt.pt.xh, bt.pt.phi
+            ok_out, cond_out = ~runaway, _pivot_ratio(bt.pt)
+            break
         if np.any(done):
             fin = live[done]
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, done), _cols(bt.pt.xh, done)
             phi_out[fin] = bt.pt.phi[done]
             ok_out[fin] = ~runaway[done]
             cond_out[fin] = _cols(_pivot_ratio(bt.pt), done)
-        if np.all(done) or it == max_iter:
+        if all_done or it == max_iter:
             break
         if 4 * np.sum(done) >= done.size:  # drop settled bins once it pays
             keep = np.flatnonzero(~done)
@@ -1219,28 +1222,30 @@ class _NewtonSystem:
     """Projected Newton step on the free multipliers, solved only where it is needed.
 
     Attributes:
-        hess: (m, m, g) float, ``-Hessian`` of ``phi`` on the free multipliers (identity on
-            the others).
-        rhs: (m, g) float, the gradient ``-slack`` on the free multipliers (0 elsewhere).
-        free: (m, g) bool.
-        to_zero: (m, g) float, the move of the dropped multipliers (``-d``; 0 elsewhere).
+        dslack: (m, m, g) float, ``-Hessian`` of ``phi``: ``2 Re(R^H H_tt^-1 R)``.
+        slack: (m, g) float, minus the gradient.
+        free: (m, g) bool, multipliers Newton moves.
+        drop: (m, g) bool, multipliers sent to 0.
+        d: (m, g) float, the current multipliers.
     """
 
-    hess: np.ndarray
-    rhs: np.ndarray
+    dslack: np.ndarray
+    slack: np.ndarray
     free: np.ndarray
-    to_zero: np.ndarray
+    drop: np.ndarray
+    d: np.ndarray
 
     def step(self, sel: np.ndarray) -> np.ndarray:
         """(m, len(sel)) float, the step at the bins ``sel``."""
         free = _cols(self.free, sel)
-        step = _solve_small(_cols(self.hess, sel), _cols(self.rhs, sel))
+        nm = free.shape[0]
+        both = free[:, None] & free[None, :]
+        hess = np.where(both, _cols(self.dslack, sel), np.eye(nm)[:, :, None])
+        step = _solve_small(hess, np.where(free, -_cols(self.slack, sel), 0.0))
         bad = ~np.all(np.isfinite(step), axis=0)
-        out: np.ndarray = np.where(free & ~bad, step, _cols(self.to_zero, sel))
+        to_zero = np.where(_cols(self.drop, sel), -_cols(self.d, sel), 0.0)
+        out: np.ndarray = np.where(free & ~bad, step, to_zero)
         return out
-
-    def take(self, sel: np.ndarray) -> _NewtonSystem:
-        return _NewtonSystem(*(_cols(getattr(self, f), sel) for f in self.__dataclass_fields__))
 
 
 def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, _NewtonSystem]:
@@ -1261,35 +1266,32 @@ def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, 
     nm = bt.d.shape[0]
     slack = pt.slack
     pxt = pt.px[:, :k]  # (2m, k, g): (pz_i xh)_t, (pv_i xh)_t
-    if bt.kern.zx is not None:  # (pz_i xh)_t = 0
-        r = -pxt[nm:]  # (Q_i xh)_t
-        y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
-        dnv2 = 2.0 * (pxt[nm:].conj()[:, :, None, :] * y[None]).sum(axis=1).real
-        dnz2 = np.zeros_like(dnv2)
-    else:
-        r = pxt[:nm] - pxt[nm:]  # (Q_i xh)_t
-        y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
-        dn2 = 2.0 * (pxt.conj()[:, :, None, :] * y[None]).sum(axis=1).real  # (2m, m, g)
-        dnz2, dnv2 = dn2[:nm], dn2[nm:]
-    dslack = dnz2 - dnv2  # = 2 Re(R^H H_tt^-1 R)
-    both = free[:, None] & free[None, :]
-    eye = np.eye(nm)[:, :, None]
-    to_zero = np.where(drop, -bt.d, 0.0)
-    newton = _NewtonSystem(
-        hess=np.where(both, dslack, eye),
-        rhs=np.where(free, -slack, 0.0),
-        free=free,
-        to_zero=to_zero,
-    )
     nz2, nv2 = pt.n2[:nm], pt.n2[nm:]
-    usable = (nv2 > 1e-200) & (nz2 > 1e-200)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # v_i or z_i at 0: not usable
         iv = 1.0 / np.sqrt(nv2)
         iz = 1.0 / np.sqrt(nz2)
-        jac = 0.5 * (iz**3)[:, None] * dnz2 - 0.5 * (iv**3)[:, None] * dnv2
-        sec = _solve_small(np.where(both, jac, eye), np.where(free, iz - iv, 0.0))
+        if bt.kern.zx is not None:  # (pz_i xh)_t = 0: R = -(pv_i xh)_t
+            pv_t = pxt[nm:]
+            y = _chol_solve(pt.low, pt.diag, pv_t.transpose(1, 0, 2))  # -(d t / d d_j)
+            dnv2 = -2.0 * (pv_t.conj()[:, :, None, :] * y[None]).sum(axis=1).real
+            dslack = -dnv2
+            jac = -0.5 * (iv * iv * iv)[:, None] * dnv2
+        else:
+            r = pxt[:nm] - pxt[nm:]  # (Q_i xh)_t
+            y = _chol_solve(pt.low, pt.diag, r.transpose(1, 0, 2))  # (k, m, g): d t / d d_j
+            dn2 = 2.0 * (pxt.conj()[:, :, None, :] * y[None]).sum(axis=1).real  # (2m, m, g)
+            dnz2, dnv2 = dn2[:nm], dn2[nm:]
+            dslack = dnz2 - dnv2  # = 2 Re(R^H H_tt^-1 R)
+            jac = 0.5 * (iz * iz * iz)[:, None] * dnz2 - 0.5 * (iv * iv * iv)[:, None] * dnv2
+    newton = _NewtonSystem(dslack=dslack, slack=slack, free=free, drop=drop, d=bt.d)
+    both = free[:, None] & free[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sec = _solve_small(
+            np.where(both, jac, np.eye(nm)[:, :, None]), np.where(free, iz - iv, 0.0)
+        )
+    usable = (nv2 > 1e-200) & (nz2 > 1e-200)
     sec_ok = np.all(usable | ~free, axis=0) & np.all(np.isfinite(sec), axis=0)
-    secular = np.where(free, sec, to_zero)
+    secular = np.where(free, sec, np.where(drop, -bt.d, 0.0))
     # only an ascent direction of phi (gradient -slack) after projection onto d >= 0; when z
     # depends on the unknowns the secular Jacobian can point the wrong way
     moved = np.maximum(bt.d + secular, 0.0) - bt.d
@@ -1645,6 +1647,7 @@ def _solve_in_v(
         c=c,
         g_diag=np.ascontiguousarray(np.abs(np.diagonal(gram).real).T),
         zx=zx,
+        unit=np.maximum(_sq(w0).sum(axis=0), _TINY),
         blocks=blocks,
     )
     dscale = np.where(win.active, np.mean(kern.g_diag, axis=0), 0.0)
