@@ -1106,10 +1106,10 @@ def _dual_ascent(
     flat = np.zeros(live.size, dtype=int)  # consecutive iterations without ascent
     iterations = 0
     for it in range(max_iter + 1):
-        free, drop = _free_set(bt)
+        free = _free_set(bt)
         # a dual growing without bound: no (w, Delta) may explain the bin (left to fallback)
         runaway = bt.pt.phi > _PHI_RUNAWAY * bt.kern.unit
-        done = _settled(bt, free | drop) | (flat >= _FLAT_ITERATIONS) | runaway
+        done = _settled(bt, free) | (flat >= _FLAT_ITERATIONS) | runaway
         all_done = bool(np.all(done))
         if all_done and live.size == g:  # the whole batch at once: no indexing
             d_out, xh_out, phi_out = bt.d, bt.pt.xh, bt.pt.phi
@@ -1126,14 +1126,14 @@ def _dual_ascent(
         if 4 * np.sum(done) >= done.size:  # drop settled bins once it pays
             keep = np.flatnonzero(~done)
             live, bt, flat = live[keep], _take_batch(bt, keep), flat[keep]
-            free, drop = _cols(free, keep), _cols(drop, keep)
+            free = _cols(free, keep)
             done = np.zeros(keep.size, dtype=bool)
         # else settled bins ride along, frozen (no move), and are recorded again unchanged
         iterations = it + 1
-        secular, newton = _steps(bt, free & ~done, drop & ~done)
+        secular, newton = _steps(bt, free & ~done)
         secular[:, done] = 0.0
         phi_before = bt.pt.phi
-        bt, stalled = _advance(bt, secular, newton)
+        bt, stalled = _advance(bt, secular, newton, compare=it > 0)
         gain = bt.pt.phi - phi_before
         flat = np.where(gain <= 1e-14 * (bt.kern.unit + np.abs(phi_before)), flat + 1, 0)
         stalled &= ~done
@@ -1180,21 +1180,10 @@ def _starts(dscale: np.ndarray, active: np.ndarray) -> Iterator[np.ndarray]:
         yield c * active
 
 
-def _free_set(bt: _Batch) -> tuple[np.ndarray, np.ndarray]:
-    """Multipliers the Newton step moves, and those it sends to 0 (Bertsekas' epsilon rule).
-
-    A multiplier within ``eps = min(1e-3, ||d - max(d - slack, 0)||_inf)`` of 0 whose
-    constraint is slack is dropped to 0 rather than moved by Newton: near the bound its
-    coupling to the others would spoil the step of the free ones.
-
-    Returns:
-        ``(free, drop)``: (m, g) bool each.
-    """
-    d, slack, active = bt.d, bt.pt.slack, bt.active
-    eps = np.minimum(1e-3, np.max(np.abs(d - np.maximum(d - slack, 0.0)) * active, axis=0))
-    drop = active & (d > 0.0) & (d <= eps) & (slack > 0.0)
-    free = active & ~drop & ((d > 0.0) | (slack < 0.0))
-    return free, drop
+def _free_set(bt: _Batch) -> np.ndarray:
+    """(m, g) bool, multipliers Newton moves: positive, or at 0 with a violated constraint."""
+    out: np.ndarray = bt.active & ((bt.d > 0.0) | (bt.pt.slack < 0.0))
+    return out
 
 
 def _settled(bt: _Batch, free: np.ndarray) -> np.ndarray:
@@ -1221,35 +1210,57 @@ def _settled(bt: _Batch, free: np.ndarray) -> np.ndarray:
 class _NewtonSystem:
     """Projected Newton step on the free multipliers, solved only where it is needed.
 
+    The quadratic model of the dual around ``d`` is ``phi + g.D - D.H D / 2`` with gradient
+    ``g = -slack`` and ``H = 2 Re(R^H H_tt^-1 R)`` (minus the Hessian).
+
     Attributes:
-        dslack: (m, m, g) float, ``-Hessian`` of ``phi``: ``2 Re(R^H H_tt^-1 R)``.
+        dslack: (m, m, g) float, ``H``.
         slack: (m, g) float, minus the gradient.
         free: (m, g) bool, multipliers Newton moves.
-        drop: (m, g) bool, multipliers sent to 0.
         d: (m, g) float, the current multipliers.
     """
 
     dslack: np.ndarray
     slack: np.ndarray
     free: np.ndarray
-    drop: np.ndarray
     d: np.ndarray
 
-    def step(self, sel: np.ndarray) -> np.ndarray:
-        """(m, len(sel)) float, the step at the bins ``sel``."""
+    def step(self, sel: np.ndarray, *, bound: np.ndarray | None = None) -> np.ndarray:
+        """(m, len(sel)) float, the step at the bins ``sel``.
+
+        ``bound``: (m, len(sel)) bool, multipliers sent to 0 (the step is then the maximiser
+        of the model over the other free ones, the bounded ones held at 0).
+        """
         free = _cols(self.free, sel)
+        d = _cols(self.d, sel)
+        h = _cols(self.dslack, sel)
         nm = free.shape[0]
+        to_zero = np.zeros_like(d)
+        rhs = -_cols(self.slack, sel)
+        if bound is not None:
+            free = free & ~bound
+            to_zero = np.where(bound, -d, 0.0)
+            rhs = rhs - (h * to_zero[None, :, :]).sum(axis=1)  # g_F - H_FB D_B
         both = free[:, None] & free[None, :]
-        hess = np.where(both, _cols(self.dslack, sel), np.eye(nm)[:, :, None])
-        step = _solve_small(hess, np.where(free, -_cols(self.slack, sel), 0.0))
+        step = _solve_small(np.where(both, h, np.eye(nm)[:, :, None]), np.where(free, rhs, 0.0))
         bad = ~np.all(np.isfinite(step), axis=0)
-        to_zero = np.where(_cols(self.drop, sel), -_cols(self.d, sel), 0.0)
-        out: np.ndarray = np.where(free & ~bad, step, to_zero)
+        out: np.ndarray = np.where(free & ~bad[None], step, to_zero)
+        return out
+
+    def cauchy(self, sel: np.ndarray) -> np.ndarray:
+        """(m, len(sel)) float, the model's maximiser along the gradient on the free ones."""
+        free = _cols(self.free, sel)
+        grad = np.where(free, -_cols(self.slack, sel), 0.0)
+        h = _cols(self.dslack, sel)
+        curv = (grad[:, None] * h * grad[None, :]).sum(axis=(0, 1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            length = np.where(curv > 0.0, (grad * grad).sum(axis=0) / curv, 0.0)
+        out: np.ndarray = length * grad
         return out
 
 
-def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, _NewtonSystem]:
-    """The two candidate moves on the free multipliers (the dropped ones go to 0).
+def _steps(bt: _Batch, free: np.ndarray) -> tuple[np.ndarray, _NewtonSystem]:
+    """The two candidate moves on the free multipliers.
 
     * Newton on the secular form ``F_i = 1/||v_i(d)|| - 1/||z_i(d)||`` with
       ``d t / d d_j = H_tt^-1 R_j``, ``R = [(Q_i xh)_t]``; ``nan`` where it does not apply
@@ -1283,7 +1294,7 @@ def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, 
             dnz2, dnv2 = dn2[:nm], dn2[nm:]
             dslack = dnz2 - dnv2  # = 2 Re(R^H H_tt^-1 R)
             jac = 0.5 * (iz * iz * iz)[:, None] * dnz2 - 0.5 * (iv * iv * iv)[:, None] * dnv2
-    newton = _NewtonSystem(dslack=dslack, slack=slack, free=free, drop=drop, d=bt.d)
+    newton = _NewtonSystem(dslack=dslack, slack=slack, free=free, d=bt.d)
     both = free[:, None] & free[None, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         sec = _solve_small(
@@ -1291,7 +1302,7 @@ def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, 
         )
     usable = (nv2 > 1e-200) & (nz2 > 1e-200)
     sec_ok = np.all(usable | ~free, axis=0) & np.all(np.isfinite(sec), axis=0)
-    secular = np.where(free, sec, np.where(drop, -bt.d, 0.0))
+    secular = np.where(free & sec_ok[None], sec, 0.0)
     # only an ascent direction of phi (gradient -slack) after projection onto d >= 0; when z
     # depends on the unknowns the secular Jacobian can point the wrong way
     moved = np.maximum(bt.d + secular, 0.0) - bt.d
@@ -1300,75 +1311,95 @@ def _steps(bt: _Batch, free: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, 
     return secular, newton
 
 
-def _advance(bt: _Batch, secular: np.ndarray, newton: _NewtonSystem) -> tuple[_Batch, np.ndarray]:
-    """One ascent move per bin: the secular step where it raises ``phi``, else backtracking.
+def _advance(
+    bt: _Batch, secular: np.ndarray, newton: _NewtonSystem, *, compare: bool = False
+) -> tuple[_Batch, np.ndarray]:
+    """One ascent move per bin; ``phi`` never decreases and ``H_tt`` stays PD.
 
-    Backtracking on the projected Newton step keeps ``H_tt`` PD and ``phi`` non-decreasing:
-    the full step ``max(d + step, 0)`` first; where refused, the same step with no multiplier
-    falling below 1e-4 of its value; then shortened so that no multiplier loses more than
-    90 % of its value (far from the optimum the Newton step overshoots to ``d = 0``, where
-    ``H_tt`` is often indefinite), then halved.
+    First try: the secular step (a whole-batch evaluation; where it is accepted, that is the
+    move -- the common case). Where it is refused or unusable, or with ``compare`` (after
+    the first iteration: the secular step is a heuristic, and can creep towards the edge of
+    the positive definite region when blocks interact), the candidates are evaluated and
+    the best accepted one kept: the secular step, the full projected Newton step
+    ``max(d + step, 0)``, the Cauchy point (the maximiser of the Newton model along the
+    projected gradient: slower, but it follows a narrow ridge of the dual where Newton's
+    model points the wrong way) and, with ``compare``, the full step with no multiplier
+    falling below 1e-4 of its value (a zero minimum is approached as ``d -> 0``, where
+    ``H_tt`` becomes singular: this gets there in a few iterations).
+
+    Where none is accepted: the reduced Newton step (the
+    multipliers the full one sends below 0 held at 0, the model maximised over the others:
+    Bertsekas' active set); the full step with no multiplier falling below 1e-4 of its value
+    (a zero minimum is approached as ``d -> 0``, where ``H_tt`` becomes singular); the step
+    shortened so that no multiplier loses more than 90 % of its value; then halvings.
 
     Returns:
-        ``(batch, stalled)``; ``stalled`` (g,) marks bins where no step length was accepted
-        (``d`` kept).
+        ``(batch, stalled)``; ``stalled`` (g,) marks bins where nothing was accepted (``d``
+        kept).
     """
     g = bt.d.shape[-1]
-    d_new = bt.d.copy()
-    out = bt.pt
-    floor = out.phi - 1e-15 * (bt.kern.unit + np.abs(out.phi))
-    pending = np.arange(g)
+    floor = bt.pt.phi - 1e-15 * (bt.kern.unit + np.abs(bt.pt.phi))
     usable = np.all(np.isfinite(secular), axis=0)
-    if np.all(usable):  # the common case: one evaluation of the whole batch
+    if np.all(usable) and not compare:  # the common case: one evaluation of the whole batch
         cand = np.maximum(bt.d + secular, 0.0)
         trial = _evaluate(bt.kern, cand)
         accept = trial.ok & (trial.phi >= floor)
         if np.all(accept):
             return dataclasses.replace(bt, d=cand, pt=trial), np.zeros(g, dtype=bool)
-        d_new[:, accept] = _cols(cand, accept)
-        out = _merge(out, _take(trial, accept), np.flatnonzero(accept))
-        pending = np.flatnonzero(~accept)
-    elif np.any(usable):
-        try_sec = np.flatnonzero(usable)
-        cand = np.maximum(_cols(bt.d, try_sec) + _cols(secular, try_sec), 0.0)
-        trial = _evaluate(bt.kern.take(try_sec), cand)
-        accept = trial.ok & (trial.phi >= floor[try_sec])
-        at = try_sec[accept]
-        d_new[:, at] = _cols(cand, accept)
-        out = _merge(out, _take(trial, accept), at)
-        left = np.ones(g, dtype=bool)
-        left[at] = False
-        pending = np.flatnonzero(left)
+    best_phi = np.full(g, -np.inf)
+    d_new = bt.d.copy()
+    out = bt.pt
+
+    def offer(sel: np.ndarray, cand: np.ndarray) -> None:
+        """Evaluate candidates ``cand`` ((m, len(sel))) at bins ``sel``; keep improvements."""
+        nonlocal out
+        trial = _evaluate(bt.kern.take(sel), cand)
+        better = trial.ok & (trial.phi >= floor[sel]) & (trial.phi > best_phi[sel])
+        if np.any(better):
+            at = sel[better]
+            best_phi[at] = trial.phi[better]
+            d_new[:, at] = _cols(cand, better)
+            out = _merge(out, _take(trial, better), at)
+
+    if np.any(usable):
+        sel = np.flatnonzero(usable)
+        offer(sel, np.maximum(_cols(bt.d, sel) + _cols(secular, sel), 0.0))
+    pending = np.arange(g) if compare else np.flatnonzero(~np.isfinite(best_phi))
     if pending.size == 0:
         return dataclasses.replace(bt, d=d_new, pt=out), np.zeros(g, dtype=bool)
-    step = np.zeros_like(bt.d)
-    step[:, pending] = newton.step(pending)
-    shrinking = step < 0.0
+    d_p = _cols(bt.d, pending)
+    step_p = newton.step(pending)
+    offer(pending, np.maximum(d_p + step_p, 0.0))
+    offer(pending, np.maximum(d_p + newton.cauchy(pending), 0.0))
+    if compare:
+        offer(pending, np.maximum(d_p + step_p, 1e-4 * d_p))
+    left = ~np.isfinite(best_phi[pending])
+    pending, d_p, step_p = pending[left], _cols(d_p, left), _cols(step_p, left)
+    shrinking = step_p < 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(
-            shrinking & (bt.d > 0.0), 0.9 * bt.d / np.where(shrinking, -step, 1.0), 2.0
+            shrinking & (d_p > 0.0), 0.9 * d_p / np.where(shrinking, -step_p, 1.0), 2.0
         )
-    alpha_max = np.minimum(1.0, np.min(ratio, axis=0))
-    alpha = np.ones(g)
+    alpha = np.minimum(1.0, np.min(ratio, axis=0))
     for trial_no in range(_BACKTRACKS):
         if pending.size == 0:
             break
-        # second try: the full step, but no multiplier below 1e-4 of its value (a minimum of
-        # 0 reached as d -> 0, where H_tt becomes singular: d falls fast without hitting 0)
-        d_p = _cols(bt.d, pending)
-        keep = 1e-4 * d_p if trial_no == 1 else 0.0
-        cand = np.maximum(d_p + alpha[pending] * _cols(step, pending), keep)
-        trial = _evaluate(bt.kern.take(pending), cand)
-        accept = trial.ok & (trial.phi >= floor[pending])
-        if np.any(accept):
-            at = pending[accept]
-            d_new[:, at] = _cols(cand, accept)
-            out = _merge(out, _take(trial, accept), at)
-            pending = pending[~accept]
-        if trial_no == 1:
-            alpha[pending] = alpha_max[pending]
-        elif trial_no > 1:
-            alpha[pending] *= 0.5
+        if trial_no == 0:  # reduced step: what the full one sends below 0 held at 0
+            hit = (d_p + step_p < 0.0) & (d_p > 0.0)
+            cand = np.maximum(d_p + newton.step(pending, bound=hit), 0.0)
+        elif trial_no == 1:  # the full step, no multiplier below 1e-4 of its value
+            cand = np.maximum(d_p + step_p, 1e-4 * d_p)
+        else:  # ratio test, then halvings
+            cand = np.maximum(d_p + alpha * step_p, 0.0)
+            alpha = 0.5 * alpha
+        offer(pending, cand)
+        left = ~np.isfinite(best_phi[pending])
+        pending, d_p, step_p, alpha = (
+            pending[left],
+            _cols(d_p, left),
+            _cols(step_p, left),
+            alpha[left],
+        )
     stalled = np.zeros(g, dtype=bool)
     stalled[pending] = True
     return dataclasses.replace(bt, d=d_new, pt=out), stalled
