@@ -1636,7 +1636,7 @@ def _solve_on_forms(
 
 
 def _solve_in_v(
-    pt: np.ndarray, win: _Window, blocks: BlockStructure, *, inv: np.ndarray, max_iter: int
+    win: _Window, blocks: BlockStructure, *, inv: np.ndarray, pmat: np.ndarray, max_iter: int
 ) -> _Part:
     """Bins solved by :class:`_VKernel` (``z = P13 U``, ``P22`` invertible): dual, witness.
 
@@ -1646,15 +1646,14 @@ def _solve_in_v(
     minimiser is not trusted and the bin falls back.
 
     Args:
-        pt: (nz + ny, nv + nw + nu, g) complex.
-        win: the same bins' :class:`_Window`.
+        win: the bins' :class:`_Window`.
         blocks: block structure.
         inv: (nw, nw, g) complex, ``P22^-1``.
+        pmat: (nw, nv, g) complex, ``P = P22^-1 P21``.
         max_iter: Newton iterations at most.
     """
     nz, nv = blocks.nz, blocks.nv
-    g = pt.shape[-1]
-    pmat = _matmul(inv, pt[nz:, :nv])  # (nw, nv, g)
+    g = inv.shape[-1]
     w0 = _matvec(inv, win.r)
     gram = _gram(pmat, pmat)
     b = (pmat.conj() * w0[:, None]).sum(axis=0)
@@ -1784,9 +1783,13 @@ def solve_fast(
     # bins solved in v itself (z fixed, P22 invertible and well conditioned), the others on
     # the homogenised forms
     v_route = np.zeros(nb, dtype=bool)
+    pmat = None
     if dual.size and inv22 is not None and not coupled:
-        gain = _sq(_matmul(inv22, pt[nz:, :nv])).sum(axis=(0, 1))  # ||P22^-1 P21||_F^2
-        v_route[dual] = good22[dual] & (gain[dual] <= _NOISE_GAIN**2)
+        cand = dual[good22[dual]]
+        pmat = _matmul(_cols(inv22, cand), _cols(pt[nz:, :nv], cand))  # P22^-1 P21
+        small = _sq(pmat).sum(axis=(0, 1)) <= _NOISE_GAIN**2
+        v_route[cand[small]] = True
+        pmat = _cols(pmat, np.flatnonzero(small))
     for idx, route in (
         (np.flatnonzero(v_route), "v"),
         (np.flatnonzero(~settled & ~v_route), "forms"),
@@ -1798,7 +1801,8 @@ def solve_fast(
         inv_d = None if inv22 is None else _cols(inv22, idx)
         if route == "v":
             assert inv_d is not None
-            part = _solve_in_v(p_d, sub, blocks, inv=inv_d, max_iter=max_iter)
+            assert pmat is not None
+            part = _solve_in_v(sub, blocks, inv=inv_d, pmat=pmat, max_iter=max_iter)
         else:
             part = _solve_on_forms(
                 p_d,
