@@ -19,7 +19,7 @@ before the onset), permanent except ``valve_stuck`` (no magnitude in the rig: it
 how long the valve stays stuck). Window 1 is the first window that contains faulty samples
 (it ends at 5 P), window k the k-th report after onset; a run is followed for
 ``--windows-after`` windows (stopped early once both models are in ERROR, unless
-``--full-horizon``). Detection = the alarm reaches ERROR on one of those windows; the delay is
+``--full-horizon``; so Model A's peak beta is up to Model B's detection). Detection = the alarm reaches ERROR on one of those windows; the delay is
 that window's number and the time from onset to the window's end stamp. Nominal runs (no
 fault) of ``--nominal-hours`` per seed give the false-alarm rate (ERROR episodes per simulated
 hour) and the distribution of beta on nominal data, against which each fault's largest beta
@@ -489,7 +489,7 @@ def cell_rows(cases: list[CaseResult], model: str, beta_max: float):
             verdict = f"detected within {WITHIN} windows"
         elif found:
             verdict = "partly detected"
-        elif above_noise == 0:
+        elif not peaks or statistics.median(peaks) <= beta_max:
             verdict = "below noise: beta in the nominal range"
         elif above_one == 0:
             verdict = "seen in beta, inside the model set (beta < 1)"
