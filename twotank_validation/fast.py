@@ -478,22 +478,31 @@ def _classify(
     nb = pt.shape[-1]
     zu = _matvec(pt[:nz, nx:], ut)
     r = yt - _matvec(pt[nz:, nx:], ut)
-    x_scale = _least_norm_size(pt[nz:, :nx], r)
+    drive = np.empty((blocks.n_blocks, nb))
+    unexcited = np.empty((blocks.n_blocks, nb), dtype=bool)
+    for i, zs in enumerate(blocks.z_slices):
+        drive[i] = np.sqrt(_sq(zu[zs]).sum(axis=0))
+        p13 = np.sqrt(_sq(pt[zs, nx:]).sum(axis=(0, 1)))
+        unexcited[i] = drive[i] <= 1e-12 * p13 * u_scale
+    # the scale of the unknowns matters only where some block may stay active
+    x_scale = np.zeros(nb)
+    need = np.flatnonzero(~np.all(unexcited, axis=0)) if not coupled else np.arange(nb)
+    if need.size:
+        x_scale[need] = _least_norm_size(_cols(pt[nz:, :nx], need), _cols(r, need))
     p_norm = np.sqrt(_sq(pt).sum(axis=(0, 1))) + _TINY if coupled else None
     active = np.ones((blocks.n_blocks, nb), dtype=bool)
     col = np.ones((nx, nb))
     for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
-        drive = np.sqrt(_sq(zu[zs]).sum(axis=0))
-        unexcited = drive <= 1e-12 * np.sqrt(_sq(pt[zs, nx:]).sum(axis=(0, 1))) * u_scale
-        negligible = drive <= _NEGLIGIBLE_Z * x_scale
+        negligible = drive[i] <= _NEGLIGIBLE_Z * x_scale
         if p_norm is not None:
             dep = np.sqrt(_sq(pt[zs, :nx]).sum(axis=(0, 1)))
-            active[i] = ~((dep <= 1e-13 * p_norm) & (unexcited | negligible))
-            z_size = drive + dep * x_scale
+            active[i] = ~((dep <= 1e-13 * p_norm) & (unexcited[i] | negligible))
+            z_size = drive[i] + dep * x_scale
         else:  # z = P13 U everywhere: no dependence on v, w
-            active[i] = ~(unexcited | negligible)
-            z_size = drive
-        bal = np.minimum(1.0, np.maximum(z_size / np.maximum(x_scale, _TINY), 1e-150))
+            active[i] = ~(unexcited[i] | negligible)
+            z_size = drive[i]
+        with np.errstate(invalid="ignore", divide="ignore"):  # x_scale 0: block forced
+            bal = np.minimum(1.0, np.maximum(z_size / np.maximum(x_scale, _TINY), 1e-150))
         col[vs] = np.where(active[i], bal, 0.0)
     return _Window(zu=zu, r=r, active=active, col=col)
 
