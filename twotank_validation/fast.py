@@ -1,26 +1,33 @@
 """Batched fast path for Problem 3: every bin of a window solved together with numpy.
 
 The per-bin reference (:func:`twotank_validation.solvers.solve_sdp`) builds one cvxpy SDP per
-DFT bin, about 4 ms each. Here the same homogenised problem of every bin
-(``min xh^H A xh`` s.t. ``xh^H Q_i xh >= 0``, last coordinate of ``xh`` equal to 1; see
-docs/theory.md, Sec. 4 and 6) is solved on its Lagrangian dual
+DFT bin, a few milliseconds each. Here every bin's problem is solved on its Lagrangian dual
 
-    phi(d) = min_t xh^H (A - sum_i d_i Q_i) xh,     d >= 0 (one multiplier per block),
+    phi(d) = min_x ||w||^2 - sum_i d_i (||z_i||^2 - ||v_i||^2),     d >= 0 (one per block),
 
-a concave function of at most three variables, by projected Newton ascent run on all bins at
-once. At the maximiser, with ``H_tt`` positive definite, the Lagrangian minimiser is primal
-optimal (complementary slackness), the Schur complement is a certified lower bound and the
-rank-one ``Delta`` built from it is an exactly feasible witness, so the bounds meet.
+a concave function of at most three variables, maximised for all bins at once (a secular
+Newton step, then projected Newton ascent with safeguards; see :func:`_dual_ascent`). At the
+maximiser, with the Lagrangian's Hessian positive definite, its minimiser is primal optimal
+(complementary slackness): the dual value is a certified lower bound and the rank-one
+``Delta`` built from the minimiser an exactly feasible witness, so the bounds meet. Two
+parametrisations of the unknowns:
+
+* bins where ``z = P13 U`` (``P11 = P12 = 0``: every structured model) and ``P22`` is
+  square and well conditioned: ``w = P22^-1 (Y - P23 U - P21 v)``, the dual in ``v``
+  itself (:class:`_VKernel`);
+* any other bin: the equality constraints eliminated and the problem homogenised as in
+  :func:`solvers.homogenise_bin` (``min xh^H A xh`` s.t. ``xh^H Q_i xh >= 0``), the dual on
+  those forms (:class:`_Kernel`). See docs/theory.md, Sec. 4 and 6.
 
 Why this is hand-written: no library solves thousands of tiny concave duals batched. Batched
 ``numpy.linalg`` calls on ``(n_bins, k, k)`` stacks loop over LAPACK once per matrix
 (a (2049, 2, 4) SVD costs about 13 ms, a (2049, 3, 3) matmul about 1 ms), and SDP/QCQP
 solvers take one problem at a time. So the small matrices are stored "structure of arrays"
 -- shape ``(rows, cols, n_bins)``, the bin axis last -- and every kernel (Cholesky,
-triangular solves, pivoted Gram-Schmidt) loops in Python over the few matrix entries while
-each numpy operation runs over all bins.
+triangular solves, pivoted Gram-Schmidt, Cramer's rule) loops in Python over the few matrix
+entries while each numpy operation runs over all bins.
 
-Bins the batched iteration cannot settle -- a dual optimum with singular ``H_tt`` (the "hard
+Bins the batched iteration cannot settle -- a dual optimum with singular Hessian (the "hard
 case": a zero minimum with many minimisers, or a relaxation gap with three blocks), no
 convergence, or a witness that does not meet the lower bound -- are handed to the per-bin
 reference code, and counted (:attr:`FastStats.n_fallback`).
@@ -51,7 +58,6 @@ _NEGLIGIBLE_Z = 1e-10  # as solvers._NEGLIGIBLE_Z
 _CONSISTENCY_RTOL = 1e-8  # as solvers._CONSISTENCY_RTOL
 _TINY = 1e-300
 _PIVOT_RTOL = 1e-13  # H_tt counts as singular below this pivot (as solvers.lagrangian_point)
-_KKT_TOL = 1e-13  # constraint violation and complementarity at convergence (scaled units)
 # Starting multipliers tried until H_tt is positive definite (see _starts).
 _STARTS_NATURAL = (1.0, 1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e2)
 _STARTS_SCALED = (1.0, 0.1, 10.0, 0.01, 100.0, 1e-3)
