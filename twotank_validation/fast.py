@@ -1700,11 +1700,10 @@ def _solve_in_v(
     v_c = res.xh[:nv]
     dmat = np.zeros((nv, nz, g), dtype=complex)
     v = np.empty_like(v_c)
-    for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True):
+    for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
         vi, zi = v_c[vs], win.zu[zs]
-        zn2 = _sq(zi).sum(axis=0)
-        safe = zn2 > _TINY
-        zn2 = np.where(safe, zn2, 1.0)
+        safe = c[i] > _TINY  # ||z_i||^2
+        zn2 = np.where(safe, c[i], 1.0)
         ratio = np.sqrt(_sq(vi).sum(axis=0) / zn2)
         shrink = np.where(safe, np.where(ratio > 1.0, 1.0 / np.maximum(ratio, _TINY), 1.0), 0.0)
         dmat[vs, zs] = vi[:, None] * zi.conj()[None, :] * (shrink / zn2)
