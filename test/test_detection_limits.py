@@ -4,9 +4,10 @@ The limits were found with ``bench/detection_matrix.py --limits`` (bisection of 
 over onset phases and seeds, Model B): the smallest leak, sensor bias and valve loss that raise
 ERROR within 3 windows of the onset on the default excitation. Here every run is the default
 ``Scenario`` (filtered noise 0.05/0.2 RMS, cutoff 0.006 Hz, mixing delay 15 s, noise
-0.003/0.01, Ts 0.1 s, 2048-sample periods) with one fault, simulated by
-``simulate_scenario`` and fed as the node's three streams into ``OnlineValidator`` with the
-default ``MonitorConfig`` and ``AlarmConfig``.
+0.003/0.01, Ts 0.1 s, 2048-sample periods) with one fault, simulated by ``rig.simulate`` with
+the scenario's settings (what ``simulate_scenario`` computes, sample by sample) and fed as the
+node's three streams into ``OnlineValidator`` with the default ``MonitorConfig`` and
+``AlarmConfig``.
 
 The reference is the injected fault: its onset decides which windows contain faulty samples
 (window 1 is the first whose last sample is at or after the onset sample), its size is on
@@ -20,7 +21,8 @@ import math
 import numpy as np
 import pytest
 
-from twotank_validation.bags.scenario import Scenario, simulate_scenario
+from twotank_validation import rig
+from twotank_validation.bags.scenario import Scenario
 from twotank_validation.fault_spec import format_fault
 from twotank_validation.model import load_model
 from twotank_validation.monitor import COMMAND, Alarm, MonitorConfig, OnlineValidator
@@ -60,12 +62,21 @@ def run(faults: list[Fault], seed: int, windows_after: int = WITHIN):
         seed=seed,
         faults=tuple(format_fault(f) for f in faults),
     )
-    stamps, u, y = simulate_scenario(scenario)
-    kinds = np.tile([COMMAND, 0, 1], len(stamps))
-    values = np.zeros((3 * len(stamps), 2))
-    values[0::3] = u
-    values[1::3, 0] = y[:, 0]
-    values[2::3, 0] = y[:, 1]
+    sim = rig.simulate(
+        scenario.rig_params(),
+        scenario.command_table()[np.arange(n) % PERIOD],  # the excitation starts at t = 0
+        TS,
+        op=scenario.operating_point(),
+        seed=seed,
+        substeps=scenario.substeps,
+        faults=scenario.fault_objects(),
+    )
+    stamps = np.arange(n, dtype=np.int64) * scenario.ts_ns
+    kinds = np.tile([COMMAND, 0, 1], n)
+    values = np.zeros((3 * n, 2))
+    values[0::3] = sim.commands
+    values[1::3, 0] = sim.measured[:, 0]
+    values[2::3, 0] = sim.measured[:, 1]
     validator = OnlineValidator(CONFIG, [load_model("B")])
     return validator.feed_many(kinds, np.repeat(stamps, 3), values)
 
