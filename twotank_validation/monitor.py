@@ -222,7 +222,17 @@ class SampleAligner:
         reset_after_s: a measurement stamped this much before the last finalised sample is
             taken for a clock jump backwards (a restarted recording or simulation) and the
             aligner starts over; later-than-that stragglers are dropped as out of order. A
-            live node also resets on a backward jump of its ROS clock.
+            live node also resets on a backward jump of its ROS clock. A command stamped this
+            much before the last command, on the measurements' clock, while the last command
+            is more than ``jump_after_s`` ahead of them, means the queued commands carried
+            bogus future stamps: they are dropped.
+        jump_after_s: a stamp this much after the newest one is taken for a clock jump
+            forwards (a bogus or far-future stamp): the aligner starts over there instead of
+            filling the silence with missing samples (which would cost time and memory in
+            proportion to the jump). Shorter silences are reported sample by sample as gaps.
+        max_abs_value: measurements and commands beyond this magnitude (model units) are
+            implausible and flagged like non-finite ones (a judged window of such values
+            would overflow the DFT).
     """
 
     def __init__(
@@ -233,6 +243,8 @@ class SampleAligner:
         *,
         jitter_fraction: float = 0.25,
         reset_after_s: float = 60.0,
+        jump_after_s: float = 3600.0,
+        max_abs_value: float = 1e6,
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0):
             raise DatumError(f"sample period must be positive, found {ts_s}")
@@ -241,6 +253,8 @@ class SampleAligner:
         self.output_names = tuple(output_names)
         self.tol_ns = round(jitter_fraction * self.ts_ns)
         self.reset_ns = round(reset_after_s * NS_PER_S)
+        self.jump_ns = round(max(jump_after_s, reset_after_s) * NS_PER_S)
+        self.max_abs = float(max_abs_value)
         self.counters = AlignerCounters()
         self._half_ns = self.ts_ns // 2
         self._n_outputs = len(self.output_names)
@@ -286,13 +300,26 @@ class SampleAligner:
         """Add a command (held from ``stamp_ns`` on). Returns samples it completes."""
         u = self._command_tuple(values)
         last = self.last_command_ns
+        if (
+            last is not None
+            and stamp_ns < last - self.reset_ns
+            and self.t0_ns is not None
+            and last > self.grid_time(max(self._newest, self.next_index)) + self.jump_ns
+            and abs(stamp_ns - self.grid_time(self.next_index)) <= self.reset_ns
+        ):
+            # the queued commands were stamped far ahead of the measurements' clock (a bogus
+            # stamp): drop them, or every later command would look out of order
+            self.counters.clock_resets += 1
+            self._commands = deque(c for c in self._commands if c[0] < stamp_ns)
+            last = self._commands[-1][0] if self._commands else None
+            self.last_command_ns = last
         if last is not None and stamp_ns <= last:
             if stamp_ns == last:
                 self.counters.duplicates += 1
             else:
                 self.counters.out_of_order += 1
             return []
-        finite = all(map(math.isfinite, u))
+        finite = all(math.isfinite(x) and abs(x) <= self.max_abs for x in u)
         if not finite:
             self.counters.non_finite += 1
         self._commands.append((stamp_ns, u, finite))
@@ -307,6 +334,10 @@ class SampleAligner:
         ts = self.ts_ns
         offset = stamp_ns - t0
         k = (offset + self._half_ns) // ts
+        if k > max(self._newest, self.next_index) + self.jump_ns // ts:
+            self.counters.clock_resets += 1  # clock jump forwards: start over there
+            self._clear()
+            return self.push_measurement(channel, stamp_ns, value)
         if k < self.next_index:
             if stamp_ns < self.grid_time(self.next_index) - self.reset_ns:
                 self.counters.clock_resets += 1
@@ -330,11 +361,12 @@ class SampleAligner:
                 f"{self.output_names[channel]} stamp {stamp_ns} ns is off the sample grid by "
                 f"{(offset - k * ts) / 1e6:.1f} ms"
             )
-        if math.isfinite(value):
+        if math.isfinite(value) and abs(value) <= self.max_abs:
             pend.y[channel] = float(value)
         else:
             self.counters.non_finite += 1
-            pend.flag = pend.flag or f"non-finite {self.output_names[channel]} ({value})"
+            what = "non-finite" if not math.isfinite(value) else "implausible"
+            pend.flag = pend.flag or f"{what} {self.output_names[channel]} ({value})"
         return self._finalise()
 
     def _finalise(self) -> list[Sample]:
@@ -474,11 +506,11 @@ class SampleAligner:
         index = (offset + self._half_ns) // ts
         dev = offset - (first + rows)[:, None] * ts
         meas_ok = (index == (first + rows)[:, None]) & (np.abs(dev) <= tol)
-        meas_ok &= np.isfinite(vv[:, :, 0])
+        meas_ok &= np.abs(vv[:, :, 0]) <= self.max_abs  # False for NaN and inf too
         ok &= (meas_ok | ~is_meas).all(axis=1)
         cmd = ss[rows, cmd_pos]
         cmd_u = vv[rows, cmd_pos, :nu]
-        ok &= np.isfinite(cmd_u).all(axis=1)
+        ok &= (np.abs(cmd_u) <= self.max_abs).all(axis=1)
         last = self.last_command_ns
         prev = np.empty(m, dtype=np.int64)
         prev[1:] = cmd[:-1]
@@ -927,9 +959,8 @@ def monitor_record(
     out: list[WindowReport] = []
     for k in range(len(stamps_ns)):
         idx = (int(stamps_ns[k]) - t0 + ts_ns // 2) // ts_ns
-        flag = (
-            None if np.all(np.isfinite(u[k])) and np.all(np.isfinite(y[k])) else "non-finite value"
-        )
+        plausible = np.all(np.abs(u[k]) <= 1e6) and np.all(np.abs(y[k]) <= 1e6)  # NaN: False
+        flag = None if plausible else "non-finite or implausible value"
         out.extend(
             mon.push(
                 Sample(
@@ -972,10 +1003,13 @@ class OnlineValidator:
         """One event in, the reports of any window it completes out."""
         if stream == "flow_cmd":
             samples = self.aligner.push_command(stamp_ns, value)
-        elif stream == "height":
-            samples = self.aligner.push_measurement(0, stamp_ns, float(value))
-        elif stream == "temperature":
-            samples = self.aligner.push_measurement(1, stamp_ns, float(value))
+        elif stream in ("height", "temperature"):
+            try:
+                number = float(value)
+            except (TypeError, ValueError) as err:
+                raise DatumError(f"{stream} value {value!r} is not a number") from err
+            channel = 0 if stream == "height" else 1
+            samples = self.aligner.push_measurement(channel, stamp_ns, number)
         else:
             raise DatumError(f"unknown stream {stream!r}; expected one of {STREAMS}")
         if not samples:
