@@ -482,14 +482,13 @@ def _classify(
     nz, nv = blocks.nz, blocks.nv
     nx = nv + nw
     nb = pt.shape[-1]
-    zu = _matvec(pt[:nz, nx:], ut)
-    r = yt - _matvec(pt[nz:, nx:], ut)
-    drive = np.empty((blocks.n_blocks, nb))
-    unexcited = np.empty((blocks.n_blocks, nb), dtype=bool)
-    for i, zs in enumerate(blocks.z_slices):
-        drive[i] = np.sqrt(_sq(zu[zs]).sum(axis=0))
-        p13 = np.sqrt(_sq(pt[zs, nx:]).sum(axis=(0, 1)))
-        unexcited[i] = drive[i] <= 1e-12 * p13 * u_scale
+    pu = _matvec(pt[:, nx:], ut)  # [P13 U; P23 U]
+    zu = pu[:nz]
+    r = yt - pu[nz:]
+    starts = np.array([zs.start for zs in blocks.z_slices])
+    drive = np.sqrt(np.add.reduceat(_sq(zu), starts, axis=0))  # ||z_i||, (m, n)
+    p13 = np.sqrt(np.add.reduceat(_sq(pt[:nz, nx:]).sum(axis=1), starts, axis=0))
+    unexcited = drive <= 1e-12 * u_scale * p13
     # the scale of the unknowns matters only where some block may stay active
     x_scale = np.zeros(nb)
     need = np.flatnonzero(~np.all(unexcited, axis=0)) if not coupled else np.arange(nb)
@@ -1811,13 +1810,13 @@ def solve_fast(
         if not idx.size:
             continue
         sub = _take_window(win, idx)
-        p_d, u_d, y_d = _cols(pt, idx), _cols(ut, idx), _cols(yt, idx)
         inv_d = None if inv22 is None else _cols(inv22, idx)
         if route == "v":
             assert inv_d is not None
             assert pmat is not None
             part = _solve_in_v(sub, blocks, inv=inv_d, pmat=pmat, max_iter=max_iter)
         else:
+            p_d, u_d, y_d = _cols(pt, idx), _cols(ut, idx), _cols(yt, idx)
             part = _solve_on_forms(
                 p_d,
                 u_d,
