@@ -975,10 +975,10 @@ class _VKernel:
         xh = np.concatenate([t, np.ones((1, g), dtype=complex)])
         nm = self.c.shape[0]
         pvx = np.zeros((nm, k + 1, g), dtype=complex)
-        nv2 = np.empty((nm, g))
         for i, vs in enumerate(self.blocks.v_slices):
             pvx[i, vs] = t[vs]
-            nv2[i] = _sq(t[vs]).sum(axis=0)
+        v_starts = [vs.start for vs in self.blocks.v_slices]
+        nv2 = np.add.reduceat(_sq(t), v_starts, axis=0)  # ||v_i||^2
         w = self.w0 - _matvec(self.p, t)
         phi = _sq(w).sum(axis=0) - (d * (self.c - nv2)).sum(axis=0)
         return _Point(
