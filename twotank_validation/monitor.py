@@ -255,6 +255,7 @@ class SampleAligner:
         self.reset_ns = round(reset_after_s * NS_PER_S)
         self.jump_ns = round(max(jump_after_s, reset_after_s) * NS_PER_S)
         self.max_abs = float(max_abs_value)
+        self._reanchor_after = 20 * max(len(output_names), 1)
         self.counters = AlignerCounters()
         self._half_ns = self.ts_ns // 2
         self._n_outputs = len(self.output_names)
@@ -272,6 +273,7 @@ class SampleAligner:
         self._held_finite = self.n_inputs == 0
         self.last_command_ns: int | None = None
         self._retry_at = 0  # event (of the current batch) from which to look for a run
+        self._off_run = 0  # consecutive off-grid measurements (re-anchor the grid after many)
         self._backoff = self._n_outputs + 1
 
     def reset(self) -> None:
@@ -356,11 +358,20 @@ class SampleAligner:
         seen[channel] = True
         pend.n_seen += 1
         if abs(offset - k * ts) > self.tol_ns:
+            self._off_run += 1
+            if self._off_run > self._reanchor_after:
+                # the grid origin (first stamp after a start or reset) was itself off the
+                # sender's grid: every later stamp would be flagged. Start over on this one.
+                self.counters.clock_resets += 1
+                self._clear()
+                return self.push_measurement(channel, stamp_ns, value)
             self.counters.off_grid += 1
             pend.flag = pend.flag or (
                 f"{self.output_names[channel]} stamp {stamp_ns} ns is off the sample grid by "
                 f"{(offset - k * ts) / 1e6:.1f} ms"
             )
+        else:
+            self._off_run = 0
         if math.isfinite(value) and abs(value) <= self.max_abs:
             pend.y[channel] = float(value)
         else:
@@ -456,6 +467,7 @@ class SampleAligner:
                 block = self._regular_run(kinds, stamps_ns, values, i)
                 if block is not None:
                     out.append(block)
+                    self._off_run = 0  # a regular run is on the grid
                     i += group * len(block)
                     self._backoff = group
                     continue
