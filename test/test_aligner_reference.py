@@ -5,6 +5,11 @@ must not change: these tests drive the rewritten aligner and the original one, c
 from the commit before the rewrite, with the same streams of events (jitter, off-grid stamps,
 NaN/inf, duplicates, out-of-order stamps, gaps, clock jumps backwards, non-finite commands) and
 require identical samples (index, stamp, u, y, flag), counters and state after every event.
+
+Rules added to the aligner later for hostile input (far-future stamps are clock jumps, bogus
+future command stamps are dropped, magnitudes above 1e6 are flagged, the grid re-anchors after
+a long run of off-grid stamps) are outside what the original did; the streams compared with it
+stay clear of them, and the last tests hold the batch path to the current per-event rules.
 """
 
 from __future__ import annotations
@@ -415,3 +420,93 @@ def test_push_events_command_late_and_missing_at_start() -> None:
         t = k * TS_NS
         events += [("cmd", t, (math.nan, 0.5) if k < 5 else (0.1, 0.5)), (0, t, 1.0), (1, t, 2.0)]
     run_batched(events, rng)
+
+
+# ------------------------------------------- batches against the current per-event rules
+
+
+def test_push_events_follows_the_hostile_input_rules() -> None:
+    """Later rules of the per-event path (far-future stamps are clock jumps, bogus future
+    command stamps are dropped, implausible magnitudes are flagged, the grid re-anchors after
+    a run of off-grid stamps) apply in batches too: push_events on random splits gives the
+    samples, counters and state of the same events pushed one by one."""
+    rng = np.random.default_rng(3)
+    events: list = [(0, 0, 0.0)]
+    k = 0
+    for stretch in range(40):
+        kind = stretch % 5
+        for _ in range(int(rng.integers(30, 90))):
+            k += 1
+            t = k * TS_NS
+            off = 40_000_000 if kind == 1 else 0  # a long run off the grid: re-anchor
+            big = 1e7 if kind == 2 and rng.random() < 0.3 else 0.5  # implausible values
+            events += [("cmd", t, (0.3, big)), (0, t + off, big), (1, t + off, 0.25)]
+        if kind == 3:
+            events.append((0, (k + 50_000) * TS_NS, 0.5))  # far future: a clock jump
+        if kind == 4:
+            events.append(("cmd", (k + 50_000) * TS_NS, (0.1, 0.1)))  # bogus future command
+    assert any(abs(e[2] if e[0] != "cmd" else e[2][1]) > 1e6 for e in events)
+    new = monitor.SampleAligner(0.1, 2, NAMES, jitter_fraction=0.25)
+    one = monitor.SampleAligner(0.1, 2, NAMES, jitter_fraction=0.25)
+    kinds, stamps, values = as_arrays(events)
+    cuts = np.sort(rng.choice(np.arange(1, len(events)), size=8, replace=False)).tolist()
+    got: list[monitor.Sample] = []
+    blocks = 0
+    for a, b in zip([0, *cuts], [*cuts, len(events)], strict=True):
+        pieces = new.push_events(kinds[a:b], stamps[a:b], values[a:b])
+        blocks += sum(isinstance(p, monitor.SampleBlock) for p in pieces)
+        got.extend(expand(pieces))
+    want: list[monitor.Sample] = []
+    for kind, t, v in events:
+        want.extend(one.push_command(t, v) if kind == "cmd" else one.push_measurement(kind, t, v))
+    same_samples(got, want)
+    assert new.counters == one.counters
+    assert (new.next_index, new.t0_ns, new.last_command_ns) == (
+        one.next_index,
+        one.t0_ns,
+        one.last_command_ns,
+    )
+    assert blocks >= 10
+    assert one.counters.clock_resets >= 8  # the jumps and re-anchors happened
+    assert any(s.flag and "implausible" in s.flag for s in want)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_feed_many_equals_feed_on_hostile_streams(seed: int) -> None:
+    """streamfuzz's hostile stretches (NaN, inf, huge values, random and backward stamps,
+    clock resets, bursts, duplicates, silences) in clean rig data: feed_many on random
+    batches reports exactly what feed reports event by event."""
+    from twotank_validation import streamfuzz  # noqa: PLC0415
+    from twotank_validation.model import load_model  # noqa: PLC0415
+
+    rng = np.random.default_rng(seed)
+    stamps, u, y = streamfuzz.clean_record(9, seed % 4)
+    period_ns = streamfuzz.CONFIG.period_samples * round(streamfuzz.CONFIG.ts_s * 1e9)
+    lo = 3 * period_ns + int(rng.integers(0, period_ns))
+    events, _ = streamfuzz.hostile_events(
+        rng, streamfuzz._events(stamps, u, y), (lo, lo + period_ns)
+    )
+    events = [e for e in events if not isinstance(e[2], str) and len(np.atleast_1d(e[2])) <= 2]
+    models = [load_model("B")]
+    one = monitor.OnlineValidator(streamfuzz.CONFIG, models)
+    many = monitor.OnlineValidator(streamfuzz.CONFIG, models)
+    want = [rep for s, t, v in events for rep in one.feed(s, t, v)]
+    kinds = np.array([monitor.STREAM_KINDS[s] for s, _, _ in events], dtype=np.int8)
+    stamps_ = np.array([t for _, t, _ in events], dtype=np.int64)
+    values = np.array([v if s == "flow_cmd" else (v, np.nan) for s, _, v in events], float)
+    cuts = np.sort(rng.choice(np.arange(1, len(events)), size=10, replace=False)).tolist()
+    got = []
+    for a, b in zip([0, *cuts], [*cuts, len(events)], strict=True):
+        got += many.feed_many(kinds[a:b], stamps_[a:b], values[a:b])
+    assert len(got) == len(want) >= 6
+    for x, z in zip(got, want, strict=True):
+        assert (x.model, x.start_ns, x.end_ns, x.judged, x.data_quality, x.alarm) == (
+            z.model,
+            z.start_ns,
+            z.end_ns,
+            z.judged,
+            z.data_quality,
+            z.alarm,
+        )
+        assert x.beta == z.beta or (math.isnan(x.beta) and math.isnan(z.beta))
+    assert many.aligner.counters == one.aligner.counters
