@@ -93,6 +93,7 @@ def test_fast_path_forced_on_a_decoupled_model_matches_closed_form() -> None:
     np.testing.assert_allclose(forced.w_min, auto.w_min, rtol=1e-6, atol=floor)
     np.testing.assert_allclose(forced.w_upper, auto.w_upper, rtol=1e-6, atol=floor)
     assert forced.beta == pytest.approx(auto.beta, rel=1e-9)
+    np.testing.assert_allclose(forced.error, auto.error, rtol=1e-12, atol=1e-15)
 
 
 FOUR_BLOCKS = {

@@ -102,11 +102,13 @@ class FastSolutions:
         stats: bins per route.
         fell_back: (n_bins,) bool, bins the batch left unsettled (answered by the per-bin
             reference when ``fallback=True``).
+        error: (n_bins, ny) complex, ``Y - P23 U`` (computed on the way; saves callers it).
     """
 
     solutions: solvers.BinSolutions
     stats: FastStats
     fell_back: np.ndarray
+    error: np.ndarray
 
 
 def coverage(blocks: BlockStructure, nw: int) -> tuple[bool, str]:
@@ -1875,4 +1877,4 @@ def solve_fast(
         n_infeasible=int(np.sum(np.isinf(lower))),
         iterations=iterations,
     )
-    return FastSolutions(solutions=sol, stats=stats, fell_back=~settled)
+    return FastSolutions(solutions=sol, stats=stats, fell_back=~settled, error=win.r.T.copy())

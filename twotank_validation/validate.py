@@ -190,6 +190,7 @@ def validate(
     resp = response if response is not None else model.response(datum.theta, datum.ts_s)
     start = time.perf_counter()
     fallback_bins = 0
+    error: np.ndarray | None = None
     if method == "sdp":
         sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
         reason = "SDP relaxation (requested)"
@@ -199,7 +200,7 @@ def validate(
             raise ModelError(
                 f"fast path does not cover model {model.name!r}: {cover}; use method='sdp'"
             )
-        sol, fallback_bins, done = _solve_fast(resp, datum, progress)
+        sol, fallback_bins, done, error = _solve_fast(resp, datum, progress)
         reason = f"fast batched dual (requested): {cover}; {done}"
     else:
         structure, why = solvers.decoupled_structure(resp)
@@ -212,7 +213,7 @@ def validate(
             sol = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, structure)
             reason = f"closed form: {why}"
         elif covered:
-            sol, fallback_bins, done = _solve_fast(resp, datum, progress)
+            sol, fallback_bins, done, error = _solve_fast(resp, datum, progress)
             reason = f"fast batched dual: closed form not applicable ({why}); {cover}; {done}"
         else:
             sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
@@ -221,7 +222,8 @@ def validate(
                 f"fast path not applicable ({cover})"
             )
     elapsed = time.perf_counter() - start
-    error = datum.y_bins - np.einsum("kij,kj->ki", resp.p23, datum.u_bins)
+    if error is None:
+        error = datum.y_bins - np.einsum("kij,kj->ki", resp.p23, datum.u_bins)
     leak = leakage_bound(
         pulse_moment(model, datum.ts_s), datum.u_max, datum.n_samples, datum.convention
     )
@@ -249,8 +251,13 @@ def validate(
 
 def _solve_fast(
     resp: PlantResponse, datum: Datum, progress: Callable[[int], None] | None
-) -> tuple[solvers.BinSolutions, int, str]:
-    """The fast path on every bin: solutions, bins that fell back, and a line saying so."""
+) -> tuple[solvers.BinSolutions, int, str, np.ndarray]:
+    """The fast path on every bin.
+
+    Returns:
+        Solutions, bins that fell back, a line saying so, and the output error
+        ``Y - P23 U`` (n_bins, ny) it computed on the way.
+    """
     res = fast.solve_fast(resp, datum.u_bins, datum.y_bins)
     st = res.stats
     if progress is not None:
@@ -259,4 +266,4 @@ def _solve_fast(
         f"{st.n_direct + st.n_dual} of {st.n_bins} bins batched, "
         f"{st.n_fallback} fell back to the per-bin SDP"
     )
-    return res.solutions, st.n_fallback, line
+    return res.solutions, st.n_fallback, line, res.error
