@@ -447,6 +447,25 @@ def _least_norm_size(b: np.ndarray, r: np.ndarray) -> np.ndarray:
     if p > 3:
         exact: np.ndarray = np.sqrt(_sq(_row_space(b, r).x0).sum(axis=0))
         return exact
+    if p <= 2:  # written out: Gram entries and Cramer's rule
+        g00 = _sq(b[0]).sum(axis=0)
+        if p == 1:
+            ok1 = g00 > 0.0
+            one: np.ndarray = np.sqrt(_sq(r[0]) / np.where(ok1, g00, 1.0))
+            if not np.all(ok1):
+                bad = np.flatnonzero(~ok1)
+                one[bad] = np.sqrt(_sq(_row_space(_cols(b, bad), _cols(r, bad)).x0).sum(axis=0))
+            return one
+        g11 = _sq(b[1]).sum(axis=0)
+        g01 = (b[0] * b[1].conj()).sum(axis=0)
+        det = g00 * g11 - _sq(g01)
+        ok2 = det > 1e-8 * g00 * g11  # condition number below ~1e8
+        quad = g11 * _sq(r[0]) + g00 * _sq(r[1]) - 2.0 * (r[0].conj() * g01 * r[1]).real
+        two: np.ndarray = np.sqrt(np.abs(quad) / np.where(ok2, det, 1.0))
+        if not np.all(ok2):
+            bad = np.flatnonzero(~ok2)
+            two[bad] = np.sqrt(_sq(_row_space(_cols(b, bad), _cols(r, bad)).x0).sum(axis=0))
+        return two
     gram = (b[:, None] * b.conj()[None, :]).sum(axis=2)  # B B^H, (p, p, g)
     inv, good = _inverse_small(gram, max_cond=1e8)
     size: np.ndarray = np.sqrt(np.abs((r.conj() * _matvec(inv, r)).sum(axis=0).real))
