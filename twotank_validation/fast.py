@@ -364,7 +364,10 @@ def _adjugate(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if m == 1:
         return np.ones_like(h), h[0, 0]
     if m == 2:
-        adj = np.stack([np.stack([h[1, 1], -h[0, 1]]), np.stack([-h[1, 0], h[0, 0]])])
+        adj = np.empty_like(h)
+        adj[0, 0], adj[1, 1] = h[1, 1], h[0, 0]
+        np.negative(h[0, 1], out=adj[0, 1])
+        np.negative(h[1, 0], out=adj[1, 0])
         return adj, h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0]
     adj = np.empty_like(h)
     for i in range(3):
@@ -404,7 +407,9 @@ def _inverse_small(a: np.ndarray, max_cond: float = 0.0) -> tuple[np.ndarray, np
         ``||a||_F ||a^-1||_F`` (at most n times the 2-norm one) below ``max_cond``.
     """
     adj, det = _adjugate(a)
-    size = np.sqrt(_sq(a).sum(axis=(0, 1)) * _sq(adj).sum(axis=(0, 1)))
+    norm2 = _sq(a).sum(axis=(0, 1))
+    # a 2x2 adjugate has the entries of a, so the same norm
+    size = norm2 if a.shape[0] == 2 else np.sqrt(norm2 * _sq(adj).sum(axis=(0, 1)))
     good = size < (max_cond or _NOISE_COND) * np.abs(det)
     inv: np.ndarray = adj / np.where(good, det, 1.0)
     return inv, good
