@@ -426,13 +426,34 @@ class _Window:
         zu: (nz, n) complex, ``P13 U``.
         r: (ny, n) complex, ``Y - P23 U``.
         active: (n_blocks, n) bool, False where the block is forced to ``v_i = 0``.
-        col: (nv + nw, n) float, balancing of the unknowns (0 on forced blocks).
+        drive: (n_blocks, n) float, ``||P13_i U||``.
+        x_scale: (n,) float, the norm of the least-norm unknowns (0 where every block is
+            unexcited, and it is not needed).
     """
 
     zu: np.ndarray
     r: np.ndarray
     active: np.ndarray
-    col: np.ndarray
+    drive: np.ndarray
+    x_scale: np.ndarray
+
+
+def _balancing(pt: np.ndarray, win: _Window, blocks: BlockStructure, nw: int) -> np.ndarray:
+    """(nv + nw, n) float, the balancing of the unknowns for homogenised forms (0 if forced).
+
+    Each block's ``v`` is scaled by ``min(1, z_size / ||x0||)``, ``z_size = ||P13_i U|| +
+    ||[P11 P12]_i|| ||x0||`` (as :func:`solvers.homogenise_bin`).
+    """
+    nx = blocks.nv + nw
+    col = np.ones((nx, pt.shape[-1]))
+    x_scale = win.x_scale
+    for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
+        dep = np.sqrt(_sq(pt[zs, :nx]).sum(axis=(0, 1)))
+        z_size = win.drive[i] + dep * x_scale
+        with np.errstate(invalid="ignore", divide="ignore"):  # x_scale 0: block forced
+            bal = np.minimum(1.0, np.maximum(z_size / np.maximum(x_scale, _TINY), 1e-150))
+        col[vs] = np.where(win.active[i], bal, 0.0)
+    return col
 
 
 def _least_norm_size(b: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -494,7 +515,8 @@ def _classify(
 
     A block whose input does not depend on ``v, w`` and is zero (unexcited: below 1e-12 of
     ``||P13|| u_scale``; or negligible: below 1e-10 of the bin's least-norm unknowns) is
-    forced to ``v_i = 0``; each block's ``v`` is scaled by ``min(1, ||z_i|| / ||x0||)``.
+    forced to ``v_i = 0``. (The balancing of the unknowns, needed by homogenised forms
+    only, is :func:`_balancing`.)
 
     Args:
         pt: (nz + ny, nv + nw + nu, n) complex, P with the bin axis last.
@@ -520,22 +542,16 @@ def _classify(
     need = np.flatnonzero(~np.all(unexcited, axis=0)) if not coupled else np.arange(nb)
     if need.size:
         x_scale[need] = _least_norm_size(_cols(pt[nz:, :nx], need), _cols(r, need))
-    p_norm = np.sqrt(_sq(pt).sum(axis=(0, 1))) + _TINY if coupled else None
     active = np.ones((blocks.n_blocks, nb), dtype=bool)
-    col = np.ones((nx, nb))
-    for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
-        negligible = drive[i] <= _NEGLIGIBLE_Z * x_scale
-        if p_norm is not None:
+    negligible = drive <= _NEGLIGIBLE_Z * x_scale
+    if coupled:
+        p_norm = np.sqrt(_sq(pt).sum(axis=(0, 1))) + _TINY
+        for i, zs in enumerate(blocks.z_slices):
             dep = np.sqrt(_sq(pt[zs, :nx]).sum(axis=(0, 1)))
-            active[i] = ~((dep <= 1e-13 * p_norm) & (unexcited[i] | negligible))
-            z_size = drive[i] + dep * x_scale
-        else:  # z = P13 U everywhere: no dependence on v, w
-            active[i] = ~(unexcited[i] | negligible)
-            z_size = drive[i]
-        with np.errstate(invalid="ignore", divide="ignore"):  # x_scale 0: block forced
-            bal = np.minimum(1.0, np.maximum(z_size / np.maximum(x_scale, _TINY), 1e-150))
-        col[vs] = np.where(active[i], bal, 0.0)
-    return _Window(zu=zu, r=r, active=active, col=col)
+            active[i] = ~((dep <= 1e-13 * p_norm) & (unexcited[i] | negligible[i]))
+    else:  # z = P13 U everywhere: no dependence on v, w
+        active = ~(unexcited | negligible)
+    return _Window(zu=zu, r=r, active=active, drive=drive, x_scale=x_scale)
 
 
 @dataclass(frozen=True)
@@ -614,15 +630,22 @@ def _homogenise(
     if inv is None or not np.any(good):
         return _forms_orthonormal(pt, yt, win, blocks, nw, coupled=coupled)
     nz, nv = blocks.nz, blocks.nv
-    f = _matmul(inv, pt[nz:, :nv]) * win.col[None, :nv]  # (nw, nv, g): P22^-1 P21 D
+    col = _balancing(pt, win, blocks, nw)
+    f = _matmul(inv, pt[nz:, :nv]) * col[None, :nv]  # (nw, nv, g): P22^-1 P21 D
     good = good & (_sq(f).sum(axis=(0, 1)) <= _NOISE_GAIN**2)
     if np.all(good):
-        return _forms_noise(pt, win, blocks, inv, f, coupled=coupled)
+        return _forms_noise(pt, win, blocks, inv, f, col_v=col[:nv], coupled=coupled)
     if not np.any(good):
         return _forms_orthonormal(pt, yt, win, blocks, nw, coupled=coupled)
     ig, ib = np.flatnonzero(good), np.flatnonzero(~good)
     fg = _forms_noise(
-        _cols(pt, ig), _take_window(win, ig), blocks, _cols(inv, ig), _cols(f, ig), coupled=coupled
+        _cols(pt, ig),
+        _take_window(win, ig),
+        blocks,
+        _cols(inv, ig),
+        _cols(f, ig),
+        col_v=_cols(col[:nv], ig),
+        coupled=coupled,
     )
     fb = _forms_orthonormal(
         _cols(pt, ib), _cols(yt, ib), _take_window(win, ib), blocks, nw, coupled=coupled
@@ -637,6 +660,7 @@ def _forms_noise(
     inv: np.ndarray,
     f: np.ndarray,
     *,
+    col_v: np.ndarray,
     coupled: bool,
 ) -> _Forms:
     """Homogenised forms with ``w`` eliminated through ``P22^-1`` (``t`` = balanced ``v``).
@@ -653,12 +677,12 @@ def _forms_noise(
         blocks: block structure.
         inv: (nw, nw, g) complex, ``P22^-1``.
         f: (nw, nv, g) complex, ``F``.
+        col_v: (nv, g) float, ``diag D`` (0 on forced blocks).
         coupled: ``P11`` or ``P12`` is non-zero somewhere in the batch.
     """
     nv = blocks.nv
     nw = inv.shape[0]
     g = pt.shape[-1]
-    col_v = win.col[:nv]
     w0 = _matvec(inv, win.r)
     gram = _gram(f, f)
     for j in range(nv):
@@ -708,7 +732,7 @@ def _forms_orthonormal(
     nz, nv = blocks.nz, blocks.nv
     nx = nv + nw
     nb = pt.shape[-1]
-    col, active, zu, r = win.col, win.active, win.zu, win.r
+    col, active, zu, r = _balancing(pt, win, blocks, nw), win.active, win.zu, win.r
     rs = _row_space(pt[nz:, :nx] * col[None], r)
     feasible = rs.resid <= _CONSISTENCY_RTOL * (
         np.sqrt(_sq(r).sum(axis=0)) + np.sqrt(_sq(yt).sum(axis=0)) + _TINY
