@@ -61,18 +61,8 @@ def windows(  # noqa: PLR0917
     params: rig.RigParams, faults, seed: int, rms, n_windows: int, cutoff_hz: float
 ) -> list[Window]:
     cfg = experiment.ExperimentConfig(rig=params, seed=seed, faults=tuple(faults))
-    exc = dataclasses.replace(
-        cfg.excitation, record_periods=2 * n_windows, seed=seed + 2, rms=rms, cutoff_hz=cutoff_hz
-    )
-    cfg = dataclasses.replace(cfg, excitation=exc)
-    t, u, y, _ = experiment.simulate_datum(cfg)
-    n = 2 * exc.period_samples
-    return [
-        Window(
-            u[i * n : (i + 1) * n], y[i * n : (i + 1) * n], exc.ts_s, exc.period_samples, t[i * n]
-        )
-        for i in range(n_windows)
-    ]
+    exc = dataclasses.replace(cfg.excitation, seed=seed + 2, rms=rms, cutoff_hz=cutoff_hz)
+    return experiment.diagnosis_windows(dataclasses.replace(cfg, excitation=exc), n_windows)
 
 
 def main() -> None:

@@ -183,15 +183,8 @@ def test_split_windows():
 def rig_windows(params: RigParams, faults=(), seed=0, rms=RMS, n_windows=4) -> list[Window]:
     """Simulated rig data, ``n_windows`` windows of two periods after five of settling."""
     cfg = experiment.ExperimentConfig(rig=params, seed=seed, faults=tuple(faults))
-    exc = dataclasses.replace(
-        cfg.excitation, record_periods=2 * n_windows, seed=seed + 2, rms=rms, cutoff_hz=CUTOFF_HZ
-    )
-    t, u, y, _ = experiment.simulate_datum(dataclasses.replace(cfg, excitation=exc))
-    n = 2 * exc.period_samples
-    return [
-        Window(u[i * n : (i + 1) * n], y[i * n : (i + 1) * n], 0.1, exc.period_samples, t[i * n])
-        for i in range(n_windows)
-    ]
+    exc = dataclasses.replace(cfg.excitation, seed=seed + 2, rms=rms, cutoff_hz=CUTOFF_HZ)
+    return experiment.diagnosis_windows(dataclasses.replace(cfg, excitation=exc), n_windows)
 
 
 def sensor_delay(tau: float) -> rig.Fault:

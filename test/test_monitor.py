@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from functools import cache
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import excitation as ex
-from twotank_validation import experiment, monitor, rig
+from twotank_validation import monitor, streamfuzz
 from twotank_validation.model import load_model
 from twotank_validation.monitor import Alarm, AlarmConfig, AlarmState, update_alarm
 
@@ -146,17 +143,9 @@ def test_aligner_restarts_on_clock_jump_backwards() -> None:
 FAST = monitor.MonitorConfig(ts_s=0.8, period_samples=256)  # same 204.8 s period, 8x fewer samples
 
 
-@cache
 def rig_record(n_periods: int = 6, seed: int = 0):
-    cfg = experiment.ExperimentConfig()
-    exc = dataclasses.replace(
-        cfg.excitation, ts_s=0.8, period_samples=256, settle_periods=0, record_periods=n_periods
-    )
-    op = rig.operating_point(cfg.rig)
-    u = ex.excitation_commands(exc, op.commands)
-    sim = rig.simulate(cfg.rig, u, 0.8, seed=seed, substeps=16)
-    stamps = np.arange(len(u), dtype=np.int64) * 800_000_000
-    return stamps, sim.commands, sim.measured
+    """The nominal rig at ts 0.8 s, period 256 (``streamfuzz.clean_record``, cached there)."""
+    return streamfuzz.clean_record(n_periods, seed)
 
 
 def models():
