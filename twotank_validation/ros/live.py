@@ -11,6 +11,7 @@ real time and deterministically.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -48,6 +49,9 @@ class LiveConfig:
         excitation: extra excitation parameters.
         record_samples: keep every aligned sample in the result (parity checks; memory
             grows with the run).
+        keep_reports: keep every report in the result. Each carries its per-bin spectrum
+            (tens of kB at Ts 0.1 s), so long runs that only need ``on_report`` set False:
+            the result's ``reports`` is then empty and memory does not grow with the run.
     """
 
     duration_s: float = 3000.0
@@ -61,6 +65,7 @@ class LiveConfig:
     plant: dict[str, Any] = field(default_factory=dict)
     excitation: dict[str, Any] = field(default_factory=dict)
     record_samples: bool = True
+    keep_reports: bool = True
 
     @property
     def n_steps(self) -> int:
@@ -113,9 +118,11 @@ class _RecordingValidator(ValidatorNode):
 
     def __init__(self, *, record_samples: bool = True, **kwargs: Any) -> None:
         self.samples: list[Sample] = []
-        self.all_reports: list[WindowReport] = []
+        # reports not yet handed to the driver (appended by the worker thread, drained by the
+        # driver; deque append/popleft are thread-safe)
+        self.new_reports: deque[WindowReport] = deque()
         super().__init__(**kwargs)
-        self.report_listeners.append(self.all_reports.append)
+        self.report_listeners.append(self.new_reports.append)
         if not record_samples:
             return
         push, push_block = self.monitor.push, self.monitor.push_block
@@ -138,6 +145,7 @@ def run_live(
     config: LiveConfig,
     *,
     on_report: Callable[[WindowReport], None] | None = None,
+    on_step: Callable[[int], None] | None = None,
     context: Context | None = None,
     attach: Callable[[Context], tuple[Sequence[Node], Callable[[int], bool]]] | None = None,
 ) -> LiveResult:
@@ -146,9 +154,14 @@ def run_live(
     Args:
         config: run settings.
         on_report: called (from the driver thread) with each new report as it appears.
+        on_step: called (from the driver thread) with ``k`` once sample k (0-based) has
+            reached the validator and the reports that appeared by then went to
+            ``on_report``; e.g. to sample memory every simulated hour.
         context: rclpy context to use (a fresh one is created and shut down otherwise).
         attach: adds nodes that subscribe to the interface topics (e.g. a recorder); returns
-            them and a predicate ``synced(k)``: they have every message of sample k.
+            them and a predicate ``synced(k)``: they have every message of sample k. It is
+            awaited once more for the last sample after the validator's last reports went
+            to ``on_report``, so a predicate that also counts reports sees them all.
     """
     own = context is None
     ctx = context or Context()
@@ -206,7 +219,16 @@ def run_live(
             10.0,
         )
         ts_ns = round(config.ts_s * NS_PER_S)
-        seen = 0
+        kept: list[WindowReport] = []
+
+        def deliver() -> None:
+            while val.new_reports:
+                rep = val.new_reports.popleft()
+                if config.keep_reports:
+                    kept.append(rep)
+                if on_report is not None:
+                    on_report(rep)
+
         start = time.monotonic()
         for k in range(config.n_steps):
             t = k * ts_ns
@@ -226,22 +248,21 @@ def run_live(
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.1f} s"
                 )
-            if on_report is not None and len(val.all_reports) > seen:
-                for rep in val.all_reports[seen:]:
-                    on_report(rep)
-                seen = len(val.all_reports)
+            deliver()
+            if on_step is not None:
+                on_step(k)
         # deliver what is still in flight, then let the worker finish
         expected = config.n_steps
         _spin_until(
             executor, lambda: val.aligner.next_index >= expected - 1 and val._queue.empty(), 10.0
         )
         val.wait_idle()
-        if on_report is not None:
-            for rep in val.all_reports[seen:]:
-                on_report(rep)
+        deliver()
+        if synced is not None and not _spin_until(executor, partial(synced, expected - 1)):
+            raise RuntimeError("attached nodes did not receive everything by the end of the run")
         wall = time.monotonic() - start
         counters = dict(vars(val.aligner.counters))
-        return LiveResult(list(val.all_reports), list(val.samples), wall, counters)
+        return LiveResult(kept, list(val.samples), wall, counters)
     finally:
         for n in nodes:
             n.destroy_node()
