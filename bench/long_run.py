@@ -32,7 +32,9 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 
+from twotank_validation.monitor import Alarm
 from twotank_validation.ros import longrun as lr
 
 DEFAULT_KINDS = (
@@ -62,6 +64,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--trace-hour", type=int, default=12, help="hour traced (-1: none)")
     ap.add_argument("--seed", type=int, default=0, help="plant noise seed")
     ap.add_argument("--json", help="also write the hourly samples and records to this file")
+    ap.add_argument(
+        "--rejudge",
+        metavar="JSON",
+        help="judge and print a run saved with --json (same --hours/--ts/--period/"
+        "--trace-hour) instead of running; the DDS = node check is then not repeated",
+    )
     return ap.parse_args(argv)
 
 
@@ -108,8 +116,14 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     t0 = time.monotonic()
-    res = lr.run_long_run(cfg, progress=show)
-    wall = time.monotonic() - t0
+    if args.rejudge:
+        res, wall = load(args.rejudge, cfg)
+        cfg = replace(cfg, faults=tuple(res_faults(args.rejudge)))
+        for s in res.hours:
+            show(s)
+    else:
+        res = lr.run_long_run(cfg, progress=show)
+        wall = time.monotonic() - t0
     ev = lr.evaluate(cfg, res, rule=rule, tol=tol)
 
     print(
@@ -128,6 +142,11 @@ def main(argv: list[str] | None = None) -> int:
             f"GC objects {f.first.gc_objects} -> {f.last.gc_objects} (slope "
             f"{f.gc_slope_per_h:+.0f}/h; the checker keeps one small record per report)"
         )
+        if cfg.trace_hour is not None:
+            print(
+                f"  (hour {cfg.trace_hour + 1} left out of the fits; RSS step fitted across the "
+                f"tracemalloc hour: {f.rss_step_kib / 1024:+.2f} MiB)"
+            )
         print(
             f"verdict: {'flat' if f.ok else 'NOT flat'} (tolerance: RSS slope <= "
             f"{tol.rss_kib_per_h:g} KiB/h, GC-object slope <= {tol.gc_objects_per_h:g}/h, "
@@ -147,7 +166,10 @@ def main(argv: list[str] | None = None) -> int:
             f"not judged {acc.not_judged or 0}; missing {acc.missing or 0}, duplicated "
             f"{acc.duplicated or 0}, unexpected {acc.unexpected or 0}"
         )
-    print(f"  DDS reports equal the node's: {ev.dds_equals_listener}")
+    print(
+        f"  DDS reports equal the node's: {ev.dds_equals_listener} "
+        f"({res.dds_given_up} given up after {lr.DDS_WAIT_S:g} s)"
+    )
 
     print(
         f"\nalarm timeline, model B (rule: ERROR within {rule.detect_windows} windows of the "
@@ -197,6 +219,25 @@ def main(argv: list[str] | None = None) -> int:
                 fh,
             )
     return 0 if ev.ok else 1
+
+
+def res_faults(path: str) -> list[str]:
+    with open(path) as fh:
+        return list(json.load(fh)["faults"])
+
+
+def load(path: str, cfg: lr.LongRunConfig) -> tuple[lr.LongRunResult, float]:
+    """A run saved with --json (its DDS records stand for the node's too)."""
+    with open(path) as fh:
+        d = json.load(fh)
+    recs = [
+        lr.Rec(m, int(a), int(b), bool(j), q, float(beta), bool(inv), Alarm(int(al)))
+        for m, a, b, j, q, beta, inv, al in d["reports"]
+    ]
+    hours = [lr.HourSample(**h) for h in d["hours"]]
+    n = round(cfg.hours * lr.HOUR_S / cfg.ts_s)
+    res = lr.LongRunResult(n, recs, recs, hours, None, [], float(d["wall_s"]), {})
+    return res, float(d["wall_s"])
 
 
 if __name__ == "__main__":

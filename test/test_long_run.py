@@ -11,6 +11,7 @@ and the injected onsets and ends.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -70,6 +71,13 @@ def test_accounting_flags_a_dropped_a_duplicated_and_an_inconsistent_window() ->
     late_end = lr.account_windows(recs, "B", n + 3 * PERIOD, PERIOD, 2, TS_NS)
     assert not late_end.ok
     assert len(late_end.missing) == 3
+
+
+def test_dds_records_must_equal_the_nodes_report_for_report() -> None:
+    recs = clean(5)  # the first is not judged: NaN beta equals NaN beta
+    assert lr.same_recs(recs, list(recs))
+    assert not lr.same_recs(recs[:-1], recs)  # one report lost on the way
+    assert not lr.same_recs([*recs[:-1], recs[-1]._replace(alarm=Alarm.ERROR)], recs)
 
 
 def test_timeline_detects_clears_and_flags_an_alarm_that_stays() -> None:
@@ -135,6 +143,23 @@ def test_flatness_flags_growing_threads_and_memory() -> None:
     assert grow_m is not None
     assert not grow_m.memory_ok
     assert grow_m.rss_slope_kib_per_h == pytest.approx(1024)
+    # tracemalloc over hour 3-4 leaves RSS 1 MiB higher from then on: a step, not a slope
+    stepped = [
+        lr.HourSample(h, 10.0 * h, 150_000 + (1024 if h >= 4 else 0), 20, 2, 80_000)
+        for h in range(9)
+    ]
+    naive = lr.flatness(stepped, tol)
+    assert naive is not None
+    assert naive.rss_slope_kib_per_h > 100
+    traced = lr.flatness(stepped, tol, trace_hour=3)
+    assert traced is not None
+    assert traced.ok
+    assert traced.rss_slope_kib_per_h == pytest.approx(0, abs=1e-6)
+    assert traced.rss_step_kib == pytest.approx(1024)
+    still_growing = [replace(s, rss_kib=s.rss_kib + 300 * int(s.hour)) for s in stepped]
+    growing = lr.flatness(still_growing, tol, trace_hour=3)
+    assert growing is not None
+    assert not growing.memory_ok
 
 
 def test_schedule_puts_faults_mid_period_with_nominal_gaps() -> None:

@@ -41,6 +41,7 @@ from twotank_validation.fault_spec import parse_fault
 from twotank_validation.monitor import NS_PER_S, Alarm, WindowReport
 
 HOUR_S = 3600.0
+DDS_WAIT_S = 2.0  # wall time a report may take over loopback DDS before it counts as lost
 
 
 class Rec(NamedTuple):
@@ -452,6 +453,7 @@ class Flatness:
         threads_grew: the process's or Python's thread count grew (any hour after warm-up
             above the first hour after warm-up).
         memory_ok: both slopes finite and within tolerance.
+        rss_step_kib: RSS step fitted across the tracemalloc hour (0 without tracing).
     """
 
     first: HourSample
@@ -460,6 +462,7 @@ class Flatness:
     gc_slope_per_h: float
     threads_grew: bool
     memory_ok: bool
+    rss_step_kib: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -467,25 +470,50 @@ class Flatness:
         return self.memory_ok and not self.threads_grew
 
 
-def flatness(samples: Sequence[HourSample], tol: FlatTolerance) -> Flatness | None:
-    """Judge the hourly samples taken at or after ``tol.warmup_h``; None if there are none."""
+def _slope_and_step(
+    hours: np.ndarray, values: np.ndarray, step_at: float | None
+) -> tuple[float, float]:
+    """Least-squares ``(slope, step)`` of ``values`` over ``hours``.
+
+    A change of level at ``step_at`` is fitted as a step (a second intercept), not as slope.
+    """
+    cols = [hours, np.ones_like(hours)]
+    if step_at is not None and (hours < step_at).any() and (hours >= step_at).any():
+        cols.append((hours >= step_at).astype(float))
+    if len(hours) < len(cols):
+        return math.nan, 0.0
+    coef = np.linalg.lstsq(np.stack(cols, axis=1), values, rcond=None)[0]
+    return float(coef[0]), float(coef[2]) if len(coef) > 2 else 0.0
+
+
+def flatness(
+    samples: Sequence[HourSample], tol: FlatTolerance, trace_hour: int | None = None
+) -> Flatness | None:
+    """Judge the samples taken at or after ``tol.warmup_h``; None if there are none.
+
+    With ``trace_hour``, tracemalloc ran from that hour to the next: its own allocations
+    raise RSS once (over that hour and the next, as the allocator keeps the freed pages).
+    The sample at ``trace_hour + 1`` is left out and the level after it is fitted as a
+    step (reported as ``rss_step_kib``), so the slope measures growth, not the tracing.
+    """
     after = [s for s in samples if s.hour >= tol.warmup_h]
     if not after:
         return None
     first, last = after[0], after[-1]
-    if len(after) >= 2:
-        h = np.array([s.hour for s in after])
-        rss_slope = float(np.polyfit(h, [s.rss_kib for s in after], 1)[0])
-        gc_slope = float(np.polyfit(h, [s.gc_objects for s in after], 1)[0])
-    else:
-        rss_slope = gc_slope = math.nan
+    step_at = None
+    if trace_hour is not None:
+        step_at = trace_hour + 1.5
+        after = [s for s in after if abs(s.hour - (trace_hour + 1)) > 1e-6]
+    h = np.array([s.hour for s in after])
+    rss_slope, rss_step = _slope_and_step(h, np.array([s.rss_kib for s in after], float), step_at)
+    gc_slope, _ = _slope_and_step(h, np.array([s.gc_objects for s in after], float), step_at)
     grew = any(s.threads > first.threads or s.py_threads > first.py_threads for s in after)
     memory_ok = (
         math.isfinite(rss_slope)
         and rss_slope <= tol.rss_kib_per_h
         and gc_slope <= tol.gc_objects_per_h
     )
-    return Flatness(first, last, rss_slope, gc_slope, grew, memory_ok)
+    return Flatness(first, last, rss_slope, gc_slope, grew, memory_ok, rss_step)
 
 
 # ------------------------------------------------------------------------------- the run
@@ -538,6 +566,8 @@ class LongRunResult:
         trace_top: the traced hour's largest growing allocation sites.
         wall_s: wall time of the run.
         counters: aligner counters.
+        dds_given_up: reports produced but not received over DDS within ``DDS_WAIT_S``
+            (they appear as missing windows).
     """
 
     n_samples: int
@@ -548,6 +578,7 @@ class LongRunResult:
     trace_top: list[str]
     wall_s: float
     counters: dict[str, int]
+    dds_given_up: int = 0
 
 
 def run_long_run(
@@ -583,6 +614,7 @@ def run_long_run(
     steps_per_hour = round(HOUR_S / cfg.ts_s)
     steps_per_sample = round(cfg.sample_every_s / cfg.ts_s)
     trace: dict[str, Any] = {}
+    lost: dict[str, Any] = {"n": 0, "since": None}
     t_start = time.monotonic()
 
     def attach(ctx: Context) -> tuple[list[Node], Callable[[int], bool]]:
@@ -595,25 +627,44 @@ def run_long_run(
                 lambda msg: dds.append(rec_of_message(msg)),
                 100,
             )
-        # lockstep for reports too: every report delivered so far has arrived over DDS
-        return [node], lambda _k: len(dds) >= len(listener)
+
+        def synced(_k: int) -> bool:
+            # lockstep for reports too: every report produced so far has arrived over DDS.
+            # A report that does not arrive within DDS_WAIT_S is given up on (and shows as
+            # missing in the accounting) instead of stopping the run.
+            if len(dds) + lost["n"] >= len(listener):
+                lost["since"] = None
+                return True
+            now = time.monotonic()
+            if lost["since"] is None:
+                lost["since"] = now
+            elif now - lost["since"] > DDS_WAIT_S:
+                lost["n"] = len(listener) - len(dds)
+                lost["since"] = None
+                return True
+            return False
+
+        return [node], synced
+
+    def tracing(hour: float) -> None:
+        h = round(hour)
+        if h == cfg.trace_hour and not tracemalloc.is_tracing():
+            tracemalloc.start()
+            trace["first"] = tracemalloc.take_snapshot()
+            trace["mem0"] = tracemalloc.get_traced_memory()[0]
+        elif cfg.trace_hour is not None and h == cfg.trace_hour + 1 and tracemalloc.is_tracing():
+            snap = tracemalloc.take_snapshot()
+            trace["growth"] = (tracemalloc.get_traced_memory()[0] - trace["mem0"]) / 1024
+            stats = snap.compare_to(trace.pop("first"), "lineno")
+            trace["top"] = [str(s) for s in stats[:5]]
+            tracemalloc.stop()
 
     def on_step(k: int) -> None:
         if (k + 1) % steps_per_sample and k + 1 != n_steps:
             return
         hour = (k + 1) / steps_per_hour
         if cfg.trace_hour is not None and "top" not in trace:
-            h = round(hour)
-            if h == cfg.trace_hour and not tracemalloc.is_tracing():
-                tracemalloc.start()
-                trace["first"] = tracemalloc.take_snapshot()
-                trace["mem0"] = tracemalloc.get_traced_memory()[0]
-            elif h == cfg.trace_hour + 1 and tracemalloc.is_tracing():
-                snap = tracemalloc.take_snapshot()
-                trace["growth"] = (tracemalloc.get_traced_memory()[0] - trace["mem0"]) / 1024
-                stats = snap.compare_to(trace.pop("first"), "lineno")
-                trace["top"] = [str(s) for s in stats[:5]]
-                tracemalloc.stop()
+            tracing(hour)  # a function of its own: the snapshots are gone before sampling
         sample = sample_resources(hour, time.monotonic() - t_start)
         hours.append(sample)
         if progress is not None:
@@ -640,6 +691,7 @@ def run_long_run(
         trace_top=trace.get("top", []),
         wall_s=result.wall_s,
         counters=result.counters,
+        dds_given_up=lost["n"],
     )
 
 
@@ -791,7 +843,7 @@ def evaluate(
                 f"{tl.nominal_beta_max:.3f})",
             )
         )
-    flat = flatness(res.hours, tol)
+    flat = flatness(res.hours, tol, cfg.trace_hour)
     if flat is not None:
         checks.append(
             Check(
