@@ -118,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     if args.rejudge:
         res, wall = load(args.rejudge, cfg)
+        print(f"rejudging {args.rejudge}: the DDS = node check below compares nothing new")
         cfg = replace(cfg, faults=tuple(res_faults(args.rejudge)))
         for s in res.hours:
             show(s)
