@@ -190,19 +190,22 @@ def tank_datum() -> Datum:
     return make_datum(u, y, ts_s=cfg.excitation.ts_s, period_samples=cfg.excitation.period_samples)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("name", ["A", "B"])
-def test_tank_models_match_closed_form_on_every_bin(name: str) -> None:
-    """The general fast path on the tank models equals the exact closed form (2049 bins)."""
+def test_tank_models_match_closed_form_on_every_bin(name: str, compiled: bool) -> None:
+    """The general fast path on the tank models equals the exact closed form (2049 bins),
+    through the compiled kernel (every bin) and through the batched numpy code alone."""
     datum = tank_datum()
     resp = load_model(name).response(datum.theta, datum.ts_s)
     structure, _ = solvers.decoupled_structure(resp)
     assert structure is not None
     cf = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, structure)
-    res = fast.solve_fast(resp, datum.u_bins, datum.y_bins)
+    res = fast.solve_fast(resp, datum.u_bins, datum.y_bins, compiled=compiled)
     sol = res.solutions
     assert sol.method == "fast"
     assert res.stats.n_fallback == 0
     assert res.stats.n_direct + res.stats.n_dual == datum.theta.size
+    assert res.stats.n_compiled == (datum.theta.size if compiled else 0)
     assert sol.certified.all()
     # round-off bins (the de-biased DC bin) are judged against the window's scale
     floor = np.full(cf.lower.shape, 1e-6 * float(np.max(cf.lower)))
@@ -243,16 +246,19 @@ def test_tank_models_match_cvxpy_on_a_spread_of_bins(name: str) -> None:
     coupled=st.booleans(),
     nw=st.integers(1, 3),
     nu=st.integers(1, 2),
+    compiled=st.booleans(),
 )
 def test_random_one_or_two_blocks_match_cvxpy(
-    seed: int, n_blocks: int, full: bool, coupled: bool, nw: int, nu: int
+    seed: int, n_blocks: int, full: bool, coupled: bool, nw: int, nu: int, compiled: bool
 ) -> None:
-    """One or two blocks (the dual is exact): lower and upper bounds equal the cvxpy path's."""
+    """One or two blocks (the dual is exact): lower and upper bounds equal the cvxpy path's
+    (with and without the compiled kernel, which takes the uncoupled windows with nw = ny)."""
     shapes = ((2, 1), (1, 2))[:n_blocks] if full else ((1, 1),) * n_blocks
     ny = min(nw, 2)
     resp, u, y = random_window(seed, shapes, nw, ny, nu, coupled=coupled)
     ref = solvers.solve_sdp(resp, u, y)
-    res = fast.solve_fast(resp, u, y)
+    res = fast.solve_fast(resp, u, y, compiled=compiled)
+    assert (res.stats.n_compiled > 0) == (compiled and not coupled and nw == ny)
     compare_with_reference(resp, u, y, res, ref)
     check_solution(resp, u, y, res.solutions)
     # Fallback bins carry the reference's answer (checked above). They are mostly the hard
@@ -262,16 +268,51 @@ def test_random_one_or_two_blocks_match_cvxpy(
 
 
 @settings(max_examples=10)
-@given(seed=st.integers(0, 2**32 - 1), coupled=st.booleans())
-def test_random_three_blocks_lower_bound_matches_cvxpy(seed: int, coupled: bool) -> None:
+@given(seed=st.integers(0, 2**32 - 1), coupled=st.booleans(), compiled=st.booleans())
+def test_random_three_blocks_lower_bound_matches_cvxpy(
+    seed: int, coupled: bool, compiled: bool
+) -> None:
     """Three blocks, one non-square: the certified lower bound equals the SDP relaxation's;
     the upper bound is a feasible witness; the gap is reported, not hidden."""
     shapes = ((1, 1), (2, 1), (1, 1))
     resp, u, y = random_window(seed, shapes, 2, 2, 2, coupled=coupled)
     ref = solvers.solve_sdp(resp, u, y)
-    res = fast.solve_fast(resp, u, y)
+    res = fast.solve_fast(resp, u, y, compiled=compiled)
     compare_with_reference(resp, u, y, res, ref)
     check_solution(resp, u, y, res.solutions)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    shapes=st.sampled_from(
+        [((1, 1),), ((2, 1),), ((1, 1), (1, 1)), ((1, 2), (2, 1)), ((1, 1), (2, 1), (1, 1))]
+    ),
+    ny=st.integers(1, 3),
+    scale=st.sampled_from([1.0, 1e-6, 1e6]),
+)
+def test_compiled_kernel_agrees_with_the_batched_numpy_path(
+    seed: int, shapes: tuple[tuple[int, int], ...], ny: int, scale: float
+) -> None:
+    """Two implementations of the same rules, bin by bin, on 40 random structured bins (the
+    awkward ones planted) at three data scales: the kernel answers most bins, defers the
+    ill-conditioned noise weight (bin 2) to the numpy code, and where both answer the bounds
+    agree to 1e-9 and the kernel's witness closes the loop."""
+    resp, u, y = random_window(seed, shapes, ny, ny, 2, coupled=False, n_bins=40)
+    u, y = u * scale, y * scale
+    res = fast.solve_fast(resp, u, y)
+    ref = fast.solve_fast(resp, u, y, compiled=False)
+    assert res.stats.n_compiled >= 30, res.stats
+    assert res.stats.n_compiled < 40  # bin 2: P22 ill conditioned, deferred
+    assert res.stats.n_bins == res.stats.n_direct + res.stats.n_dual + res.stats.n_fallback
+    check_solution(resp, u, y, res.solutions)
+    floor = 1e-3 * bin_scale(resp, u, y)
+    both = ~res.fell_back & ~ref.fell_back
+    for what in ("lower", "upper"):
+        got, want = getattr(res.solutions, what), getattr(ref.solutions, what)
+        err = np.abs(got[both] - want[both])
+        assert np.all(err <= 1e-9 * np.maximum(np.abs(want[both]), floor[both])), what
+    np.testing.assert_allclose(res.error, ref.error, rtol=0, atol=1e-14 * np.abs(y).max())
 
 
 def test_unexcited_window_is_least_norm_noise() -> None:

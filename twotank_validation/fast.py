@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twotank_validation import solvers
+from twotank_validation import fastkernel, solvers
 from twotank_validation.model import BlockStructure, PlantResponse
 
 MAX_BLOCKS = 3
@@ -50,21 +50,23 @@ MAX_UNKNOWNS = 16
 """Most unknowns ``nv + nw`` per bin (the kernels loop in Python over matrix entries)."""
 
 _RANK_RTOL = 1e-10  # as solvers._RANK_RTOL
-# Noise elimination (w = P22^-1 (...)) only where P22 is this well conditioned: it squares
-# into the objective's forms, whose Schur complement then cancels that many digits more.
-_NOISE_COND = 1e2
-_NOISE_GAIN = 1e3  # and only where ||P22^-1 P21 D||_F stays below this (D: balancing of v)
-_NEGLIGIBLE_Z = 1e-10  # as solvers._NEGLIGIBLE_Z
 _CONSISTENCY_RTOL = 1e-8  # as solvers._CONSISTENCY_RTOL
-_TINY = 1e-300
-_PIVOT_RTOL = 1e-13  # H_tt counts as singular below this pivot (as solvers.lagrangian_point)
-# Starting multipliers tried until H_tt is positive definite (see _starts).
-_STARTS_NATURAL = (1.0, 1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e2)
-_STARTS_SCALED = (1.0, 0.1, 10.0, 0.01, 100.0, 1e-3)
-_FLAT_ITERATIONS = 4  # iterations in a row without ascent after which a bin stops
-# dual value (in the objective's unit) beyond which a bin counts as unbounded, left to fallback
-_PHI_RUNAWAY = 1e40
-_BACKTRACKS = 16  # step lengths tried per iteration before a bin counts as stalled
+# The rules shared with the compiled kernel are defined there, once (see fastkernel):
+# noise elimination (w = P22^-1 (...)) only where P22 is _NOISE_COND well conditioned (it
+# squares into the objective's forms) and ||P22^-1 P21 D||_F < _NOISE_GAIN; _NEGLIGIBLE_Z as
+# solvers._NEGLIGIBLE_Z; _PIVOT_RTOL: H_tt singular below this pivot; starting multipliers
+# (see _starts); _FLAT_ITERATIONS without ascent stop a bin; a dual value above _PHI_RUNAWAY
+# (objective's unit) counts as unbounded; _BACKTRACKS step lengths per iteration.
+_NOISE_COND = fastkernel.NOISE_COND
+_NOISE_GAIN = fastkernel.NOISE_GAIN
+_NEGLIGIBLE_Z = fastkernel.NEGLIGIBLE_Z
+_TINY = fastkernel.TINY
+_PIVOT_RTOL = fastkernel.PIVOT_RTOL
+_STARTS_NATURAL = fastkernel.STARTS_NATURAL
+_STARTS_SCALED = fastkernel.STARTS_SCALED
+_FLAT_ITERATIONS = fastkernel.FLAT_ITERATIONS
+_PHI_RUNAWAY = fastkernel.PHI_RUNAWAY
+_BACKTRACKS = fastkernel.BACKTRACKS
 
 
 @dataclass(frozen=True)
@@ -83,6 +85,9 @@ class FastStats:
         n_infeasible: bins reported infeasible (``inf``: no ``(w, Delta)`` explains them),
             whichever route found it.
         iterations: Newton iterations of the slowest batched bin.
+        n_compiled: bins (direct or dual) answered by the compiled per-bin kernel
+            (:mod:`twotank_validation.fastkernel`); the rest of ``n_direct + n_dual`` by the
+            batched numpy code.
     """
 
     n_bins: int
@@ -91,6 +96,7 @@ class FastStats:
     n_fallback: int
     n_infeasible: int
     iterations: int
+    n_compiled: int = 0
 
 
 @dataclass(frozen=True)
@@ -493,7 +499,7 @@ def _least_norm_size(b: np.ndarray, r: np.ndarray) -> np.ndarray:
             two[bad] = np.sqrt(_sq(_row_space(_cols(b, bad), _cols(r, bad)).x0).sum(axis=0))
         return two
     gram = (b[:, None] * b.conj()[None, :]).sum(axis=2)  # B B^H, (p, p, g)
-    inv, good = _inverse_small(gram, max_cond=1e8)
+    inv, good = _inverse_small(gram, max_cond=fastkernel.GRAM_COND)
     size: np.ndarray = np.sqrt(np.abs((r.conj() * _matvec(inv, r)).sum(axis=0).real))
     if not np.all(good):
         bad = np.flatnonzero(~good)
@@ -536,7 +542,7 @@ def _classify(
     starts = np.array([zs.start for zs in blocks.z_slices])
     drive = np.sqrt(np.add.reduceat(_sq(zu), starts, axis=0))  # ||z_i||, (m, n)
     p13 = np.sqrt(np.add.reduceat(_sq(pt[:nz, nx:]).sum(axis=1), starts, axis=0))
-    unexcited = drive <= 1e-12 * u_scale * p13
+    unexcited = drive <= fastkernel.UNEXCITED * u_scale * p13
     # the scale of the unknowns matters only where some block may stay active
     x_scale = np.zeros(nb)
     need = np.flatnonzero(~np.all(unexcited, axis=0)) if not coupled else np.arange(nb)
@@ -1782,8 +1788,15 @@ def solve_fast(
     *,
     max_iter: int = 60,
     fallback: bool = True,
+    compiled: bool = True,
 ) -> FastSolutions:
     """Problem 3 at every bin of a window, batched (same outputs as :func:`solvers.solve_sdp`).
+
+    Where the model's perturbation inputs do not depend on the unknowns (``z = P13 U``) and
+    ``P22`` is square, every bin goes first through the compiled per-bin kernel
+    (:mod:`twotank_validation.fastkernel`), which answers the bins whose bounds meet; the
+    rest, and every bin of other structures, go through the batched numpy dual, and what
+    that leaves unsettled to the per-bin cvxpy reference.
 
     Args:
         resp: plant response, n_bins bins, at most :data:`MAX_BLOCKS` blocks.
@@ -1792,6 +1805,7 @@ def solve_fast(
         max_iter: Newton iterations at most for the batched dual ascent.
         fallback: hand unsettled bins to :func:`solvers.solve_sdp` (else they keep the
             batched answer, marked uncertified).
+        compiled: use the compiled kernel where it applies (``False``: numpy only).
 
     Returns:
         Solutions (``method = "fast"``) and statistics (bins per route, fallbacks).
@@ -1801,12 +1815,106 @@ def solve_fast(
     if not covered:
         raise ValueError(f"fast path does not cover this structure: {why}")
     nb = u.shape[0]
+    nz, nx = blocks.nz, blocks.nv + resp.nw
+    u_scale = float(np.sqrt(np.max(_sq(u).sum(axis=1)))) if nb else 0.0
+    coupled = bool(np.any(resp.p[:, :nz, :nx]))  # z depends on v or w somewhere
+    if compiled and nb and fastkernel.applicable(blocks, resp.nw, resp.ny, coupled=coupled):
+        return _solve_compiled(resp, u, y, u_scale=u_scale, max_iter=max_iter, fallback=fallback)
+    return _solve_batched(
+        resp, u, y, u_scale=u_scale, coupled=coupled, max_iter=max_iter, fallback=fallback
+    )
+
+
+def _solve_compiled(
+    resp: PlantResponse,
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    u_scale: float,
+    max_iter: int,
+    fallback: bool,
+) -> FastSolutions:
+    """The compiled kernel on every bin, the batched numpy path on the bins it defers."""
+    blocks = resp.blocks
+    nb = u.shape[0]
+    out = fastkernel.solve_window(
+        resp.p, u, y, u_scale=u_scale, blocks=blocks, nw=resp.nw, max_iter=max_iter
+    )
+    done = out.status == fastkernel.DONE
+    lower = np.minimum(out.lower, out.upper)
+    upper, w, v, z = out.upper, out.w, out.v, out.z
+    delta = tuple(
+        np.ascontiguousarray(out.dmat[:, vs, zs])
+        for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True)
+    )
+    certified = done.copy()
+    fell_back = np.zeros(nb, dtype=bool)
+    n_direct = int(np.sum(done & (out.kind != fastkernel.KIND_DUAL)))
+    n_dual = int(np.sum(done)) - n_direct
+    n_fallback = 0
+    iterations = out.iterations
+    deferred = np.flatnonzero(~done)
+    if deferred.size:
+        sub = PlantResponse(resp.p[deferred], blocks, resp.nw, resp.nu, resp.ny)
+        rest = _solve_batched(
+            sub,
+            u[deferred],
+            y[deferred],
+            u_scale=u_scale,
+            coupled=False,
+            max_iter=max_iter,
+            fallback=fallback,
+        )
+        rs = rest.solutions
+        lower[deferred], upper[deferred] = rs.lower, rs.upper
+        w[deferred], v[deferred], z[deferred] = rs.w, rs.v, rs.z
+        for dst, src in zip(delta, rs.delta, strict=True):
+            dst[deferred] = src
+        certified[deferred] = rs.certified
+        fell_back[deferred] = rest.fell_back
+        n_direct += rest.stats.n_direct
+        n_dual += rest.stats.n_dual
+        n_fallback = rest.stats.n_fallback
+        iterations = max(iterations, rest.stats.iterations)
+    sol = solvers.BinSolutions(
+        lower=lower,
+        upper=upper,
+        w=w,
+        v=v,
+        z=z,
+        delta=delta,
+        certified=certified,
+        method="fast",
+    )
+    stats = FastStats(
+        n_bins=nb,
+        n_direct=n_direct,
+        n_dual=n_dual,
+        n_fallback=n_fallback,
+        n_infeasible=int(np.sum(np.isinf(lower))),
+        iterations=iterations,
+        n_compiled=int(np.sum(done)),
+    )
+    return FastSolutions(solutions=sol, stats=stats, fell_back=fell_back, error=out.r)
+
+
+def _solve_batched(
+    resp: PlantResponse,
+    u: np.ndarray,
+    y: np.ndarray,
+    *,
+    u_scale: float,
+    coupled: bool,
+    max_iter: int,
+    fallback: bool,
+) -> FastSolutions:
+    """Every bin on the batched numpy dual (``u_scale``: the window's largest ``||U||``)."""
+    blocks = resp.blocks
+    nb = u.shape[0]
     nz, nv, nw = blocks.nz, blocks.nv, resp.nw
     nx = nv + nw
     pt = np.ascontiguousarray(resp.p.transpose(1, 2, 0))
     ut, yt = np.ascontiguousarray(u.T), np.ascontiguousarray(y.T)
-    u_scale = float(np.sqrt(np.max(_sq(ut).sum(axis=0)))) if nb else 0.0
-    coupled = bool(np.any(pt[:nz, :nx]))  # z depends on v or w somewhere
     win = _classify(pt, ut, yt, blocks, nw=nw, u_scale=u_scale, coupled=coupled)
     ny = resp.ny
     inv22: np.ndarray | None = None
