@@ -96,11 +96,18 @@ class RunResult:
 
 
 def hostile_events(
-    rng: np.random.Generator, clean: list[tuple[str, int, Any]], span: tuple[int, int]
+    rng: np.random.Generator,
+    clean: list[tuple[str, int, Any]],
+    span: tuple[int, int],
+    kinds: list[str] | None = None,
 ) -> tuple[list[tuple[str, int, Any]], list[str]]:
-    """Corrupt the clean events whose stamps fall in ``span`` (ns); returns events, kinds."""
+    """Corrupt the clean events whose stamps fall in ``span`` (ns); returns events, kinds.
+
+    ``kinds`` (of :data:`HOSTILE_KINDS`) are drawn at random unless given.
+    """
     lo, hi = span
-    kinds = list(rng.choice(HOSTILE_KINDS, size=int(rng.integers(1, 5)), replace=False))
+    if kinds is None:
+        kinds = list(rng.choice(HOSTILE_KINDS, size=int(rng.integers(1, 5)), replace=False))
     out: list[tuple[str, int, Any]] = []
     for stream, t, value in clean:
         if not lo <= t <= hi:
