@@ -10,6 +10,11 @@ monitor and the validation, and publishes. Topics (node-relative, remappable):
   (std_msgs/Float64, ``1 - beta``), ``validation/M/invalidated`` (std_msgs/Bool,
   transient-local, the debounced alarm == ERROR); ``/diagnostics`` (one status per model);
 * service ``reset_alarm`` (std_srvs/Trigger) clears latched alarms.
+
+``/diagnostics`` is STALE (saying why) while a stream is stopped or a topic has a publisher of
+the wrong type, and from the moment input arrives that makes the coming windows unfit to judge
+(non-finite or implausible values, off-grid stamps, gaps, clock jumps) until a window after it
+is judged; otherwise it carries the last window's level.
 """
 
 from __future__ import annotations
@@ -105,6 +110,16 @@ _EXPECTED_TYPES = {
     "flow_cmd": itf.FLOW_CMD_TYPE,
     "height": itf.HEIGHT_TYPE,
     "temperature": itf.TEMPERATURE_TYPE,
+}
+
+
+# aligner counters whose rise means the coming windows are not fit to judge (flagged samples or
+# a restart); duplicates and out-of-order stragglers are dropped and harm nothing by themselves
+_FAULT_COUNTERS = {
+    "non_finite": "non-finite or implausible values",
+    "off_grid": "stamps off the sample grid",
+    "missing": "gaps",
+    "clock_resets": "clock jumps (alignment restarted)",
 }
 
 
@@ -212,6 +227,12 @@ class ValidatorNode(Node):
         self.report_listeners: list[Callable[[WindowReport], None]] = []
         # per window: from receiving the message that completed it to its reports published
         self.report_latency_s: deque[float] = deque(maxlen=1000)
+        # bad input seen since the last judged window: the status says so at once, not only
+        # at the next window boundary (set and cleared by the worker, read by the watchdog)
+        self._fault: str | None = None
+        self._fault_seen = 0  # core.samples_seen before the event that showed it
+        self._fault_kinds: set[str] = set()
+        self._counts = self._fault_counts()
 
         self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 1000)
         self.create_subscription(FluidPressure, "height", self._on_height, 1000)
@@ -303,9 +324,14 @@ class ValidatorNode(Node):
             if item[0] == "__marker__":
                 item[2].set()
                 continue
+            seen = self.core.samples_seen
             if item[0] == "__reset__":
                 with self._lock:
+                    started = self.aligner.t0_ns is not None
                     self.core.restart()
+                if not started:  # nothing received yet (the clock's first jump): no fault
+                    self._counts = self._fault_counts()
+                self._note_faults(seen)
                 continue
             stream, stamp, value, received = item
             try:
@@ -315,10 +341,41 @@ class ValidatorNode(Node):
                 for name in self._status:
                     self._status[name] = (Alarm.STALE, f"internal error: {err}")
                 continue
+            self._note_faults(seen)
             if reports:
+                # a judged window that starts after the fault (its first sample comes after
+                # the event that showed it; bounded below from this event's count) clears it
+                if (
+                    self._fault is not None
+                    and any(r.judged for r in reports)
+                    and seen + 2 - self.config.window_samples > self._fault_seen
+                ):
+                    self._fault = None
                 for rep in reports:
                     self._publish(rep)
                 self.report_latency_s.append(perf_counter() - received)
+
+    def _fault_counts(self) -> tuple[int, ...]:
+        c = self.aligner.counters
+        return tuple(getattr(c, name) for name in _FAULT_COUNTERS)
+
+    def _note_faults(self, seen: int) -> None:
+        counts = self._fault_counts()
+        if counts == self._counts:
+            return
+        if self._fault is None:
+            self._fault_kinds = set()
+        self._fault_kinds.update(
+            what
+            for what, old, new in zip(_FAULT_COUNTERS.values(), self._counts, counts, strict=True)
+            if new != old
+        )
+        self._counts = counts
+        self._fault_seen = seen
+        self._fault = (
+            "input fault: " + ", ".join(sorted(self._fault_kinds)) + "; windows are not judged "
+            "until clean data have settled"
+        )
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Block until the worker has processed every queued event (tests, composition)."""
@@ -349,8 +406,14 @@ class ValidatorNode(Node):
     def _publish_diagnostics(self, override: tuple[Alarm, str] | None = None) -> None:
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
+        fault = self._fault
         for m in self.models:
-            level, text = override if override is not None else self._status[m.name]
+            if override is not None:
+                level, text = override
+            elif fault is not None:
+                level, text = Alarm.STALE, fault
+            else:
+                level, text = self._status[m.name]
             st = DiagnosticStatus()
             st.level = bytes([int(level)])
             st.name = f"twotank_validation: model {m.name}"

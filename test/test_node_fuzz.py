@@ -1,0 +1,61 @@
+"""Hostile input through the validator NODE (rclpy, real topics, simulated clock).
+
+A short bounded version of ``bench/fuzz_node.py`` (:mod:`twotank_validation.ros.nodefuzz`):
+seeded random hostile stretches, the node-only kinds (``/clock`` jumping back, a wrong-type
+publisher from another participant) explicitly, and the regression the fuzzing found. The
+references are the injected stretch's own steps and stamps (``nodefuzz.check``).
+"""
+
+from __future__ import annotations
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from twotank_validation.monitor import Alarm
+from twotank_validation.ros import nodefuzz
+
+
+def _assert_clean(res: nodefuzz.RunResult) -> None:
+    assert res.violations == [], (res.seed, res.plan.kinds, res.violations)
+
+
+@settings(max_examples=2, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_random_hostile_stretches_never_kill_or_fool_the_node(seed):
+    _assert_clean(nodefuzz.run(seed))
+
+
+def test_clock_restart_and_wrong_type_publisher():
+    """/clock and stamps jump back (restart), a rogue participant sends the wrong type."""
+    res = nodefuzz.run(7, ["clock_back", "wrong_type", "nan"])
+    p = res.plan
+    assert p.shift_ns < 0
+    assert p.rogue_type
+    _assert_clean(res)
+    g = p.garbage_steps()
+    # the checks had something to bite on: windows were judged before and after the stretch
+    judged = [(s, m) for s, m in res.outputs.reports if m.judged and m.model == "B"]
+    assert any(s < g[0] for s, _ in judged)
+    assert any(s > g[-1] for s, _ in judged)
+    assert any(f"type {p.rogue_type}" in text for _, _, _, text in res.outputs.statuses)
+
+
+def test_status_turns_stale_as_soon_as_garbage_arrives():
+    """Regression: NaN input left the status OK until the next window boundary (up to a
+    period, 204.8 s here): the status reported the last window only."""
+    p = nodefuzz.plan(3, ["nan"])
+    g0 = p.garbage_steps()[0]
+    assert g0 % nodefuzz.PERIOD > 20  # a boundary is far: the old node said OK meanwhile
+    p.steps = p.steps[: g0 + 24]
+    res = nodefuzz.run(3, the_plan=p, checked=False)
+    assert res.worker_alive
+    b = [(s, lv, text) for s, m, lv, text in res.outputs.statuses if m == "B"]
+    before = [lv for s, lv, _ in b if g0 - 10 <= s < g0]
+    assert before
+    assert set(before) == {Alarm.OK}  # a judged nominal window before the NaN
+    during = [
+        (lv, text) for s, lv, text in b if g0 + nodefuzz.STATUS_MARGIN_STEPS <= s < len(p.steps)
+    ]
+    assert during
+    assert all(lv == Alarm.STALE for lv, _ in during), during
+    assert any("non-finite" in text for _, text in during)
