@@ -13,8 +13,9 @@ monitor and the validation, and publishes. Topics (node-relative, remappable):
 
 ``/diagnostics`` is STALE (saying why) while a stream is stopped or a topic has a publisher of
 the wrong type, and from the moment input arrives that makes the coming windows unfit to judge
-(non-finite or implausible values, off-grid stamps, gaps, clock jumps) until a window after it
-is judged; otherwise it carries the last window's level.
+(non-finite or implausible values, off-grid stamps, gaps, clock jumps, a stream stopping) until
+a window after it is judged; otherwise it carries the last window's level (published once all
+models' reports of a window are out).
 """
 
 from __future__ import annotations
@@ -219,10 +220,11 @@ class ValidatorNode(Node):
         self._lock = threading.Lock()
         self._last_rx: dict[str, int | None] = dict.fromkeys(_STREAMS)
         self.received: dict[str, int] = dict.fromkeys(_STREAMS, 0)
-        self._status: dict[str, tuple[Alarm, str]] = {
-            m.name: (Alarm.STALE, "waiting for data") for m in self.models
+        # per model: level, text and the last report; replaced whole (never updated in place)
+        # once every model's report of a window is out, so the watchdog sees one window
+        self._status: dict[str, tuple[Alarm, str, WindowReport | None]] = {
+            m.name: (Alarm.STALE, "waiting for data", None) for m in self.models
         }
-        self._last_report: dict[str, WindowReport] = {}
         self.reports: deque[WindowReport] = deque(maxlen=keep_reports)  # the latest published
         self.report_listeners: list[Callable[[WindowReport], None]] = []
         # per window: from receiving the message that completed it to its reports published
@@ -233,6 +235,7 @@ class ValidatorNode(Node):
         self._fault_seen = 0  # core.samples_seen before the event that showed it
         self._fault_kinds: set[str] = set()
         self._counts = self._fault_counts()
+        self._watch: tuple[Alarm, str] | None = None  # the watchdog's latest finding
 
         self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 1000)
         self.create_subscription(FluidPressure, "height", self._on_height, 1000)
@@ -325,6 +328,9 @@ class ValidatorNode(Node):
                 item[2].set()
                 continue
             seen = self.core.samples_seen
+            if item[0] == "__stopped__":
+                self._note_faults(seen, "stopped streams")
+                continue
             if item[0] == "__reset__":
                 with self._lock:
                     started = self.aligner.t0_ns is not None
@@ -338,8 +344,10 @@ class ValidatorNode(Node):
                 reports = self.feed(stream, stamp, value)
             except Exception as err:  # keep the node alive; the status says what happened
                 self.get_logger().error(f"validator failed on {stream} at {stamp} ns: {err}")
-                for name in self._status:
-                    self._status[name] = (Alarm.STALE, f"internal error: {err}")
+                self._status = {
+                    name: (Alarm.STALE, f"internal error: {err}", rep)
+                    for name, (_, _, rep) in self._status.items()
+                }
                 continue
             self._note_faults(seen)
             if reports:
@@ -351,20 +359,25 @@ class ValidatorNode(Node):
                     and seen + 2 - self.config.window_samples > self._fault_seen
                 ):
                     self._fault = None
+                status = dict(self._status)
                 for rep in reports:
-                    self._publish(rep)
+                    status[rep.model] = self._publish(rep)
+                self._status = status
+                self._publish_diagnostics()  # once every model's status is new
                 self.report_latency_s.append(perf_counter() - received)
 
     def _fault_counts(self) -> tuple[int, ...]:
         c = self.aligner.counters
         return tuple(getattr(c, name) for name in _FAULT_COUNTERS)
 
-    def _note_faults(self, seen: int) -> None:
+    def _note_faults(self, seen: int, extra: str = "") -> None:
         counts = self._fault_counts()
-        if counts == self._counts:
+        if counts == self._counts and not extra:
             return
         if self._fault is None:
             self._fault_kinds = set()
+        if extra:
+            self._fault_kinds.add(extra)
         self._fault_kinds.update(
             what
             for what, old, new in zip(_FAULT_COUNTERS.values(), self._counts, counts, strict=True)
@@ -383,8 +396,7 @@ class ValidatorNode(Node):
         self._queue.put(("__marker__", 0, done, 0.0))
         return done.wait(timeout_s)
 
-    def _publish(self, rep: WindowReport) -> None:
-        self._last_report[rep.model] = rep
+    def _publish(self, rep: WindowReport) -> tuple[Alarm, str, WindowReport]:
         self._pub_report[rep.model].publish(itf.report_message(rep, self._report_cls))
         self._pub_margin[rep.model].publish(Float64(data=float(rep.margin)))
         self._publish_invalidated(rep.model, rep.alarm == Alarm.ERROR)
@@ -394,11 +406,10 @@ class ValidatorNode(Node):
             if rep.judged
             else f"window not judged: {rep.data_quality}"
         )
-        self._status[rep.model] = (rep.alarm, text)
-        self._publish_diagnostics()
         self.reports.append(rep)
         for listener in self.report_listeners:
             listener(rep)
+        return rep.alarm, text, rep
 
     def _publish_invalidated(self, name: str, value: bool) -> None:
         self._pub_invalid[name].publish(Bool(data=value))
@@ -407,19 +418,19 @@ class ValidatorNode(Node):
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         fault = self._fault
+        override = override or self._watch
+        status = self._status
         for m in self.models:
+            level, text, rep = status[m.name]
             if override is not None:
                 level, text = override
             elif fault is not None:
                 level, text = Alarm.STALE, fault
-            else:
-                level, text = self._status[m.name]
             st = DiagnosticStatus()
             st.level = bytes([int(level)])
             st.name = f"twotank_validation: model {m.name}"
             st.hardware_id = self.get_fully_qualified_name()
             st.message = text
-            rep = self._last_report.get(m.name)
             if rep is not None:
                 st.values = [
                     KeyValue(key="beta", value=f"{rep.beta:.6g}"),
@@ -447,15 +458,19 @@ class ValidatorNode(Node):
     def _on_watchdog(self) -> None:
         now = self._now_ns()
         problems = self._wrong_types()
+        stopped = False
         for stream, last in self._last_rx.items():
             if last is None:
                 problems.append(f"no {stream} received yet")
             elif now - last > self.stale_timeout_ns:
                 problems.append(f"{stream} stopped {(now - last) / NS_PER_S:.1f} s ago")
-        if problems:
-            self._publish_diagnostics((Alarm.STALE, "; ".join(problems)))
-        else:
-            self._publish_diagnostics()
+                stopped = True
+        # the watchdog's finding holds for every status until its next tick; a stopped stream
+        # is also an input fault (until a window after it is judged)
+        self._watch = (Alarm.STALE, "; ".join(problems)) if problems else None
+        if stopped:
+            self._queue.put(("__stopped__", 0, None, 0.0))
+        self._publish_diagnostics()
 
     def destroy_node(self) -> None:
         """Stop the worker thread, then destroy the node."""
