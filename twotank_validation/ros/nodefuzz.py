@@ -23,6 +23,7 @@ data again up to 10 periods; then the inputs stop and the clock runs on. Invaria
   named in a status;
 * after the stretch: Model B's windows are judged again, the last one OK, ``invalidated``
   False and the last status OK (the clean data are the nominal rig, which B explains);
+* every ``/diagnostics`` message speaks of one window for all models;
 * when the inputs stop, the status goes STALE naming a stopped stream (the watchdog lives).
 """
 
@@ -186,12 +187,15 @@ class Outputs:
         margins: ``(step, model, value)``.
         invalidated: ``(step, model, value)``.
         statuses: ``(step, model name, level, message)`` of every DiagnosticStatus.
+        diag_windows: ``(step, window ends)``: per DiagnosticArray, the ``window_end_s`` of
+            its statuses (those that carry one).
     """
 
     reports: list[tuple[int, Any]] = field(default_factory=list)
     margins: list[tuple[int, str, float]] = field(default_factory=list)
     invalidated: list[tuple[int, str, bool]] = field(default_factory=list)
     statuses: list[tuple[int, str, int, str]] = field(default_factory=list)
+    diag_windows: list[tuple[int, tuple[str, ...]]] = field(default_factory=list)
 
 
 @dataclass
@@ -243,6 +247,8 @@ class _Collector:
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         self.diag_count += 1
+        ends = tuple(kv.value for st in msg.status for kv in st.values if kv.key == "window_end_s")
+        self.out.diag_windows.append((self.step, ends))
         for st in msg.status:
             model = st.name.rsplit(" ", 1)[-1]
             self.out.statuses.append((self.step, model, st.level[0], st.message))
@@ -551,6 +557,10 @@ def check(res: RunResult) -> None:
             v.append(f"no judged window of B after the hostile stretch ({p.kinds})")
         elif after[-1].alarm_level != Alarm.OK:
             v.append(f"B's alarm did not recover: {Alarm(after[-1].alarm_level).name}")
+    for step, ends in out.diag_windows:
+        if len(set(ends)) > 1:
+            v.append(f"a /diagnostics message mixes windows ending at {ends} s (step {step})")
+            break
     inval_b = [x for _, m, x in out.invalidated if m == "B"]
     if not inval_b or inval_b[-1]:
         v.append(f"B's invalidated topic did not end False ({inval_b[-3:]})")
