@@ -216,6 +216,22 @@ def test_tank_models_match_closed_form_on_every_bin(name: str, compiled: bool) -
     assert beta_fast == pytest.approx(beta_cf, rel=1e-9)
 
 
+def test_kernel_threads_share_the_bins_without_changing_a_bit() -> None:
+    """The window cut among 1, 2 or 3 threads (chunks of >= 256 bins) gives the same bits."""
+    datum = tank_datum()
+    resp = load_model("B").response(datum.theta, datum.ts_s)
+    runs = [fast.solve_fast(resp, datum.u_bins, datum.y_bins, threads=t) for t in (1, 2, 3)]
+    for res in runs[1:]:
+        for what in ("lower", "upper", "w", "v", "z", "certified"):
+            np.testing.assert_array_equal(
+                getattr(res.solutions, what), getattr(runs[0].solutions, what), err_msg=what
+            )
+        for a, b in zip(res.solutions.delta, runs[0].solutions.delta, strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(res.error, runs[0].error)
+        assert res.stats == runs[0].stats
+
+
 @pytest.mark.parametrize("name", ["A", "B"])
 def test_tank_models_match_cvxpy_on_a_spread_of_bins(name: str) -> None:
     """Against the cvxpy path on 40 bins: the strongest, the weakest excited, unexcited ones."""

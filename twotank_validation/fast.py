@@ -1789,6 +1789,7 @@ def solve_fast(
     max_iter: int = 60,
     fallback: bool = True,
     compiled: bool = True,
+    threads: int | None = None,
 ) -> FastSolutions:
     """Problem 3 at every bin of a window, batched (same outputs as :func:`solvers.solve_sdp`).
 
@@ -1806,6 +1807,8 @@ def solve_fast(
         fallback: hand unsettled bins to :func:`solvers.solve_sdp` (else they keep the
             batched answer, marked uncertified).
         compiled: use the compiled kernel where it applies (``False``: numpy only).
+        threads: threads the kernel shares the bins among (default
+            :data:`fastkernel.THREADS`; the result does not depend on it).
 
     Returns:
         Solutions (``method = "fast"``) and statistics (bins per route, fallbacks).
@@ -1819,7 +1822,9 @@ def solve_fast(
     u_scale = float(np.sqrt(np.max(_sq(u).sum(axis=1)))) if nb else 0.0
     coupled = bool(np.any(resp.p[:, :nz, :nx]))  # z depends on v or w somewhere
     if compiled and nb and fastkernel.applicable(blocks, resp.nw, resp.ny, coupled=coupled):
-        return _solve_compiled(resp, u, y, u_scale=u_scale, max_iter=max_iter, fallback=fallback)
+        return _solve_compiled(
+            resp, u, y, u_scale=u_scale, max_iter=max_iter, fallback=fallback, threads=threads
+        )
     return _solve_batched(
         resp, u, y, u_scale=u_scale, coupled=coupled, max_iter=max_iter, fallback=fallback
     )
@@ -1833,12 +1838,20 @@ def _solve_compiled(
     u_scale: float,
     max_iter: int,
     fallback: bool,
+    threads: int | None,
 ) -> FastSolutions:
     """The compiled kernel on every bin, the batched numpy path on the bins it defers."""
     blocks = resp.blocks
     nb = u.shape[0]
     out = fastkernel.solve_window(
-        resp.p, u, y, u_scale=u_scale, blocks=blocks, nw=resp.nw, max_iter=max_iter
+        resp.p,
+        u,
+        y,
+        u_scale=u_scale,
+        blocks=blocks,
+        nw=resp.nw,
+        max_iter=max_iter,
+        threads=threads,
     )
     done = out.status == fastkernel.DONE
     lower = np.minimum(out.lower, out.upper)

@@ -34,8 +34,13 @@ registers and small work buffers allocated once per call.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import itertools
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
@@ -100,18 +105,18 @@ _STARTS = np.array(_STARTS_NATURAL + _STARTS_SCALED)
 _N_NATURAL = len(_STARTS_NATURAL)
 
 
-@_inline
+@_jit
 def _abs2(x: complex) -> float:
     return x.real * x.real + x.imag * x.imag
 
 
-@_inline
+@_jit
 def _scale(x: complex, f: float) -> complex:
     """``x * f`` for a real ``f`` (numba would multiply, or divide, as complex numbers)."""
     return complex(x.real * f, x.imag * f)
 
 
-@_inline
+@_jit
 def _cholesky(h: Any, scale: Any, low: Any, diag: Any) -> bool:
     """``h = L L^H`` (lower triangle of ``h`` read); False where a pivot is round-off.
 
@@ -135,7 +140,7 @@ def _cholesky(h: Any, scale: Any, low: Any, diag: Any) -> bool:
     return True
 
 
-@_inline
+@_jit
 def _chol_solve(low: Any, diag: Any, b: Any, x: Any) -> None:
     """Solve ``L L^H x = b`` (``x`` and ``b`` may not alias)."""
     k = diag.shape[0]
@@ -197,7 +202,7 @@ def _frobenius_cond(a: Any, inv: Any) -> float:
     return math.sqrt(sa * si)
 
 
-@_inline
+@_jit
 def _solve_real(a: Any, b: Any, free: Any, x: Any, work: Any, idx: Any) -> bool:
     """``a[F, F] x[F] = b[F]`` on the free indices (``x = 0`` elsewhere); False if singular.
 
@@ -243,7 +248,7 @@ def _solve_real(a: Any, b: Any, free: Any, x: Any, work: Any, idx: Any) -> bool:
     return True
 
 
-@_inline
+@_jit
 def _evaluate(
     d: Any,
     gram: Any,
@@ -294,246 +299,8 @@ def _evaluate(
     return math.isfinite(phi), phi
 
 
-@_jit
-def _ascent(
-    gram: Any,
-    gdiag: Any,
-    b: Any,
-    pm: Any,
-    w0: Any,
-    c: Any,
-    vst: Any,
-    vsp: Any,
-    active: Any,
-    dscale: Any,
-    unit: float,
-    max_iter: int,
-    d: Any,
-    t: Any,
-    nv2: Any,
-    h: Any,
-    sc: Any,
-    low: Any,
-    diag: Any,
-    tn: Any,
-    nv2n: Any,
-    lown: Any,
-    diagn: Any,
-    cand: Any,
-    best_d: Any,
-    rhs: Any,
-    ys: Any,
-    dnv2: Any,
-    amat: Any,
-    real_work: Any,
-    idx: Any,
-    free: Any,
-    red: Any,
-    slack: Any,
-    sec: Any,
-    newton: Any,
-    step: Any,
-) -> tuple[bool, float, int, float]:
-    """Maximise the dual of one bin (the rules of ``fast._dual_ascent``).
-
-    On return ``d``, ``t``, ``low``/``diag`` hold the final point. Returns ``(ok, phi,
-    iterations, cond)`` (``cond``: smallest over largest squared Cholesky pivot).
-    """
-    k = gram.shape[0]
-    m = c.shape[0]
-    for i in range(m):
-        d[i] = 0.0
-    ok, phi = _evaluate(d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2)
-    found = ok
-    if not found:  # starts, as fast._starts: uniform, one block, all but one; then scaled
-        n_sub = 1 + (m if m > 1 else 0) + (m if m > 2 else 0)
-        for sub in range(n_sub + 1):
-            lo_s, hi_s = (0, _N_NATURAL) if sub < n_sub else (_N_NATURAL, _STARTS.size)
-            for si in range(lo_s, hi_s):
-                cs = _STARTS[si]
-                for i in range(m):
-                    if sub == n_sub:
-                        on = active[i]
-                        d[i] = cs if on else 0.0
-                        continue
-                    if sub == 0:
-                        on = True
-                    elif sub <= m:
-                        on = i == sub - 1
-                    else:
-                        on = i != sub - 1 - m
-                    d[i] = cs * dscale[i] if on else 0.0
-                ok, phi = _evaluate(
-                    d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2
-                )
-                if ok:
-                    found = True
-                    break
-            if found:
-                break
-    if not found:
-        return False, 0.0, 0, 0.0
-    flat = 0
-    iterations = 0
-    done_ok = False
-    for it in range(max_iter + 1):
-        any_free = False
-        feasible = True
-        gap = 0.0
-        for i in range(m):
-            slack[i] = c[i] - nv2[i]
-            free[i] = active[i] and (d[i] > 0.0 or slack[i] < 0.0)
-            any_free = any_free or free[i]
-            if active[i] and slack[i] < -1e-12 * (c[i] + nv2[i]):
-                feasible = False
-            gap += d[i] * abs(slack[i])
-        runaway = phi > _PHI_RUNAWAY * unit
-        settled = (feasible and gap <= 1e-12 * abs(phi) + 1e-15 * unit) or not any_free
-        if settled or flat >= _FLAT_ITERATIONS or runaway:
-            done_ok = not runaway
-            break
-        if it == max_iter:
-            break
-        iterations = it + 1
-        # derivatives: y_j = H^-1 (t restricted to block j) = -d t / d d_j
-        for j in range(m):
-            if not free[j]:
-                continue
-            for p in range(k):
-                rhs[p] = 0.0
-            for p in range(vst[j], vsp[j]):
-                rhs[p] = t[p]
-            _chol_solve(low, diag, rhs, ys[j])
-        for i in range(m):
-            for j in range(m):
-                if not (free[i] and free[j]):
-                    dnv2[i, j] = 0.0
-                    continue
-                acc = 0.0
-                for p in range(vst[i], vsp[i]):
-                    acc += (t[p].conjugate() * ys[j][p]).real
-                dnv2[i, j] = -2.0 * acc  # d ||t_i||^2 / d d_j
-        # secular Newton on 1/||t_i|| - 1/sqrt(c_i) = 0 (free blocks)
-        sec_ok = True
-        for i in range(m):
-            if free[i] and not (nv2[i] > 1e-200 and c[i] > 1e-200):
-                sec_ok = False
-        if sec_ok:
-            for i in range(m):
-                iv = 1.0 / math.sqrt(nv2[i]) if free[i] else 0.0
-                for j in range(m):
-                    amat[i, j] = -0.5 * iv * iv * iv * dnv2[i, j]
-                cand[i] = (1.0 / math.sqrt(c[i]) - iv) if free[i] else 0.0
-            sec_ok = _solve_real(amat, cand, free, sec, real_work, idx)
-        if sec_ok:
-            ascent = 0.0
-            for i in range(m):
-                ascent += -slack[i] * (max(d[i] + sec[i], 0.0) - d[i])
-            sec_ok = ascent > 0.0
-        # projected Newton: (-Hessian) step = gradient on the free set
-        for i in range(m):
-            cand[i] = -slack[i]
-            for j in range(m):
-                amat[i, j] = -dnv2[i, j]
-        if not _solve_real(amat, cand, free, newton, real_work, idx):
-            for i in range(m):
-                newton[i] = 0.0
-        phi_before = phi
-        floor = phi - 1e-15 * (unit + abs(phi))
-        best_phi = -math.inf
-        compare = it > 0
-        # candidates: 0 secular, 1 Newton, 2 Cauchy, 3 floored Newton (with compare)
-        n_cand = 4 if compare else 3
-        for which in range(n_cand):
-            if which == 0:
-                if not sec_ok:
-                    continue
-                for i in range(m):
-                    cand[i] = max(d[i] + sec[i], 0.0)
-            elif which == 1:
-                if not compare and best_phi > -math.inf:
-                    break  # the secular step was accepted
-                for i in range(m):
-                    cand[i] = max(d[i] + newton[i], 0.0)
-            elif which == 2:
-                curv = 0.0
-                gg = 0.0
-                for i in range(m):
-                    gi = -slack[i] if free[i] else 0.0
-                    gg += gi * gi
-                    for j in range(m):
-                        gj = -slack[j] if free[j] else 0.0
-                        curv += gi * (-dnv2[i, j]) * gj
-                length = gg / curv if curv > 0.0 else 0.0
-                for i in range(m):
-                    gi = -slack[i] if free[i] else 0.0
-                    cand[i] = max(d[i] + length * gi, 0.0)
-            else:
-                for i in range(m):
-                    cand[i] = max(d[i] + newton[i], 1e-4 * d[i])
-            okc, phic = _evaluate(
-                cand, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, lown, diagn, tn, nv2n
-            )
-            if okc and phic >= floor and phic > best_phi:
-                best_phi = phic
-                for i in range(m):
-                    best_d[i] = cand[i]
-        if best_phi == -math.inf:  # reduced step, floored step, ratio test and halvings
-            alpha = 1.0
-            for i in range(m):
-                if newton[i] < 0.0 and d[i] > 0.0:
-                    alpha = min(alpha, 0.9 * d[i] / -newton[i])
-            for trial in range(_BACKTRACKS):
-                if trial == 0:  # what the full step sends below 0 held at 0
-                    for i in range(m):
-                        hit = (d[i] + newton[i] < 0.0) and d[i] > 0.0
-                        red[i] = free[i] and not hit
-                        sec[i] = -d[i] if hit else 0.0  # the move of the held ones
-                    for i in range(m):
-                        acc = -slack[i]
-                        for j in range(m):
-                            acc += dnv2[i, j] * sec[j]
-                            amat[i, j] = -dnv2[i, j]
-                        cand[i] = acc
-                    if not _solve_real(amat, cand, red, step, real_work, idx):
-                        for i in range(m):
-                            step[i] = 0.0
-                    for i in range(m):
-                        cand[i] = max(d[i] + (step[i] if red[i] else sec[i]), 0.0)
-                elif trial == 1:
-                    for i in range(m):
-                        cand[i] = max(d[i] + newton[i], 1e-4 * d[i])
-                else:
-                    for i in range(m):
-                        cand[i] = max(d[i] + alpha * newton[i], 0.0)
-                    alpha *= 0.5
-                okc, phic = _evaluate(
-                    cand, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, lown, diagn, tn, nv2n
-                )
-                if okc and phic >= floor:
-                    best_phi = phic
-                    for i in range(m):
-                        best_d[i] = cand[i]
-                    break
-        if best_phi == -math.inf:  # stalled: no ascent left, the witness judges
-            done_ok = True
-            break
-        for i in range(m):
-            d[i] = best_d[i]
-        ok, phi = _evaluate(d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2)
-        if not ok:  # cannot happen (the same point was accepted); be safe
-            return False, 0.0, iterations, 0.0
-        gain = phi - phi_before
-        flat = flat + 1 if gain <= 1e-14 * (unit + abs(phi_before)) else 0
-    if not done_ok:
-        return False, phi, iterations, 0.0
-    lo = math.inf
-    hi = 0.0
-    for p in range(k):
-        q = diag[p] * diag[p]
-        lo = min(lo, q)
-        hi = max(hi, q)
-    return True, phi, iterations, lo / max(hi, _TINY)
+# The dual ascent of one bin (the rules of fast._dual_ascent) is written out inside
+# solve_bins' loop: a call passing its ~40 work buffers cost more than the ascent itself.
 
 
 @_jit
@@ -765,11 +532,226 @@ def solve_bins(
         for blk in range(m):
             dscale[blk] = mean_g if active[blk] else 0.0
         unit = max(wn2, _TINY)
-        ok, phi, its, cond = _ascent(
-            gram, gdiag, b, pm, w0, c, vst, vsp, active, dscale, unit, max_iter,
-            d, t, nv2, h, sc, low, diag, tn, nv2n, lown, diagn, cand, best_d, rhs, ys,
-            dnv2, amat, real_work, idx, free, red, slack, sec, newton, step,
-        )  # fmt: skip
+        # ---- dual ascent (as fast._dual_ascent): on exit d, t, nv2, low, diag hold the
+        # final point, ok_a says whether it is usable, its the Newton iterations
+        ok_a = False
+        phi = 0.0
+        its = 0
+        cond = 0.0
+        for _once in range(1):
+            for i in range(m):
+                d[i] = 0.0
+            ok, phi = _evaluate(d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2)
+            found = ok
+            if not found:  # starts, as fast._starts: uniform, one block, all but one; then scaled
+                n_sub = 1 + (m if m > 1 else 0) + (m if m > 2 else 0)
+                for sub in range(n_sub + 1):
+                    lo_s, hi_s = (0, _N_NATURAL) if sub < n_sub else (_N_NATURAL, _STARTS.size)
+                    for si in range(lo_s, hi_s):
+                        cs = _STARTS[si]
+                        for i in range(m):
+                            if sub == n_sub:
+                                on = active[i]
+                                d[i] = cs if on else 0.0
+                                continue
+                            if sub == 0:
+                                on = True
+                            elif sub <= m:
+                                on = i == sub - 1
+                            else:
+                                on = i != sub - 1 - m
+                            d[i] = cs * dscale[i] if on else 0.0
+                        ok, phi = _evaluate(
+                            d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2
+                        )
+                        if ok:
+                            found = True
+                            break
+                    if found:
+                        break
+            if not found:
+                ok_a, phi, its, cond = False, 0.0, 0, 0.0
+                break
+            flat = 0
+            iterations = 0
+            done_ok = False
+            for it in range(max_iter + 1):
+                any_free = False
+                feasible = True
+                gap = 0.0
+                for i in range(m):
+                    slack[i] = c[i] - nv2[i]
+                    free[i] = active[i] and (d[i] > 0.0 or slack[i] < 0.0)
+                    any_free = any_free or free[i]
+                    if active[i] and slack[i] < -1e-12 * (c[i] + nv2[i]):
+                        feasible = False
+                    gap += d[i] * abs(slack[i])
+                runaway = phi > _PHI_RUNAWAY * unit
+                settled = (feasible and gap <= 1e-12 * abs(phi) + 1e-15 * unit) or not any_free
+                if settled or flat >= _FLAT_ITERATIONS or runaway:
+                    done_ok = not runaway
+                    break
+                if it == max_iter:
+                    break
+                iterations = it + 1
+                # derivatives: y_j = H^-1 (t restricted to block j) = -d t / d d_j
+                for j in range(m):
+                    if not free[j]:
+                        continue
+                    for pp in range(k):
+                        rhs[pp] = 0.0
+                    for pp in range(vst[j], vsp[j]):
+                        rhs[pp] = t[pp]
+                    _chol_solve(low, diag, rhs, ys[j])
+                for i in range(m):
+                    for j in range(m):
+                        if not (free[i] and free[j]):
+                            dnv2[i, j] = 0.0
+                            continue
+                        racc = 0.0
+                        for pp in range(vst[i], vsp[i]):
+                            racc += (t[pp].conjugate() * ys[j][pp]).real
+                        dnv2[i, j] = -2.0 * racc  # d ||t_i||^2 / d d_j
+                # secular Newton on 1/||t_i|| - 1/sqrt(c_i) = 0 (free blocks)
+                sec_ok = True
+                for i in range(m):
+                    if free[i] and not (nv2[i] > 1e-200 and c[i] > 1e-200):
+                        sec_ok = False
+                if sec_ok:
+                    for i in range(m):
+                        iv = 1.0 / math.sqrt(nv2[i]) if free[i] else 0.0
+                        for j in range(m):
+                            amat[i, j] = -0.5 * iv * iv * iv * dnv2[i, j]
+                        cand[i] = (1.0 / math.sqrt(c[i]) - iv) if free[i] else 0.0
+                    sec_ok = _solve_real(amat, cand, free, sec, real_work, idx)
+                if sec_ok:
+                    ascent = 0.0
+                    for i in range(m):
+                        ascent += -slack[i] * (max(d[i] + sec[i], 0.0) - d[i])
+                    sec_ok = ascent > 0.0
+                # projected Newton: (-Hessian) step = gradient on the free set
+                for i in range(m):
+                    cand[i] = -slack[i]
+                    for j in range(m):
+                        amat[i, j] = -dnv2[i, j]
+                if not _solve_real(amat, cand, free, newton, real_work, idx):
+                    for i in range(m):
+                        newton[i] = 0.0
+                phi_before = phi
+                floor = phi - 1e-15 * (unit + abs(phi))
+                best_phi = -math.inf
+                last_best = False
+                compare = it > 0
+                # candidates: 0 secular, 1 Newton, 2 Cauchy, 3 floored Newton (with compare)
+                n_cand = 4 if compare else 3
+                for which in range(n_cand):
+                    if which == 0:
+                        if not sec_ok:
+                            continue
+                        for i in range(m):
+                            cand[i] = max(d[i] + sec[i], 0.0)
+                    elif which == 1:
+                        if not compare and best_phi > -math.inf:
+                            break  # the secular step was accepted
+                        for i in range(m):
+                            cand[i] = max(d[i] + newton[i], 0.0)
+                    elif which == 2:
+                        curv = 0.0
+                        gg = 0.0
+                        for i in range(m):
+                            gi = -slack[i] if free[i] else 0.0
+                            gg += gi * gi
+                            for j in range(m):
+                                gj = -slack[j] if free[j] else 0.0
+                                curv += gi * (-dnv2[i, j]) * gj
+                        length = gg / curv if curv > 0.0 else 0.0
+                        for i in range(m):
+                            gi = -slack[i] if free[i] else 0.0
+                            cand[i] = max(d[i] + length * gi, 0.0)
+                    else:
+                        for i in range(m):
+                            cand[i] = max(d[i] + newton[i], 1e-4 * d[i])
+                    okc, phic = _evaluate(
+                        cand, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, lown, diagn, tn, nv2n
+                    )
+                    last_best = okc and phic >= floor and phic > best_phi
+                    if last_best:
+                        best_phi = phic
+                        for i in range(m):
+                            best_d[i] = cand[i]
+                if best_phi == -math.inf:  # reduced step, floored step, ratio test and halvings
+                    alpha = 1.0
+                    for i in range(m):
+                        if newton[i] < 0.0 and d[i] > 0.0:
+                            alpha = min(alpha, 0.9 * d[i] / -newton[i])
+                    for trial in range(_BACKTRACKS):
+                        if trial == 0:  # what the full step sends below 0 held at 0
+                            for i in range(m):
+                                hit = (d[i] + newton[i] < 0.0) and d[i] > 0.0
+                                red[i] = free[i] and not hit
+                                sec[i] = -d[i] if hit else 0.0  # the move of the held ones
+                            for i in range(m):
+                                racc = -slack[i]
+                                for j in range(m):
+                                    racc += dnv2[i, j] * sec[j]
+                                    amat[i, j] = -dnv2[i, j]
+                                cand[i] = racc
+                            if not _solve_real(amat, cand, red, step, real_work, idx):
+                                for i in range(m):
+                                    step[i] = 0.0
+                            for i in range(m):
+                                cand[i] = max(d[i] + (step[i] if red[i] else sec[i]), 0.0)
+                        elif trial == 1:
+                            for i in range(m):
+                                cand[i] = max(d[i] + newton[i], 1e-4 * d[i])
+                        else:
+                            for i in range(m):
+                                cand[i] = max(d[i] + alpha * newton[i], 0.0)
+                            alpha *= 0.5
+                        okc, phic = _evaluate(
+                            cand, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, lown, diagn, tn, nv2n
+                        )
+                        last_best = okc and phic >= floor
+                        if last_best:
+                            best_phi = phic
+                            for i in range(m):
+                                best_d[i] = cand[i]
+                            break
+                if best_phi == -math.inf:  # stalled: no ascent left, the witness judges
+                    done_ok = True
+                    break
+                for i in range(m):
+                    d[i] = best_d[i]
+                if last_best:  # the last point evaluated: take its state
+                    phi = best_phi
+                    for pp in range(k):
+                        t[pp] = tn[pp]
+                        diag[pp] = diagn[pp]
+                        for q in range(pp):
+                            low[pp, q] = lown[pp, q]
+                    for i in range(m):
+                        nv2[i] = nv2n[i]
+                else:
+                    ok, phi = _evaluate(
+                        d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2
+                    )
+                    if not ok:  # cannot happen (the same point was accepted); be safe
+                        ok_a, phi, its, cond = False, 0.0, iterations, 0.0
+                        break
+                gain = phi - phi_before
+                flat = flat + 1 if gain <= 1e-14 * (unit + abs(phi_before)) else 0
+            if not done_ok:
+                ok_a, its, cond = False, iterations, 0.0
+                break
+            lo = math.inf
+            hi = 0.0
+            for pp in range(k):
+                q = diag[pp] * diag[pp]
+                lo = min(lo, q)
+                hi = max(hi, q)
+            ok_a, its, cond = True, iterations, lo / max(hi, _TINY)
+
+        ok = ok_a
         if not ok:
             continue
         # witness: Delta_i = v_i z_i^H / ||z_i||^2 clipped to norm 1, w = w0 - P Delta z
@@ -854,8 +836,13 @@ def solve_window(
     blocks: BlockStructure,
     nw: int,
     max_iter: int,
+    threads: int | None = None,
 ) -> KernelOutput:
     """Run the kernel on every bin of a window.
+
+    The bins are independent: a window of at least ``2 * MIN_CHUNK`` bins is cut into
+    contiguous chunks run at once in ``threads`` threads (the kernel releases the GIL); the
+    result does not depend on the cut.
 
     Args:
         p: (n, nz + ny, nv + nw + nu) complex, P at the bins (:func:`applicable` holds).
@@ -865,6 +852,7 @@ def solve_window(
         blocks: block structure.
         nw: noise dimension.
         max_iter: Newton iterations at most.
+        threads: threads to use (default :data:`THREADS`).
     """
     n = p.shape[0]
     nz, nv = blocks.nz, blocks.nv
@@ -873,20 +861,74 @@ def solve_window(
     vsp = np.array([s.stop for s in blocks.v_slices], dtype=np.int64)
     zst = np.array([s.start for s in blocks.z_slices], dtype=np.int64)
     zsp = np.array([s.stop for s in blocks.z_slices], dtype=np.int64)
-    lower = np.empty(n)
-    upper = np.empty(n)
-    w = np.empty((n, nw), dtype=complex)
-    v = np.empty((n, nv), dtype=complex)
-    dmat = np.empty((n, nv, nz), dtype=complex)
-    z = np.empty((n, nz), dtype=complex)
-    r = np.empty((n, ny), dtype=complex)
-    status = np.empty(n, dtype=np.int8)
-    kind = np.empty(n, dtype=np.int8)
-    iterations = solve_bins(
-        np.ascontiguousarray(p, dtype=complex),
-        np.ascontiguousarray(u, dtype=complex),
-        np.ascontiguousarray(y, dtype=complex),
-        float(u_scale), nz, nv, nw, vst, vsp, zst, zsp, int(max_iter),
-        lower, upper, w, v, dmat, z, r, status, kind,
-    )  # fmt: skip
-    return KernelOutput(lower, upper, w, v, z, dmat, r, status, kind, int(iterations))
+    p = np.ascontiguousarray(p, dtype=complex)
+    u = np.ascontiguousarray(u, dtype=complex)
+    y = np.ascontiguousarray(y, dtype=complex)
+    out = KernelOutput(
+        lower=np.empty(n),
+        upper=np.empty(n),
+        w=np.empty((n, nw), dtype=complex),
+        v=np.empty((n, nv), dtype=complex),
+        z=np.empty((n, nz), dtype=complex),
+        dmat=np.empty((n, nv, nz), dtype=complex),
+        r=np.empty((n, ny), dtype=complex),
+        status=np.empty(n, dtype=np.int8),
+        kind=np.empty(n, dtype=np.int8),
+        iterations=0,
+    )
+
+    def run(a: int, b: int) -> int:
+        return int(
+            solve_bins(
+                p[a:b],
+                u[a:b],
+                y[a:b],
+                float(u_scale),
+                nz,
+                nv,
+                nw,
+                vst,
+                vsp,
+                zst,
+                zsp,
+                int(max_iter),
+                out.lower[a:b],
+                out.upper[a:b],
+                out.w[a:b],
+                out.v[a:b],
+                out.dmat[a:b],
+                out.z[a:b],
+                out.r[a:b],
+                out.status[a:b],
+                out.kind[a:b],
+            )
+        )
+
+    n_chunks = max(1, min(threads or THREADS, n // MIN_CHUNK))
+    cuts = [round(i * n / n_chunks) for i in range(n_chunks + 1)]
+    if n_chunks == 1:
+        iterations = run(0, n)
+    else:
+        pending = [_pool().submit(run, a, b) for a, b in itertools.pairwise(cuts[1:])]
+        iterations = max([run(cuts[0], cuts[1]), *(f.result() for f in pending)])
+    return dataclasses.replace(out, iterations=iterations)
+
+
+def _default_threads() -> int:
+    env = os.environ.get("TWOTANK_FAST_THREADS", "")
+    if env.strip():
+        return max(1, int(env))
+    return max(1, min(4, len(os.sched_getaffinity(0))))
+
+
+THREADS = _default_threads()
+"""Threads a window's bins are shared among: the CPUs this process may use, at most 4
+(``TWOTANK_FAST_THREADS`` overrides; 1 runs everything in the calling thread)."""
+MIN_CHUNK = 256
+"""Fewest bins worth a thread of their own."""
+
+
+@functools.cache
+def _pool() -> ThreadPoolExecutor:
+    """The worker threads, started at first use (``THREADS - 1``: the caller runs a chunk)."""
+    return ThreadPoolExecutor(max(1, THREADS - 1), thread_name_prefix="twotank-fast")
