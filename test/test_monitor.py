@@ -183,6 +183,29 @@ def test_monitor_equals_offline_validation_bit_for_bit() -> None:
     np.testing.assert_array_equal(last.w_min, res.w_min)
 
 
+def test_monitor_with_the_fast_path_agrees_with_the_closed_form() -> None:
+    """method="fast" in the monitor: the same verdicts, beta to 1e-9 of the closed form's,
+    and the certified bounds reported (the closed form leaves them NaN)."""
+    import dataclasses  # noqa: PLC0415
+
+    stamps, u, y = rig_record()
+    auto = monitor.monitor_record(stamps, u, y, FAST, models())
+    fast_cfg = dataclasses.replace(FAST, method="fast")
+    quick = monitor.monitor_record(stamps, u, y, fast_cfg, models())
+    assert [(r.model, r.judged, r.invalidated) for r in quick] == [
+        (r.model, r.judged, r.invalidated) for r in auto
+    ]
+    for a, f in zip(auto, quick, strict=True):
+        if not a.judged:
+            continue
+        assert a.solver == "closed_form"
+        assert f.solver == "fast"
+        assert f.beta == pytest.approx(a.beta, rel=1e-9)
+        assert math.isnan(a.beta_lower)
+        assert f.beta_lower == f.beta
+        assert f.beta_upper == pytest.approx(f.beta, rel=1e-9)
+
+
 @settings(max_examples=5)
 @given(seed=st.integers(0, 2**16))
 def test_aligner_path_equals_direct_path_under_shuffled_arrival(seed: int) -> None:

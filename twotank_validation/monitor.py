@@ -638,7 +638,10 @@ class MonitorConfig:
                 self.input_periodic_rtol >= 0,
                 f"input_periodic_rtol must be >= 0, found {self.input_periodic_rtol}",
             ),
-            (self.method in ("auto", "closed_form", "sdp"), f"unknown method {self.method!r}"),
+            (
+                self.method in ("auto", "closed_form", "fast", "sdp"),
+                f"unknown method {self.method!r}",
+            ),
         ]
         for ok, msg in checks:
             if not ok:
@@ -897,7 +900,7 @@ class WindowMonitor:
                 beta=res.beta,
             )
             self.alarms[model.name] = state
-            general = res.method == "sdp"
+            general = res.method in ("sdp", "fast")  # certified lower bound and a witness
             reports.append(
                 WindowReport(
                     model=model.name,

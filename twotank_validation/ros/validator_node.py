@@ -81,7 +81,10 @@ VALIDATOR_PARAMS = (
         choices=("power", "energy"),
     ),
     Param(
-        "method", "auto", "solver: auto, closed_form or sdp", choices=("auto", "closed_form", "sdp")
+        "method",
+        "auto",
+        "solver: auto, closed_form, fast or sdp",
+        choices=("auto", "closed_form", "fast", "sdp"),
     ),
     Param("alarm_windows", 2, "consecutive invalidating windows that raise ERROR", 1, 1000),
     Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),
