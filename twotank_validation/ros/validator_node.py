@@ -13,9 +13,9 @@ monitor and the validation, and publishes. Topics (node-relative, remappable):
 
 ``/diagnostics`` is STALE (saying why) while a stream is stopped or a topic has a publisher of
 the wrong type, and from the moment input arrives that makes the coming windows unfit to judge
-(non-finite or implausible values, off-grid stamps, gaps, clock jumps, a stream stopping) until
-a window after it is judged; otherwise it carries the last window's level (published once all
-models' reports of a window are out).
+(non-finite or implausible values, off-grid stamps, gaps, clock jumps, a stream stopping, a run
+of stale stamps) until a window after it is judged; otherwise it carries the last window's
+level (published once all models' reports of a window are out).
 """
 
 from __future__ import annotations
@@ -222,6 +222,8 @@ class ValidatorNode(Node):
         self._queue: queue.Queue[tuple[str, int, Any, float] | None] = queue.Queue()
         self._lock = threading.Lock()
         self._last_rx: dict[str, int | None] = dict.fromkeys(_STREAMS)
+        self._late_run = 0  # out-of-order messages since the core last completed a sample
+        self._late = 0
         self.received: dict[str, int] = dict.fromkeys(_STREAMS, 0)
         # per model: level, text and the last report; replaced whole (never updated in place)
         # once every model's report of a window is out, so the watchdog sees one window
@@ -352,7 +354,17 @@ class ValidatorNode(Node):
                     for name, (_, _, rep) in self._status.items()
                 }
                 continue
+            late = self.aligner.counters.out_of_order
             self._note_faults(seen)
+            if self.core.samples_seen != seen:
+                self._late_run = 0
+            elif late != self._late:
+                # messages that complete no sample, stamped before the last one (a stale
+                # source): one is harmless (a repeat), a run of them means the data stopped
+                self._late_run += 1
+                if self._late_run >= 3 * len(_STREAMS):
+                    self._note_faults(seen, "stale or out-of-order stamps")
+            self._late = late
             if reports:
                 # a judged window that starts after the fault (its first sample comes after
                 # the event that showed it; bounded below from this event's count) clears it
