@@ -298,7 +298,7 @@ def test_random_three_blocks_lower_bound_matches_cvxpy(
     check_solution(resp, u, y, res.solutions)
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=12, deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),
     shapes=st.sampled_from(
