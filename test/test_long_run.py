@@ -2,8 +2,8 @@
 
 The checker (``twotank_validation.ros.longrun``) is first fed made-up report timelines with a
 dropped window, a duplicate, an alarm that never clears and a false alarm, each of which it
-must flag. Then a short live run (24 periods, 1.37 simulated hours, at Ts 0.8 s / 256-sample
-periods, two faults coming and going) is judged by the same code as the 24-hour bench, and by direct
+must flag. Then a short live run (14 periods, 0.8 simulated hours, at Ts 0.8 s / 256-sample
+periods, a fault coming and going) is judged by the same code as the 24-hour bench, and by direct
 assertions whose references are computed here from the sample count, the window settings
 and the injected onsets and ends.
 """
@@ -176,14 +176,12 @@ def test_schedule_puts_faults_mid_period_with_nominal_gaps() -> None:
 
 # ------------------------------------------------------------------------------ live run
 
-HOURS = 1.37  # 6165 samples: 24 periods and a bit
-# mid-period, 3 periods each; two judged nominal windows before the first, the second when
-# the alarm must be clear again (from the 3rd window starting >= 2 periods after the end)
-ON_OFF = [(4.5 * P, 7.5 * P), (14.5 * P, 17.5 * P)]
-FAULTS = (
-    f"valve_weak:cold=0.6@{ON_OFF[0][0]:.1f}-{ON_OFF[0][1]:.1f}",
-    f"sensor_bias:height=0.1@{ON_OFF[1][0]:.1f}-{ON_OFF[1][1]:.1f}",
-)
+HOURS = 0.8  # 3600 samples: 14 periods and a bit
+# mid-period, 3 periods; two judged nominal windows before it; the run ends with the 3rd
+# window starting >= 2 periods after its end (when the alarm must be clear again). The
+# 24-hour bench runs eight faults one after another; this keeps the test short.
+ON_OFF = [(4.5 * P, 7.5 * P)]
+FAULTS = (f"valve_weak:cold=0.6@{ON_OFF[0][0]:.1f}-{ON_OFF[0][1]:.1f}",)
 
 
 @pytest.fixture(scope="module")
@@ -198,18 +196,18 @@ def run() -> tuple[lr.LongRunConfig, lr.LongRunResult]:
 @pytest.mark.slow
 def test_short_live_run_passes_the_bench_checks(run) -> None:
     cfg, res = run
-    ev = lr.evaluate(cfg, res, rule=lr.TimelineRule(settle_s=2 * P), tol=lr.FlatTolerance(0.5))
+    ev = lr.evaluate(cfg, res, rule=lr.TimelineRule(settle_s=2 * P), tol=lr.FlatTolerance(0.25))
     # memory: too short a run for a slope to mean anything (the bench judges 24 hours)
     failed = [c for c in ev.checks if not c.ok and not c.name.startswith("memory")]
     assert not failed, failed
-    assert [s.hour for s in res.hours] == pytest.approx([0.0, 0.25, 0.5, 0.75, 1.0, 1.25, HOURS])
+    assert [s.hour for s in res.hours] == pytest.approx([0.0, 0.25, 0.5, 0.75, HOURS])
 
 
 @pytest.mark.slow
 def test_short_live_run_reports_every_window_once(run) -> None:
     _, res = run
-    n_samples = round(HOURS * 3600 / TS)  # 6165
-    n_windows = n_samples // PERIOD - 1  # windows end at periods 2 .. 24
+    n_samples = round(HOURS * 3600 / TS)  # 3600
+    n_windows = n_samples // PERIOD - 1  # windows end at periods 2 .. 14
     assert res.n_samples == n_samples
     for model in ("A", "B"):
         mine = [r for r in res.dds_recs if r.model == model]
