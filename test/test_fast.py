@@ -232,6 +232,22 @@ def test_kernel_threads_share_the_bins_without_changing_a_bit() -> None:
         assert res.stats == runs[0].stats
 
 
+def test_kernel_threads_work_in_a_forked_child() -> None:
+    """A child forked after the parent used the thread pool starts one of its own (no hang)."""
+    import multiprocessing as mp  # noqa: PLC0415
+
+    datum = tank_datum()
+    resp = load_model("B").response(datum.theta, datum.ts_s)
+    want = fast.solve_fast(resp, datum.u_bins, datum.y_bins, threads=2).solutions.lower
+    with mp.get_context("fork").Pool(1) as pool:
+        got = pool.apply_async(_child_lower, (resp, datum.u_bins, datum.y_bins)).get(timeout=120)
+    np.testing.assert_array_equal(got, want)
+
+
+def _child_lower(resp: PlantResponse, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return fast.solve_fast(resp, u, y, threads=2).solutions.lower
+
+
 @pytest.mark.parametrize("name", ["A", "B"])
 def test_tank_models_match_cvxpy_on_a_spread_of_bins(name: str) -> None:
     """Against the cvxpy path on 40 bins: the strongest, the weakest excited, unexcited ones."""

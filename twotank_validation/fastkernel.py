@@ -932,3 +932,7 @@ MIN_CHUNK = 256
 def _pool() -> ThreadPoolExecutor:
     """The worker threads, started at first use (``THREADS - 1``: the caller runs a chunk)."""
     return ThreadPoolExecutor(max(1, THREADS - 1), thread_name_prefix="twotank-fast")
+
+
+# a forked child has none of the parent's threads: it starts a pool of its own
+os.register_at_fork(after_in_child=_pool.cache_clear)
