@@ -249,6 +249,25 @@ def _solve_real(a: Any, b: Any, free: Any, x: Any, work: Any, idx: Any) -> bool:
 
 
 @_jit
+def _newton_step(
+    dnv2: Any, slack: Any, free: Any, newton: Any, amat: Any, rhs: Any, work: Any, idx: Any
+) -> None:
+    """The projected Newton step on the free multipliers (0 where it is singular).
+
+    ``-H_FF step_F = g_F`` with ``H = dnv2`` (``d ||t_i||^2 / d d_j``) and gradient
+    ``g = -slack``; ``rhs``, ``amat``, ``work`` and ``idx`` are scratch.
+    """
+    m = slack.shape[0]
+    for i in range(m):
+        rhs[i] = -slack[i]
+        for j in range(m):
+            amat[i, j] = -dnv2[i, j]
+    if not _solve_real(amat, rhs, free, newton, work, idx):
+        for i in range(m):
+            newton[i] = 0.0
+
+
+@_jit
 def _evaluate(
     d: Any,
     gram: Any,
@@ -474,10 +493,22 @@ def solve_bins(
         for i in range(nw):
             for j in range(nw):
                 p22[i, j] = pn[nz + i, nv + j]
-        if not _inverse(p22, inv22, work22):
-            continue
-        if not _frobenius_cond(p22, inv22) < _NOISE_COND:
-            continue
+        if nw == 2:  # written out (the common case): adjugate over determinant
+            det = p22[0, 0] * p22[1, 1] - p22[0, 1] * p22[1, 0]
+            size = _abs2(p22[0, 0]) + _abs2(p22[0, 1]) + _abs2(p22[1, 0]) + _abs2(p22[1, 1])
+            # ||a||_F ||a^-1||_F = ||a||_F^2 / |det| for a 2 x 2 matrix
+            if not size < _NOISE_COND * math.sqrt(_abs2(det)):
+                continue
+            idet = 1.0 / det
+            inv22[0, 0] = p22[1, 1] * idet
+            inv22[0, 1] = -p22[0, 1] * idet
+            inv22[1, 0] = -p22[1, 0] * idet
+            inv22[1, 1] = p22[0, 0] * idet
+        else:
+            if not _inverse(p22, inv22, work22):
+                continue
+            if not _frobenius_cond(p22, inv22) < _NOISE_COND:
+                continue
         wn2 = 0.0
         for i in range(nw):
             acc = 0j
@@ -629,14 +660,7 @@ def solve_bins(
                     for i in range(m):
                         ascent += -slack[i] * (max(d[i] + sec[i], 0.0) - d[i])
                     sec_ok = ascent > 0.0
-                # projected Newton: (-Hessian) step = gradient on the free set
-                for i in range(m):
-                    cand[i] = -slack[i]
-                    for j in range(m):
-                        amat[i, j] = -dnv2[i, j]
-                if not _solve_real(amat, cand, free, newton, real_work, idx):
-                    for i in range(m):
-                        newton[i] = 0.0
+                newton_ready = False  # the projected Newton step, solved when first needed
                 phi_before = phi
                 floor = phi - 1e-15 * (unit + abs(phi))
                 best_phi = -math.inf
@@ -653,6 +677,9 @@ def solve_bins(
                     elif which == 1:
                         if not compare and best_phi > -math.inf:
                             break  # the secular step was accepted
+                        if not newton_ready:  # (-Hessian) step = gradient on the free set
+                            _newton_step(dnv2, slack, free, newton, amat, cand, real_work, idx)
+                            newton_ready = True
                         for i in range(m):
                             cand[i] = max(d[i] + newton[i], 0.0)
                     elif which == 2:
@@ -680,6 +707,9 @@ def solve_bins(
                         for i in range(m):
                             best_d[i] = cand[i]
                 if best_phi == -math.inf:  # reduced step, floored step, ratio test and halvings
+                    if not newton_ready:
+                        _newton_step(dnv2, slack, free, newton, amat, cand, real_work, idx)
+                        newton_ready = True
                     alpha = 1.0
                     for i in range(m):
                         if newton[i] < 0.0 and d[i] > 0.0:
