@@ -232,6 +232,21 @@ def test_kernel_threads_share_the_bins_without_changing_a_bit() -> None:
         assert res.stats == runs[0].stats
 
 
+def test_validating_does_not_load_numba_until_the_kernel_runs() -> None:
+    """The node and replay (closed form) never pay numba's import and memory."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    code = (
+        "import sys\n"
+        "from twotank_validation import fast, monitor, validate\n"
+        "from twotank_validation.ros import validator_node\n"
+        "print('numba' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
 def test_kernel_threads_work_in_a_forked_child() -> None:
     """A child forked after the parent used the thread pool starts one of its own (no hang)."""
     import multiprocessing as mp  # noqa: PLC0415

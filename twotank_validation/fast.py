@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twotank_validation import fastkernel, solvers
+from twotank_validation import fastrules, solvers
 from twotank_validation.model import BlockStructure, PlantResponse
 
 MAX_BLOCKS = 3
@@ -51,22 +51,22 @@ MAX_UNKNOWNS = 16
 
 _RANK_RTOL = 1e-10  # as solvers._RANK_RTOL
 _CONSISTENCY_RTOL = 1e-8  # as solvers._CONSISTENCY_RTOL
-# The rules shared with the compiled kernel are defined there, once (see fastkernel):
+# The rules shared with the compiled kernel are defined once, in fastrules:
 # noise elimination (w = P22^-1 (...)) only where P22 is _NOISE_COND well conditioned (it
 # squares into the objective's forms) and ||P22^-1 P21 D||_F < _NOISE_GAIN; _NEGLIGIBLE_Z as
 # solvers._NEGLIGIBLE_Z; _PIVOT_RTOL: H_tt singular below this pivot; starting multipliers
 # (see _starts); _FLAT_ITERATIONS without ascent stop a bin; a dual value above _PHI_RUNAWAY
 # (objective's unit) counts as unbounded; _BACKTRACKS step lengths per iteration.
-_NOISE_COND = fastkernel.NOISE_COND
-_NOISE_GAIN = fastkernel.NOISE_GAIN
-_NEGLIGIBLE_Z = fastkernel.NEGLIGIBLE_Z
-_TINY = fastkernel.TINY
-_PIVOT_RTOL = fastkernel.PIVOT_RTOL
-_STARTS_NATURAL = fastkernel.STARTS_NATURAL
-_STARTS_SCALED = fastkernel.STARTS_SCALED
-_FLAT_ITERATIONS = fastkernel.FLAT_ITERATIONS
-_PHI_RUNAWAY = fastkernel.PHI_RUNAWAY
-_BACKTRACKS = fastkernel.BACKTRACKS
+_NOISE_COND = fastrules.NOISE_COND
+_NOISE_GAIN = fastrules.NOISE_GAIN
+_NEGLIGIBLE_Z = fastrules.NEGLIGIBLE_Z
+_TINY = fastrules.TINY
+_PIVOT_RTOL = fastrules.PIVOT_RTOL
+_STARTS_NATURAL = fastrules.STARTS_NATURAL
+_STARTS_SCALED = fastrules.STARTS_SCALED
+_FLAT_ITERATIONS = fastrules.FLAT_ITERATIONS
+_PHI_RUNAWAY = fastrules.PHI_RUNAWAY
+_BACKTRACKS = fastrules.BACKTRACKS
 
 
 @dataclass(frozen=True)
@@ -499,7 +499,7 @@ def _least_norm_size(b: np.ndarray, r: np.ndarray) -> np.ndarray:
             two[bad] = np.sqrt(_sq(_row_space(_cols(b, bad), _cols(r, bad)).x0).sum(axis=0))
         return two
     gram = (b[:, None] * b.conj()[None, :]).sum(axis=2)  # B B^H, (p, p, g)
-    inv, good = _inverse_small(gram, max_cond=fastkernel.GRAM_COND)
+    inv, good = _inverse_small(gram, max_cond=fastrules.GRAM_COND)
     size: np.ndarray = np.sqrt(np.abs((r.conj() * _matvec(inv, r)).sum(axis=0).real))
     if not np.all(good):
         bad = np.flatnonzero(~good)
@@ -542,7 +542,7 @@ def _classify(
     starts = np.array([zs.start for zs in blocks.z_slices])
     drive = np.sqrt(np.add.reduceat(_sq(zu), starts, axis=0))  # ||z_i||, (m, n)
     p13 = np.sqrt(np.add.reduceat(_sq(pt[:nz, nx:]).sum(axis=1), starts, axis=0))
-    unexcited = drive <= fastkernel.UNEXCITED * u_scale * p13
+    unexcited = drive <= fastrules.UNEXCITED * u_scale * p13
     # the scale of the unknowns matters only where some block may stay active
     x_scale = np.zeros(nb)
     need = np.flatnonzero(~np.all(unexcited, axis=0)) if not coupled else np.arange(nb)
@@ -1821,7 +1821,7 @@ def solve_fast(
     nz, nx = blocks.nz, blocks.nv + resp.nw
     u_scale = float(np.sqrt(np.max(_sq(u).sum(axis=1)))) if nb else 0.0
     coupled = bool(np.any(resp.p[:, :nz, :nx]))  # z depends on v or w somewhere
-    if compiled and nb and fastkernel.applicable(blocks, resp.nw, resp.ny, coupled=coupled):
+    if compiled and nb and fastrules.kernel_applies(blocks, resp.nw, resp.ny, coupled=coupled):
         return _solve_compiled(
             resp, u, y, u_scale=u_scale, max_iter=max_iter, fallback=fallback, threads=threads
         )
@@ -1841,9 +1841,12 @@ def _solve_compiled(
     threads: int | None,
 ) -> FastSolutions:
     """The compiled kernel on every bin, the batched numpy path on the bins it defers."""
+    # imported here: numba is loaded only by a process that uses the kernel
+    from twotank_validation.fastkernel import DONE, KIND_DUAL, solve_window  # noqa: PLC0415
+
     blocks = resp.blocks
     nb = u.shape[0]
-    out = fastkernel.solve_window(
+    out = solve_window(
         resp.p,
         u,
         y,
@@ -1853,7 +1856,7 @@ def _solve_compiled(
         max_iter=max_iter,
         threads=threads,
     )
-    done = out.status == fastkernel.DONE
+    done = out.status == DONE
     lower = np.minimum(out.lower, out.upper)
     upper, w, v, z = out.upper, out.w, out.v, out.z
     delta = tuple(
@@ -1862,7 +1865,7 @@ def _solve_compiled(
     )
     certified = done.copy()
     fell_back = np.zeros(nb, dtype=bool)
-    n_direct = int(np.sum(done & (out.kind != fastkernel.KIND_DUAL)))
+    n_direct = int(np.sum(done & (out.kind != KIND_DUAL)))
     n_dual = int(np.sum(done)) - n_direct
     n_fallback = 0
     iterations = out.iterations

@@ -47,6 +47,20 @@ from typing import Any, TypeVar, cast
 import numba
 import numpy as np
 
+from twotank_validation.fastrules import (
+    BACKTRACKS,
+    FLAT_ITERATIONS,
+    GRAM_COND,
+    NEGLIGIBLE_Z,
+    NOISE_COND,
+    NOISE_GAIN,
+    PHI_RUNAWAY,
+    PIVOT_RTOL,
+    STARTS_NATURAL,
+    STARTS_SCALED,
+    TINY,
+    UNEXCITED,
+)
 from twotank_validation.model import BlockStructure
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -78,25 +92,7 @@ KIND_DIRECT = 1
 KIND_DUAL = 2
 """Solved on the dual."""
 
-# Rules shared with the batched numpy path (twotank_validation.fast uses these names).
-TINY = 1e-300
-PIVOT_RTOL = 1e-13
-"""A Cholesky pivot below this times its scale counts as singular."""
-NOISE_COND = 1e2
-"""Noise elimination through ``P22^-1`` only below this Frobenius condition number."""
-NOISE_GAIN = 1e3
-"""... and only where ``||P22^-1 P21||_F`` stays below this."""
-NEGLIGIBLE_Z = 1e-10
-"""A block input below this times the least-norm unknowns is negligible (forced)."""
-UNEXCITED = 1e-12
-"""A block input below this times ``||P13_i||_F u_scale`` is unexcited (forced)."""
-GRAM_COND = 1e8
-"""Least-norm size by the output Gram matrix's inverse only below this condition number."""
-PHI_RUNAWAY = 1e40
-FLAT_ITERATIONS = 4
-BACKTRACKS = 16
-STARTS_NATURAL = (1.0, 1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e2)
-STARTS_SCALED = (1.0, 0.1, 10.0, 0.01, 100.0, 1e-3)
+# local names of the shared rules (module globals are compile-time constants in numba)
 _TINY, _PIVOT_RTOL, _NOISE_COND, _NOISE_GAIN = TINY, PIVOT_RTOL, NOISE_COND, NOISE_GAIN
 _NEGLIGIBLE_Z, _UNEXCITED, _GRAM_COND = NEGLIGIBLE_Z, UNEXCITED, GRAM_COND
 _PHI_RUNAWAY, _FLAT_ITERATIONS, _BACKTRACKS = PHI_RUNAWAY, FLAT_ITERATIONS, BACKTRACKS
@@ -852,11 +848,6 @@ class KernelOutput:
     iterations: int
 
 
-def applicable(blocks: BlockStructure, nw: int, ny: int, *, coupled: bool) -> bool:
-    """Whether the kernel takes a window: ``z = P13 U`` at every bin and ``P22`` square."""
-    return not coupled and nw == ny <= 3 and 1 <= blocks.n_blocks <= 3 and blocks.nv >= 1
-
-
 def solve_window(
     p: np.ndarray,
     u: np.ndarray,
@@ -875,7 +866,8 @@ def solve_window(
     result does not depend on the cut.
 
     Args:
-        p: (n, nz + ny, nv + nw + nu) complex, P at the bins (:func:`applicable` holds).
+        p: (n, nz + ny, nv + nw + nu) complex, P at the bins
+            (:func:`fastrules.kernel_applies` holds).
         u: (n, nu) complex.
         y: (n, ny) complex.
         u_scale: largest ``||U(n)||`` of the window.
