@@ -41,7 +41,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twotank_validation import fastrules, solvers
+from twotank_validation import solvers
+from twotank_validation.fastrules import (  # the rules the compiled kernel shares
+    BACKTRACKS,
+    FLAT_ITERATIONS,
+    GRAM_COND,
+    NEGLIGIBLE_Z,
+    NOISE_COND,
+    NOISE_GAIN,
+    PHI_RUNAWAY,
+    PIVOT_RTOL,
+    STARTS_NATURAL,
+    STARTS_SCALED,
+    TINY,
+    UNEXCITED,
+    kernel_applies,
+)
 from twotank_validation.model import BlockStructure, PlantResponse
 
 MAX_BLOCKS = 3
@@ -51,22 +66,6 @@ MAX_UNKNOWNS = 16
 
 _RANK_RTOL = 1e-10  # as solvers._RANK_RTOL
 _CONSISTENCY_RTOL = 1e-8  # as solvers._CONSISTENCY_RTOL
-# The rules shared with the compiled kernel are defined once, in fastrules:
-# noise elimination (w = P22^-1 (...)) only where P22 is _NOISE_COND well conditioned (it
-# squares into the objective's forms) and ||P22^-1 P21 D||_F < _NOISE_GAIN; _NEGLIGIBLE_Z as
-# solvers._NEGLIGIBLE_Z; _PIVOT_RTOL: H_tt singular below this pivot; starting multipliers
-# (see _starts); _FLAT_ITERATIONS without ascent stop a bin; a dual value above _PHI_RUNAWAY
-# (objective's unit) counts as unbounded; _BACKTRACKS step lengths per iteration.
-_NOISE_COND = fastrules.NOISE_COND
-_NOISE_GAIN = fastrules.NOISE_GAIN
-_NEGLIGIBLE_Z = fastrules.NEGLIGIBLE_Z
-_TINY = fastrules.TINY
-_PIVOT_RTOL = fastrules.PIVOT_RTOL
-_STARTS_NATURAL = fastrules.STARTS_NATURAL
-_STARTS_SCALED = fastrules.STARTS_SCALED
-_FLAT_ITERATIONS = fastrules.FLAT_ITERATIONS
-_PHI_RUNAWAY = fastrules.PHI_RUNAWAY
-_BACKTRACKS = fastrules.BACKTRACKS
 
 
 @dataclass(frozen=True)
@@ -161,7 +160,7 @@ def _cholesky(
     Args:
         h: (n, n, g) complex Hermitian (only the lower triangle is read).
         scale: (n, g) float, size of the terms each diagonal entry of ``h`` was summed from
-            (default: its magnitude); pivot ``j`` below ``_PIVOT_RTOL * scale[j]`` is
+            (default: its magnitude); pivot ``j`` below ``PIVOT_RTOL * scale[j]`` is
             round-off.
 
     Returns:
@@ -180,7 +179,7 @@ def _cholesky(
     ok = np.ones(g, dtype=bool)
     for j in range(n):
         piv = work[j, j].real
-        good = piv > _PIVOT_RTOL * scale[j]
+        good = piv > PIVOT_RTOL * scale[j]
         ok &= good
         dj = np.sqrt(np.where(good, piv, 1.0))
         diag[j] = dj
@@ -194,7 +193,7 @@ def _cholesky(
 def _cholesky_small(h: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_cholesky` for 1x1 and 2x2 batches, written out."""
     piv = h[0, 0].real
-    ok = piv > _PIVOT_RTOL * scale[0]
+    ok = piv > PIVOT_RTOL * scale[0]
     d0 = np.sqrt(np.where(ok, piv, 1.0))
     low = np.zeros_like(h)
     if h.shape[0] == 1:
@@ -202,7 +201,7 @@ def _cholesky_small(h: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.nd
     l10 = h[1, 0] / d0
     low[1, 0] = l10
     piv = h[1, 1].real - _sq(l10)
-    ok1 = piv > _PIVOT_RTOL * scale[1]
+    ok1 = piv > PIVOT_RTOL * scale[1]
     return low, np.stack([d0, np.sqrt(np.where(ok1, piv, 1.0))]), ok & ok1
 
 
@@ -330,7 +329,7 @@ def _complement(q: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
         vec -= (cur * c2[:, None]).sum(axis=0)
         none = left[piv, cols] < 0.5 / n
         pad[j] = none
-        vec *= np.where(none, 0.0, 1.0 / np.sqrt(np.maximum(_sq(vec).sum(axis=0), _TINY)))
+        vec *= np.where(none, 0.0, 1.0 / np.sqrt(np.maximum(_sq(vec).sum(axis=0), TINY)))
         basis[r + j] = vec
         covered += _sq(vec)
     return basis[r:].transpose(1, 0, 2), pad
@@ -406,7 +405,7 @@ def _inverse_small(a: np.ndarray, max_cond: float = 0.0) -> tuple[np.ndarray, np
 
     Args:
         a: (n, n, g) complex, n <= 3.
-        max_cond: largest condition number accepted (default ``_NOISE_COND``).
+        max_cond: largest condition number accepted (default ``NOISE_COND``).
 
     Returns:
         ``(inv, good)``: (n, n, g) complex; (g,) bool, Frobenius condition number
@@ -416,7 +415,7 @@ def _inverse_small(a: np.ndarray, max_cond: float = 0.0) -> tuple[np.ndarray, np
     norm2 = _sq(a).sum(axis=(0, 1))
     # a 2x2 adjugate has the entries of a, so the same norm
     size = norm2 if a.shape[0] == 2 else np.sqrt(norm2 * _sq(adj).sum(axis=(0, 1)))
-    good = size < (max_cond or _NOISE_COND) * np.abs(det)
+    good = size < (max_cond or NOISE_COND) * np.abs(det)
     inv: np.ndarray = adj / np.where(good, det, 1.0)
     return inv, good
 
@@ -457,7 +456,7 @@ def _balancing(pt: np.ndarray, win: _Window, blocks: BlockStructure, nw: int) ->
         dep = np.sqrt(_sq(pt[zs, :nx]).sum(axis=(0, 1)))
         z_size = win.drive[i] + dep * x_scale
         with np.errstate(invalid="ignore", divide="ignore"):  # x_scale 0: block forced
-            bal = np.minimum(1.0, np.maximum(z_size / np.maximum(x_scale, _TINY), 1e-150))
+            bal = np.minimum(1.0, np.maximum(z_size / np.maximum(x_scale, TINY), 1e-150))
         col[vs] = np.where(win.active[i], bal, 0.0)
     return col
 
@@ -499,7 +498,7 @@ def _least_norm_size(b: np.ndarray, r: np.ndarray) -> np.ndarray:
             two[bad] = np.sqrt(_sq(_row_space(_cols(b, bad), _cols(r, bad)).x0).sum(axis=0))
         return two
     gram = (b[:, None] * b.conj()[None, :]).sum(axis=2)  # B B^H, (p, p, g)
-    inv, good = _inverse_small(gram, max_cond=fastrules.GRAM_COND)
+    inv, good = _inverse_small(gram, max_cond=GRAM_COND)
     size: np.ndarray = np.sqrt(np.abs((r.conj() * _matvec(inv, r)).sum(axis=0).real))
     if not np.all(good):
         bad = np.flatnonzero(~good)
@@ -542,16 +541,16 @@ def _classify(
     starts = np.array([zs.start for zs in blocks.z_slices])
     drive = np.sqrt(np.add.reduceat(_sq(zu), starts, axis=0))  # ||z_i||, (m, n)
     p13 = np.sqrt(np.add.reduceat(_sq(pt[:nz, nx:]).sum(axis=1), starts, axis=0))
-    unexcited = drive <= fastrules.UNEXCITED * u_scale * p13
+    unexcited = drive <= UNEXCITED * u_scale * p13
     # the scale of the unknowns matters only where some block may stay active
     x_scale = np.zeros(nb)
     need = np.flatnonzero(~np.all(unexcited, axis=0)) if not coupled else np.arange(nb)
     if need.size:
         x_scale[need] = _least_norm_size(_cols(pt[nz:, :nx], need), _cols(r, need))
     active = np.ones((blocks.n_blocks, nb), dtype=bool)
-    negligible = drive <= _NEGLIGIBLE_Z * x_scale
+    negligible = drive <= NEGLIGIBLE_Z * x_scale
     if coupled:
-        p_norm = np.sqrt(_sq(pt).sum(axis=(0, 1))) + _TINY
+        p_norm = np.sqrt(_sq(pt).sum(axis=(0, 1))) + TINY
         for i, zs in enumerate(blocks.z_slices):
             dep = np.sqrt(_sq(pt[zs, :nx]).sum(axis=(0, 1)))
             active[i] = ~((dep <= 1e-13 * p_norm) & (unexcited[i] | negligible[i]))
@@ -618,7 +617,7 @@ def _homogenise(
     Two eliminations, each bin taking the first that applies:
 
     * noise elimination -- ``P22`` square (up to 3x3) and well conditioned at the bin, and
-      ``||P22^-1 P21 D||_F <= _NOISE_GAIN`` (``D``: the balancing of ``v``):
+      ``||P22^-1 P21 D||_F <= NOISE_GAIN`` (``D``: the balancing of ``v``):
       ``w = P22^-1 (Y - P23 U - P21 v)``, the unknowns are ``v`` (balanced);
     * orthonormal elimination -- any bin: see :func:`_forms_orthonormal`.
 
@@ -638,7 +637,7 @@ def _homogenise(
     nz, nv = blocks.nz, blocks.nv
     col = _balancing(pt, win, blocks, nw)
     f = _matmul(inv, pt[nz:, :nv]) * col[None, :nv]  # (nw, nv, g): P22^-1 P21 D
-    good = good & (_sq(f).sum(axis=(0, 1)) <= _NOISE_GAIN**2)
+    good = good & (_sq(f).sum(axis=(0, 1)) <= NOISE_GAIN**2)
     if np.all(good):
         return _forms_noise(pt, win, blocks, inv, f, col_v=col[:nv], coupled=coupled)
     if not np.any(good):
@@ -698,7 +697,7 @@ def _forms_noise(
     x0v = col_v * t0
     x0w = w0 - _matvec(f, t0)
     rho = np.sqrt(_sq(x0v).sum(axis=0) + _sq(x0w).sum(axis=0))
-    rho = np.maximum(np.maximum(rho, np.sqrt(_sq(win.zu).sum(axis=0))), _TINY)
+    rho = np.maximum(np.maximum(rho, np.sqrt(_sq(win.zu).sum(axis=0))), TINY)
     m = np.zeros((nv + nw, nv + 1, g), dtype=complex)
     for j in range(nv):
         m[j, j] = col_v[j]
@@ -741,7 +740,7 @@ def _forms_orthonormal(
     col, active, zu, r = _balancing(pt, win, blocks, nw), win.active, win.zu, win.r
     rs = _row_space(pt[nz:, :nx] * col[None], r)
     feasible = rs.resid <= _CONSISTENCY_RTOL * (
-        np.sqrt(_sq(r).sum(axis=0)) + np.sqrt(_sq(yt).sum(axis=0)) + _TINY
+        np.sqrt(_sq(r).sum(axis=0)) + np.sqrt(_sq(yt).sum(axis=0)) + TINY
     )
     sel = np.zeros((nv, nx, nb), dtype=complex)  # v_i = 0 rows of the forced blocks
     for i, vs in enumerate(blocks.v_slices):
@@ -751,7 +750,7 @@ def _forms_orthonormal(
     k = nx - int(np.min(rank)) if nb else 0
     null, pad = _complement(np.concatenate([rs.q, sel]), k)
     x0 = rs.x0 * col
-    rho = np.maximum(np.maximum(np.sqrt(_sq(x0).sum(axis=0)), np.sqrt(_sq(zu).sum(axis=0))), _TINY)
+    rho = np.maximum(np.maximum(np.sqrt(_sq(x0).sum(axis=0)), np.sqrt(_sq(zu).sum(axis=0))), TINY)
     m = np.empty((nx, k + 1, nb), dtype=complex)
     m[:, :k] = null * col[:, None]
     m[:, k] = x0 / rho
@@ -794,7 +793,7 @@ def _assemble_forms(
     a_scale = a[0, 0].real.copy()
     for j in range(1, kk):
         a_scale += a[j, j].real
-    a_scale = np.maximum(a_scale, _TINY)
+    a_scale = np.maximum(a_scale, TINY)
     a /= a_scale
     for j in range(k):
         a[j, j] += pad[j]  # padded coordinates: |t_j|^2 in the objective, in no constraint
@@ -1178,8 +1177,8 @@ def _dual_ascent(
     for it in range(max_iter + 1):
         free = _free_set(bt)
         # a dual growing without bound: no (w, Delta) may explain the bin (left to fallback)
-        runaway = bt.pt.phi > _PHI_RUNAWAY * bt.kern.unit
-        done = _settled(bt, free) | (flat >= _FLAT_ITERATIONS) | runaway
+        runaway = bt.pt.phi > PHI_RUNAWAY * bt.kern.unit
+        done = _settled(bt, free) | (flat >= FLAT_ITERATIONS) | runaway
         all_done = bool(np.all(done))
         if all_done and live.size == g:  # the whole batch at once: no indexing
             d_out, xh_out, phi_out = bt.d, bt.pt.xh, bt.pt.phi
@@ -1223,7 +1222,7 @@ def _dual_ascent(
 def _pivot_ratio(pt: _Point) -> np.ndarray:
     """(g,) float, smallest over largest squared Cholesky pivot of ``H_tt`` (conditioning)."""
     piv = pt.diag * pt.diag
-    out: np.ndarray = np.min(piv, axis=0) / np.maximum(np.max(piv, axis=0), _TINY)
+    out: np.ndarray = np.min(piv, axis=0) / np.maximum(np.max(piv, axis=0), TINY)
     return out
 
 
@@ -1244,9 +1243,9 @@ def _starts(dscale: np.ndarray, active: np.ndarray) -> Iterator[np.ndarray]:
     subsets += [np.arange(nm) == i for i in range(nm)] if nm > 1 else []
     subsets += [np.arange(nm) != i for i in range(nm)] if nm > 2 else []
     for sub in subsets:
-        for c in _STARTS_NATURAL:
+        for c in STARTS_NATURAL:
             yield c * dscale * sub[:, None]
-    for c in _STARTS_SCALED:
+    for c in STARTS_SCALED:
         yield c * active
 
 
@@ -1451,7 +1450,7 @@ def _advance(
             shrinking & (d_p > 0.0), 0.9 * d_p / np.where(shrinking, -step_p, 1.0), 2.0
         )
     alpha = np.minimum(1.0, np.min(ratio, axis=0))
-    for trial_no in range(_BACKTRACKS):
+    for trial_no in range(BACKTRACKS):
         if pending.size == 0:
             break
         if trial_no == 0:  # reduced step: what the full one sends below 0 held at 0
@@ -1536,10 +1535,10 @@ def _witness(
     for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True):
         vi, zi = v_c[vs], z_c[zs]
         zn2 = _sq(zi).sum(axis=0)
-        safe = zn2 > _TINY
+        safe = zn2 > TINY
         zn2 = np.where(safe, zn2, 1.0)
         ratio = np.sqrt(_sq(vi).sum(axis=0) / zn2)
-        shrink = np.where(ratio > 1.0, 1.0 / np.maximum(ratio, _TINY), 1.0)
+        shrink = np.where(ratio > 1.0, 1.0 / np.maximum(ratio, TINY), 1.0)
         dmat[vs, zs] = vi[:, None] * zi.conj()[None, :] * np.where(safe, shrink / zn2, 0.0)
     if coupled:
         eye = np.eye(nz)[:, :, None]
@@ -1556,7 +1555,7 @@ def _witness(
         w, resid = _least_norm(lhs, rhs)
     z = _matvec(s, _matvec(p12, w) + zu) if coupled else zu
     v = _matvec(dmat, z)
-    scale = np.sqrt(_sq(rhs).sum(axis=0)) + np.sqrt(_sq(yt).sum(axis=0)) + _TINY
+    scale = np.sqrt(_sq(rhs).sum(axis=0)) + np.sqrt(_sq(yt).sum(axis=0)) + TINY
     upper = np.where(resid <= 1e-7 * scale, np.sqrt(_sq(w).sum(axis=0)), np.inf)
     return upper, w, v, z, dmat
 
@@ -1747,7 +1746,7 @@ def _solve_in_v(
         c=c,
         g_diag=np.ascontiguousarray(np.abs(np.diagonal(gram).real).T),
         zx=zx,
-        unit=np.maximum(_sq(w0).sum(axis=0), _TINY),
+        unit=np.maximum(_sq(w0).sum(axis=0), TINY),
         blocks=blocks,
     )
     dscale = np.where(win.active, np.mean(kern.g_diag, axis=0), 0.0)
@@ -1757,10 +1756,10 @@ def _solve_in_v(
     v = np.empty_like(v_c)
     for i, (vs, zs) in enumerate(zip(blocks.v_slices, blocks.z_slices, strict=True)):
         vi, zi = v_c[vs], win.zu[zs]
-        safe = c[i] > _TINY  # ||z_i||^2
+        safe = c[i] > TINY  # ||z_i||^2
         zn2 = np.where(safe, c[i], 1.0)
         ratio = np.sqrt(_sq(vi).sum(axis=0) / zn2)
-        shrink = np.where(safe, np.where(ratio > 1.0, 1.0 / np.maximum(ratio, _TINY), 1.0), 0.0)
+        shrink = np.where(safe, np.where(ratio > 1.0, 1.0 / np.maximum(ratio, TINY), 1.0), 0.0)
         dmat[vs, zs] = vi[:, None] * zi.conj()[None, :] * (shrink / zn2)
         v[vs] = vi * shrink  # Delta_i z_i
     w = w0 - _matvec(pmat, v)
@@ -1821,7 +1820,7 @@ def solve_fast(
     nz, nx = blocks.nz, blocks.nv + resp.nw
     u_scale = float(np.sqrt(np.max(_sq(u).sum(axis=1)))) if nb else 0.0
     coupled = bool(np.any(resp.p[:, :nz, :nx]))  # z depends on v or w somewhere
-    if compiled and nb and fastrules.kernel_applies(blocks, resp.nw, resp.ny, coupled=coupled):
+    if compiled and nb and kernel_applies(blocks, resp.nw, resp.ny, coupled=coupled):
         return _solve_compiled(
             resp, u, y, u_scale=u_scale, max_iter=max_iter, fallback=fallback, threads=threads
         )
@@ -1960,7 +1959,7 @@ def _solve_batched(
         r_dir = _cols(win.r, direct)
         rs = _row_space(_cols(pt[nz:, nv:nx], direct), r_dir)
         scale = np.sqrt(_sq(r_dir).sum(axis=0)) + np.sqrt(_sq(_cols(yt, direct)).sum(axis=0))
-        feasible[direct] = rs.resid <= _CONSISTENCY_RTOL * (scale + _TINY)
+        feasible[direct] = rs.resid <= _CONSISTENCY_RTOL * (scale + TINY)
         w[:, direct] = rs.x0
         settled[direct] = True
     lower[settled] = upper[settled] = np.sqrt(_sq(_cols(w, settled)).sum(axis=0))
@@ -1974,7 +1973,7 @@ def _solve_batched(
     if dual.size and inv22 is not None and not coupled:
         cand = dual[good22[dual]]
         pmat = _matmul(_cols(inv22, cand), _cols(pt[nz:, :nv], cand))  # P22^-1 P21
-        small = _sq(pmat).sum(axis=(0, 1)) <= _NOISE_GAIN**2
+        small = _sq(pmat).sum(axis=(0, 1)) <= NOISE_GAIN**2
         v_route[cand[small]] = True
         pmat = _cols(pmat, np.flatnonzero(small))
     for idx, route in (

@@ -71,15 +71,6 @@ def _jit(fn: F) -> F:
     return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
 
 
-def _inline(fn: F) -> F:
-    """A kernel helper inlined into its caller at numba's IR level.
-
-    (A call between compiled functions passes each array as a reference-counted struct;
-    with the dozens of small work buffers here that costs more than the arithmetic.)
-    """
-    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(fn))
-
-
 DONE = 0
 """Status: the bin is answered (bounds met)."""
 DEFER = 1
@@ -92,13 +83,8 @@ KIND_DIRECT = 1
 KIND_DUAL = 2
 """Solved on the dual."""
 
-# local names of the shared rules (module globals are compile-time constants in numba)
-_TINY, _PIVOT_RTOL, _NOISE_COND, _NOISE_GAIN = TINY, PIVOT_RTOL, NOISE_COND, NOISE_GAIN
-_NEGLIGIBLE_Z, _UNEXCITED, _GRAM_COND = NEGLIGIBLE_Z, UNEXCITED, GRAM_COND
-_PHI_RUNAWAY, _FLAT_ITERATIONS, _BACKTRACKS = PHI_RUNAWAY, FLAT_ITERATIONS, BACKTRACKS
-_STARTS_NATURAL, _STARTS_SCALED = STARTS_NATURAL, STARTS_SCALED
-_STARTS = np.array(_STARTS_NATURAL + _STARTS_SCALED)
-_N_NATURAL = len(_STARTS_NATURAL)
+_STARTS = np.array(STARTS_NATURAL + STARTS_SCALED)
+_N_NATURAL = len(STARTS_NATURAL)
 
 
 @_jit
@@ -117,14 +103,14 @@ def _cholesky(h: Any, scale: Any, low: Any, diag: Any) -> bool:
     """``h = L L^H`` (lower triangle of ``h`` read); False where a pivot is round-off.
 
     ``low`` gets the strictly lower factor, ``diag`` the positive diagonal; a pivot below
-    ``_PIVOT_RTOL * scale[j]`` counts as singular (as ``fast._cholesky``).
+    ``PIVOT_RTOL * scale[j]`` counts as singular (as ``fast._cholesky``).
     """
     k = h.shape[0]
     for j in range(k):
         s = h[j, j].real
         for p in range(j):
             s -= _abs2(low[j, p])
-        if not s > _PIVOT_RTOL * scale[j]:
+        if not s > PIVOT_RTOL * scale[j]:
             return False
         dj = math.sqrt(s)
         diag[j] = dj
@@ -447,7 +433,7 @@ def solve_bins(
                 for j in range(nu):
                     p13 += _abs2(pn[i, nx + j])
             drive[blk] = math.sqrt(s)
-            unexcited[blk] = drive[blk] <= _UNEXCITED * u_scale * math.sqrt(p13)
+            unexcited[blk] = drive[blk] <= UNEXCITED * u_scale * math.sqrt(p13)
             any_excited = any_excited or not unexcited[blk]
         x_scale = 0.0
         if any_excited:  # ||x0||^2 = r^H (B B^H)^-1 r, B = [P21 P22]
@@ -475,7 +461,7 @@ def solve_bins(
             else:
                 if not _inverse(gram_o, inv_o, work_o):
                     continue
-                if not _frobenius_cond(gram_o, inv_o) < _GRAM_COND:
+                if not _frobenius_cond(gram_o, inv_o) < GRAM_COND:
                     continue
                 acc = 0j
                 for i in range(ny):
@@ -484,7 +470,7 @@ def solve_bins(
                 x_scale = math.sqrt(abs(acc.real))
         any_active = False
         for blk in range(m):
-            active[blk] = not (unexcited[blk] or drive[blk] <= _NEGLIGIBLE_Z * x_scale)
+            active[blk] = not (unexcited[blk] or drive[blk] <= NEGLIGIBLE_Z * x_scale)
             any_active = any_active or active[blk]
         for i in range(nw):
             for j in range(nw):
@@ -493,7 +479,7 @@ def solve_bins(
             det = p22[0, 0] * p22[1, 1] - p22[0, 1] * p22[1, 0]
             size = _abs2(p22[0, 0]) + _abs2(p22[0, 1]) + _abs2(p22[1, 0]) + _abs2(p22[1, 1])
             # ||a||_F ||a^-1||_F = ||a||_F^2 / |det| for a 2 x 2 matrix
-            if not size < _NOISE_COND * math.sqrt(_abs2(det)):
+            if not size < NOISE_COND * math.sqrt(_abs2(det)):
                 continue
             idet = 1.0 / det
             inv22[0, 0] = p22[1, 1] * idet
@@ -503,7 +489,7 @@ def solve_bins(
         else:
             if not _inverse(p22, inv22, work22):
                 continue
-            if not _frobenius_cond(p22, inv22) < _NOISE_COND:
+            if not _frobenius_cond(p22, inv22) < NOISE_COND:
                 continue
         wn2 = 0.0
         for i in range(nw):
@@ -527,7 +513,7 @@ def solve_bins(
                     acc += inv22[i, q] * pn[nz + q, j]
                 pm[i, j] = acc
                 pn2 += _abs2(acc)
-        if not pn2 <= _NOISE_GAIN * _NOISE_GAIN:
+        if not pn2 <= NOISE_GAIN * NOISE_GAIN:
             continue
         for i in range(k):
             acc = 0j
@@ -558,7 +544,7 @@ def solve_bins(
         mean_g /= k
         for blk in range(m):
             dscale[blk] = mean_g if active[blk] else 0.0
-        unit = max(wn2, _TINY)
+        unit = max(wn2, TINY)
         # ---- dual ascent (as fast._dual_ascent): on exit d, t, nv2, low, diag hold the
         # final point, ok_a says whether it is usable, its the Newton iterations
         ok_a = False
@@ -613,9 +599,9 @@ def solve_bins(
                     if active[i] and slack[i] < -1e-12 * (c[i] + nv2[i]):
                         feasible = False
                     gap += d[i] * abs(slack[i])
-                runaway = phi > _PHI_RUNAWAY * unit
+                runaway = phi > PHI_RUNAWAY * unit
                 settled = (feasible and gap <= 1e-12 * abs(phi) + 1e-15 * unit) or not any_free
-                if settled or flat >= _FLAT_ITERATIONS or runaway:
+                if settled or flat >= FLAT_ITERATIONS or runaway:
                     done_ok = not runaway
                     break
                 if it == max_iter:
@@ -710,7 +696,7 @@ def solve_bins(
                     for i in range(m):
                         if newton[i] < 0.0 and d[i] > 0.0:
                             alpha = min(alpha, 0.9 * d[i] / -newton[i])
-                    for trial in range(_BACKTRACKS):
+                    for trial in range(BACKTRACKS):
                         if trial == 0:  # what the full step sends below 0 held at 0
                             for i in range(m):
                                 hit = (d[i] + newton[i] < 0.0) and d[i] > 0.0
@@ -775,7 +761,7 @@ def solve_bins(
                 q = diag[pp] * diag[pp]
                 lo = min(lo, q)
                 hi = max(hi, q)
-            ok_a, its, cond = True, iterations, lo / max(hi, _TINY)
+            ok_a, its, cond = True, iterations, lo / max(hi, TINY)
 
         ok = ok_a
         if not ok:
@@ -787,9 +773,9 @@ def solve_bins(
             vc2 += _abs2(t[i])
         for blk in range(m):
             zn2 = c[blk]
-            safe = zn2 > _TINY
+            safe = zn2 > TINY
             ratio = math.sqrt(nv2[blk] / zn2) if safe else 0.0
-            shrink = (1.0 / max(ratio, _TINY) if ratio > 1.0 else 1.0) if safe else 0.0
+            shrink = (1.0 / max(ratio, TINY) if ratio > 1.0 else 1.0) if safe else 0.0
             for i in range(vst[blk], vsp[blk]):
                 vv[i] = _scale(t[i], shrink)
                 if safe:
