@@ -94,14 +94,18 @@ def _overrides(values: dict[str, Any]) -> list[Parameter[Any]]:
     return [Parameter(k, value=v) for k, v in values.items()]
 
 
-def _spin_until(
-    executor: SingleThreadedExecutor, cond: Callable[[], bool], timeout_s: float = 5.0
+def spin_until(
+    executor: SingleThreadedExecutor,
+    cond: Callable[[], bool],
+    timeout_s: float = 5.0,
+    poll_s: float = 0.005,
 ) -> bool:
+    """Spin ``executor`` until ``cond()`` holds; False if ``timeout_s`` (wall) passes first."""
     deadline = time.monotonic() + timeout_s
     while not cond():
         if time.monotonic() > deadline:
             return False
-        executor.spin_once(timeout_sec=0.005)
+        executor.spin_once(timeout_sec=poll_s)
     return True
 
 
@@ -210,7 +214,7 @@ def run_live(
         for n in nodes:
             executor.add_node(n)
         # discovery: wait until the intra-process publishers and subscriptions have matched
-        _spin_until(
+        spin_until(
             executor,
             lambda: (
                 exc.pub.get_subscription_count() >= 2 + n_extra
@@ -236,15 +240,15 @@ def run_live(
             itf.set_stamp(clk.clock, t)
             clock_pub.publish(clk)
             exc.tick(t)
-            if not _spin_until(executor, partial(_command_arrived, plant, t)):
+            if not spin_until(executor, partial(_command_arrived, plant, t)):
                 raise RuntimeError(f"plant did not receive the command of t = {t / NS_PER_S:.1f} s")
             plant.tick(t)
             # lockstep: the validator has every message of this sample before time moves on
-            if synced is not None and not _spin_until(executor, partial(synced, k)):
+            if synced is not None and not spin_until(executor, partial(synced, k)):
                 raise RuntimeError(
                     f"attached nodes did not receive the sample of t = {t / NS_PER_S:.1f} s"
                 )
-            if not _spin_until(executor, partial(_sample_arrived, val, k)):
+            if not spin_until(executor, partial(_sample_arrived, val, k)):
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.1f} s"
                 )
@@ -253,12 +257,12 @@ def run_live(
                 on_step(k)
         # deliver what is still in flight, then let the worker finish
         expected = config.n_steps
-        _spin_until(
+        spin_until(
             executor, lambda: val.aligner.next_index >= expected - 1 and val._queue.empty(), 10.0
         )
         val.wait_idle()
         deliver()
-        if synced is not None and not _spin_until(executor, partial(synced, expected - 1)):
+        if synced is not None and not spin_until(executor, partial(synced, expected - 1)):
             raise RuntimeError("attached nodes did not receive everything by the end of the run")
         wall = time.monotonic() - start
         counters = dict(vars(val.aligner.counters))

@@ -52,6 +52,7 @@ from twotank_validation import streamfuzz
 from twotank_validation.model import LFTModel, load_model
 from twotank_validation.monitor import NS_PER_S, Alarm
 from twotank_validation.ros import interfaces as itf
+from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.validator_node import ValidatorNode
 
 CONFIG = streamfuzz.CONFIG
@@ -255,12 +256,7 @@ class _Collector:
 
 
 def _spin_until(ex: SingleThreadedExecutor, cond: Callable[[], bool], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        if time.monotonic() > deadline:
-            return False
-        ex.spin_once(timeout_sec=0.002)
-    return True
+    return spin_until(ex, cond, timeout_s, poll_s=0.002)
 
 
 _MODELS: list[LFTModel] = []
