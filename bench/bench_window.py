@@ -1,7 +1,6 @@
 """Time the validation of one 4096-sample window for Models A and B: closed form, fast path, SDP.
 
-Usage: scripts/run bench bench_window.py [--repeats-closed 50] [--repeats-fast 50]
-                                         [--repeats-sdp 3]
+Usage: scripts/run bench bench_window.py [--repeats 50] [--repeats-sdp 3]
 
 Prints, in one run, the median wall time per window (both models together, P(e^{j theta})
 evaluated once beforehand, as the live validator does) of
@@ -58,8 +57,7 @@ def per_bin_rel(a: np.ndarray, b: np.ndarray) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats-closed", type=int, default=50)
-    parser.add_argument("--repeats-fast", type=int, default=50)
+    parser.add_argument("--repeats", type=int, default=50, help="interleaved runs of each path")
     parser.add_argument("--repeats-sdp", type=int, default=3)
     args = parser.parse_args()
 
@@ -101,7 +99,7 @@ def main() -> None:
     }
     runs: dict[str, list[float]] = {k: [] for k in timed_fns}
     outs: dict[str, object] = {}
-    for _ in range(max(args.repeats_closed, args.repeats_fast)):
+    for _ in range(args.repeats):
         for name, fn in timed_fns.items():
             start = time.perf_counter()
             outs[name] = fn()
