@@ -146,6 +146,14 @@ def _cols(x: np.ndarray, sel: np.ndarray) -> np.ndarray:
     return np.take(x, sel, axis=-1)
 
 
+def _max_row_norm(x: np.ndarray) -> float:
+    """Largest row 2-norm of an (n, k) complex array (0 for n = 0)."""
+    if not x.shape[0]:
+        return 0.0
+    f = np.ascontiguousarray(x, dtype=complex).view(np.float64)  # (n, 2k): re, im
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", f, f))))
+
+
 def _sq(x: np.ndarray) -> np.ndarray:
     """``|x|^2`` elementwise (real), without the square root of ``abs``."""
     out: np.ndarray = x.real * x.real + x.imag * x.imag
@@ -1817,9 +1825,8 @@ def solve_fast(
     if not covered:
         raise ValueError(f"fast path does not cover this structure: {why}")
     nb = u.shape[0]
-    nz, nx = blocks.nz, blocks.nv + resp.nw
-    u_scale = float(np.sqrt(np.max(_sq(u).sum(axis=1)))) if nb else 0.0
-    coupled = bool(np.any(resp.p[:, :nz, :nx]))  # z depends on v or w somewhere
+    u_scale = _max_row_norm(u)
+    coupled = resp.coupled
     if compiled and nb and kernel_applies(blocks, resp.nw, resp.ny, coupled=coupled):
         return _solve_compiled(
             resp, u, y, u_scale=u_scale, max_iter=max_iter, fallback=fallback, threads=threads
@@ -1856,8 +1863,7 @@ def _solve_compiled(
         threads=threads,
     )
     done = out.status == DONE
-    lower = np.minimum(out.lower, out.upper)
-    upper, w, v, z = out.upper, out.w, out.v, out.z
+    lower, upper, w, v, z = out.lower, out.upper, out.w, out.v, out.z
     delta = tuple(
         np.ascontiguousarray(out.dmat[:, vs, zs])
         for vs, zs in zip(blocks.v_slices, blocks.z_slices, strict=True)

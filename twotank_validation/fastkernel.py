@@ -71,6 +71,15 @@ def _jit(fn: F) -> F:
     return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
 
 
+def _inline(fn: F) -> F:
+    """A helper of the kernel, inlined into its callers in numba's IR.
+
+    LLVM does not inline these across numba's per-function modules: a call passing the
+    work buffers cost more than the few-by-few arithmetic inside it.
+    """
+    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(fn))
+
+
 DONE = 0
 """Status: the bin is answered (bounds met)."""
 DEFER = 1
@@ -87,18 +96,18 @@ _STARTS = np.array(STARTS_NATURAL + STARTS_SCALED)
 _N_NATURAL = len(STARTS_NATURAL)
 
 
-@_jit
+@_inline
 def _abs2(x: complex) -> float:
     return x.real * x.real + x.imag * x.imag
 
 
-@_jit
+@_inline
 def _scale(x: complex, f: float) -> complex:
     """``x * f`` for a real ``f`` (numba would multiply, or divide, as complex numbers)."""
     return complex(x.real * f, x.imag * f)
 
 
-@_jit
+@_inline
 def _cholesky(h: Any, scale: Any, low: Any, diag: Any) -> bool:
     """``h = L L^H`` (lower triangle of ``h`` read); False where a pivot is round-off.
 
@@ -122,7 +131,7 @@ def _cholesky(h: Any, scale: Any, low: Any, diag: Any) -> bool:
     return True
 
 
-@_jit
+@_inline
 def _chol_solve(low: Any, diag: Any, b: Any, x: Any) -> None:
     """Solve ``L L^H x = b`` (``x`` and ``b`` may not alias)."""
     k = diag.shape[0]
@@ -138,7 +147,7 @@ def _chol_solve(low: Any, diag: Any, b: Any, x: Any) -> None:
         x[i] = _scale(acc, 1.0 / diag[i])
 
 
-@_jit
+@_inline
 def _inverse(a: Any, inv: Any, work: Any) -> bool:
     """Complex inverse by Gauss-Jordan with partial pivoting; False if singular."""
     n = a.shape[0]
@@ -173,7 +182,7 @@ def _inverse(a: Any, inv: Any, work: Any) -> bool:
     return True
 
 
-@_jit
+@_inline
 def _frobenius_cond(a: Any, inv: Any) -> float:
     sa = 0.0
     si = 0.0
@@ -184,7 +193,7 @@ def _frobenius_cond(a: Any, inv: Any) -> float:
     return math.sqrt(sa * si)
 
 
-@_jit
+@_inline
 def _solve_real(a: Any, b: Any, free: Any, x: Any, work: Any, idx: Any) -> bool:
     """``a[F, F] x[F] = b[F]`` on the free indices (``x = 0`` elsewhere); False if singular.
 
@@ -230,7 +239,7 @@ def _solve_real(a: Any, b: Any, free: Any, x: Any, work: Any, idx: Any) -> bool:
     return True
 
 
-@_jit
+@_inline
 def _newton_step(
     dnv2: Any, slack: Any, free: Any, newton: Any, amat: Any, rhs: Any, work: Any, idx: Any
 ) -> None:
@@ -249,7 +258,7 @@ def _newton_step(
             newton[i] = 0.0
 
 
-@_jit
+@_inline
 def _evaluate(
     d: Any,
     gram: Any,
@@ -380,6 +389,7 @@ def solve_bins(
     best_d = np.empty(m)
     rhs = np.empty(k, dtype=np.complex128)
     ys = np.empty((m, k), dtype=np.complex128)
+    yj = np.empty(k, dtype=np.complex128)
     dnv2 = np.empty((m, m))
     amat = np.empty((m, m))
     real_work = np.empty((m, m + 1))
@@ -395,20 +405,19 @@ def solve_bins(
     vv = np.empty(k, dtype=np.complex128)
     worst = 0
     for n in range(nb):
-        pn = p[n]
         status[n] = DEFER
         kind[n] = KIND_DUAL
         explained = True
         for i in range(nz):
             acc = 0j
             for j in range(nu):
-                acc += pn[i, nx + j] * u[n, j]
+                acc += p[n, i, nx + j] * u[n, j]
             zu[i] = acc
             z_out[n, i] = acc
         for i in range(ny):
             acc = y[n, i]
             for j in range(nu):
-                acc -= pn[nz + i, nx + j] * u[n, j]
+                acc -= p[n, nz + i, nx + j] * u[n, j]
             r[i] = acc
             r_out[n, i] = acc
             if acc != 0.0:
@@ -431,7 +440,7 @@ def solve_bins(
             for i in range(zst[blk], zsp[blk]):
                 s += _abs2(zu[i])
                 for j in range(nu):
-                    p13 += _abs2(pn[i, nx + j])
+                    p13 += _abs2(p[n, i, nx + j])
             drive[blk] = math.sqrt(s)
             unexcited[blk] = drive[blk] <= UNEXCITED * u_scale * math.sqrt(p13)
             any_excited = any_excited or not unexcited[blk]
@@ -441,7 +450,7 @@ def solve_bins(
                 for j in range(ny):
                     acc = 0j
                     for q in range(nx):
-                        acc += pn[nz + i, q] * pn[nz + j, q].conjugate()
+                        acc += p[n, nz + i, q] * p[n, nz + j, q].conjugate()
                     gram_o[i, j] = acc
             if ny == 1:
                 if not gram_o[0, 0].real > 0.0:
@@ -474,7 +483,7 @@ def solve_bins(
             any_active = any_active or active[blk]
         for i in range(nw):
             for j in range(nw):
-                p22[i, j] = pn[nz + i, nv + j]
+                p22[i, j] = p[n, nz + i, nv + j]
         if nw == 2:  # written out (the common case): adjugate over determinant
             det = p22[0, 0] * p22[1, 1] - p22[0, 1] * p22[1, 0]
             size = _abs2(p22[0, 0]) + _abs2(p22[0, 1]) + _abs2(p22[1, 0]) + _abs2(p22[1, 1])
@@ -510,7 +519,7 @@ def solve_bins(
             for j in range(k):
                 acc = 0j
                 for q in range(nw):
-                    acc += inv22[i, q] * pn[nz + q, j]
+                    acc += inv22[i, q] * p[n, nz + q, j]
                 pm[i, j] = acc
                 pn2 += _abs2(acc)
         if not pn2 <= NOISE_GAIN * NOISE_GAIN:
@@ -615,7 +624,9 @@ def solve_bins(
                         rhs[pp] = 0.0
                     for pp in range(vst[j], vsp[j]):
                         rhs[pp] = t[pp]
-                    _chol_solve(low, diag, rhs, ys[j])
+                    _chol_solve(low, diag, rhs, yj)
+                    for pp in range(k):
+                        ys[j, pp] = yj[pp]
                 for i in range(m):
                     for j in range(m):
                         if not (free[i] and free[j]):
@@ -623,7 +634,7 @@ def solve_bins(
                             continue
                         racc = 0.0
                         for pp in range(vst[i], vsp[i]):
-                            racc += (t[pp].conjugate() * ys[j][pp]).real
+                            racc += (t[pp].conjugate() * ys[j, pp]).real
                         dnv2[i, j] = -2.0 * racc  # d ||t_i||^2 / d d_j
                 # secular Newton on 1/||t_i|| - 1/sqrt(c_i) = 0 (free blocks)
                 sec_ok = True
@@ -798,7 +809,7 @@ def solve_bins(
         tight = math.isfinite(up) and (
             up - lo <= 1e-9 * (up + math.sqrt(rn)) + 1e-10 * math.sqrt(vc2 + wn2)
         )
-        lower[n] = lo
+        lower[n] = lo if lo <= up else up  # the two meet to round-off: never lower > upper
         upper[n] = up
         if tight and (cond >= 1e-12 or phi <= 0.0):
             status[n] = DONE
@@ -895,10 +906,10 @@ def solve_window(
                 nz,
                 nv,
                 nw,
-                vst,
-                vsp,
-                zst,
-                zsp,
+                vst.copy(),
+                vsp.copy(),
+                zst.copy(),
+                zsp.copy(),
                 int(max_iter),
                 out.lower[a:b],
                 out.upper[a:b],

@@ -149,6 +149,15 @@ class PlantResponse:
         """(n_bins, ny, nu): the nominal plant."""
         return self._part(1, 2)
 
+    @cached_property
+    def coupled(self) -> bool:
+        """Whether ``P11`` or ``P12`` is non-zero at some bin (``z`` depends on ``v`` or ``w``).
+
+        Computed once per response (``p`` is not to be changed in place).
+        """
+        nz, nx = self.blocks.nz, self.blocks.nv + self.nw
+        return bool(np.any(self.p[:, :nz, :nx]))
+
 
 @dataclass(frozen=True)
 class Perturbation:
