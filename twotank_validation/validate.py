@@ -120,7 +120,7 @@ def inverse_dft(values: np.ndarray, n_samples: int, convention: NormConvention) 
 def total_beta(per_bin: np.ndarray, weights: np.ndarray) -> float:
     """``sqrt(sum_n weight_n per_bin(n)^2)`` over one-sided bins."""
     with np.errstate(invalid="ignore"):
-        return float(np.sqrt(np.sum(weights * per_bin**2)))
+        return float(np.sqrt(np.dot(weights, per_bin * per_bin)))
 
 
 def check_compatible(datum: Datum, model: LFTModel) -> None:
