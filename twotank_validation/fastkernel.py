@@ -427,7 +427,6 @@ def solve_bins(
     best_d = np.empty(m)
     rhs = np.empty(k, dtype=np.complex128)
     ys = np.empty((m, k), dtype=np.complex128)
-    yj = np.empty(k, dtype=np.complex128)
     dnv2 = np.empty((m, m))
     amat = np.empty((m, m))
     real_work = np.empty((m, m + 1))
@@ -667,9 +666,7 @@ def solve_bins(
                         rhs[pp] = 0.0
                     for pp in range(vst[j], vsp[j]):
                         rhs[pp] = t[pp]
-                    _chol_solve(low, diag, rhs, yj)
-                    for pp in range(k):
-                        ys[j, pp] = yj[pp]
+                    _chol_solve(low, diag, rhs, ys[j])
                 for i in range(m):
                     for j in range(m):
                         if not (free[i] and free[j]):
