@@ -232,6 +232,95 @@ def test_kernel_threads_share_the_bins_without_changing_a_bit() -> None:
         assert res.stats == runs[0].stats
 
 
+def _kernel_outputs(out: object) -> dict[str, np.ndarray]:
+    """The kernel's outputs; the bounds of a deferred bin are not written (left to numpy)."""
+    from twotank_validation.fastkernel import DONE  # noqa: PLC0415
+
+    names = ("w", "v", "z", "dmat", "r", "status", "kind")
+    got = {name: getattr(out, name) for name in names}
+    done = got["status"] == DONE
+    for name in ("lower", "upper"):
+        got[name] = np.where(done, getattr(out, name), np.nan)
+    return got
+
+
+def test_shipped_models_get_the_kernel_compiled_for_their_dimensions() -> None:
+    """Both tank models' dimensions are in fastkernel.SIZED, so the default call runs the
+    sized kernel, and it says so in the statistics."""
+    from twotank_validation import fastkernel  # noqa: PLC0415
+
+    datum = tank_datum()
+    for name in ("A", "B"):
+        resp = load_model(name).response(datum.theta, datum.ts_s)
+        blocks = resp.blocks
+        dims = (blocks.nz, blocks.nv, resp.nw, resp.nu, blocks.n_blocks)
+        assert dims in fastkernel.SIZED, (name, dims)
+        assert fast.solve_fast(resp, datum.u_bins, datum.y_bins).stats.kernel_sized
+    resp, u, y = random_window(3, ((1, 1),), 2, 2, 1, coupled=False)
+    stats = fast.solve_fast(resp, u, y).stats
+    assert stats.n_compiled > 0
+    assert not stats.kernel_sized
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_sized_kernel_gives_the_general_kernels_bits_on_the_tank_window(name: str) -> None:
+    """The kernel compiled for the tank's dimensions against the general kernel (dimensions
+    read at run time): the same arithmetic, so every output equal to the bit."""
+    from twotank_validation import fastkernel  # noqa: PLC0415
+
+    datum = tank_datum()
+    resp = load_model(name).response(datum.theta, datum.ts_s)
+    kw = {
+        "u_scale": float(np.max(np.linalg.norm(datum.u_bins, axis=1))),
+        "blocks": resp.blocks,
+        "nw": resp.nw,
+        "max_iter": 60,
+        "threads": 1,
+    }
+    sized = fastkernel.solve_window(resp.p, datum.u_bins, datum.y_bins, sized=True, **kw)
+    general = fastkernel.solve_window(resp.p, datum.u_bins, datum.y_bins, sized=False, **kw)
+    for what, got in _kernel_outputs(sized).items():
+        np.testing.assert_array_equal(got, _kernel_outputs(general)[what], err_msg=what)
+    assert sized.iterations == general.iterations
+    assert sized.sized
+    assert not general.sized
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1.0, 1e-6, 1e6]))
+def test_sized_kernel_gives_the_general_kernels_bits_on_random_bins(
+    seed: int, scale: float
+) -> None:
+    """Random structured windows of the tank's dimensions (awkward bins planted): the sized
+    and the general kernel agree to the bit, deferred bins included."""
+    from twotank_validation import fastkernel  # noqa: PLC0415
+
+    resp, u, y = random_window(seed, ((1, 1), (1, 1)), 2, 2, 2, coupled=False, n_bins=40)
+    u, y = u * scale, y * scale
+    kw = {
+        "u_scale": float(np.max(np.linalg.norm(u, axis=1))),
+        "blocks": resp.blocks,
+        "nw": resp.nw,
+        "max_iter": 60,
+        "threads": 1,
+    }
+    sized = _kernel_outputs(fastkernel.solve_window(resp.p, u, y, sized=True, **kw))
+    general = _kernel_outputs(fastkernel.solve_window(resp.p, u, y, sized=False, **kw))
+    for what, got in sized.items():
+        np.testing.assert_array_equal(got, general[what], err_msg=what)
+
+
+def test_sized_dimensions_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """TWOTANK_FAST_SIZED adds structures to the shipped one; a malformed entry is an error."""
+    from twotank_validation import fastkernel  # noqa: PLC0415
+
+    monkeypatch.setenv("TWOTANK_FAST_SIZED", "1,1,2,1,1; 3,3,2,2,2")
+    assert fastkernel._sized_default() == {(2, 2, 2, 2, 2), (1, 1, 2, 1, 1), (3, 3, 2, 2, 2)}
+    monkeypatch.setenv("TWOTANK_FAST_SIZED", "1,1,2")
+    with pytest.raises(ValueError, match="TWOTANK_FAST_SIZED"):
+        fastkernel._sized_default()
+
+
 def test_validating_does_not_load_numba_until_the_kernel_runs() -> None:
     """The node and replay (closed form) never pay numba's import and memory."""
     import subprocess  # noqa: PLC0415

@@ -87,6 +87,8 @@ class FastStats:
         n_compiled: bins (direct or dual) answered by the compiled per-bin kernel
             (:mod:`twotank_validation.fastkernel`); the rest of ``n_direct + n_dual`` by the
             batched numpy code.
+        kernel_sized: the compiled kernel ran in its version compiled for these dimensions
+            (:data:`fastkernel.SIZED`), not the general one.
     """
 
     n_bins: int
@@ -96,6 +98,7 @@ class FastStats:
     n_infeasible: int
     iterations: int
     n_compiled: int = 0
+    kernel_sized: bool = False
 
 
 @dataclass(frozen=True)
@@ -1870,8 +1873,9 @@ def _solve_compiled(
     )
     certified = done.copy()
     fell_back = np.zeros(nb, dtype=bool)
-    n_direct = int(np.sum(done & (out.kind != KIND_DUAL)))
-    n_dual = int(np.sum(done)) - n_direct
+    n_compiled = int(np.count_nonzero(done))
+    n_direct = int(np.count_nonzero(done & (out.kind != KIND_DUAL)))
+    n_dual = n_compiled - n_direct
     n_fallback = 0
     iterations = out.iterations
     deferred = np.flatnonzero(~done)
@@ -1914,7 +1918,8 @@ def _solve_compiled(
         n_fallback=n_fallback,
         n_infeasible=int(np.sum(np.isinf(lower))),
         iterations=iterations,
-        n_compiled=int(np.sum(done)),
+        n_compiled=n_compiled,
+        kernel_sized=out.sized,
     )
     return FastSolutions(solutions=sol, stats=stats, fell_back=fell_back, error=out.r)
 

@@ -30,6 +30,12 @@ temporaries of a few hundred array operations over ``(rows, cols, n_bins)`` stac
 library solves thousands of tiny concave duals at once, and a loop over the bins in
 Python costs more than the whole window. Here each bin's few-by-few matrices stay in
 registers and small work buffers allocated once per call.
+
+One source, two kinds of compiled kernel: the general one reads the dimensions from the
+arrays; for the structures in :data:`SIZED` (the shipped tank models') the kernel is
+compiled with the dimensions as constants (:func:`size_token`), which lets LLVM unroll the
+few-by-few loops: ~30 % faster, bit-identical results. Each costs a compile of about a
+minute, once per checkout (numba's on-disk cache).
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
 import numba
+import numba.extending
 import numpy as np
 
 from twotank_validation.fastrules import (
@@ -347,6 +354,26 @@ def _least_noise(inv22: Any, r: Any, w0: Any) -> float:
     return wn2
 
 
+def _dim(x: Any) -> int:
+    """A dimension given as an int, or as a tuple whose length it is (see :func:`size_token`)."""
+    return x if isinstance(x, int) else len(x)
+
+
+@numba.extending.overload(_dim, inline="always")
+def _dim_compiled(x: Any) -> Callable[[Any], int]:
+    if isinstance(x, numba.types.Integer):
+
+        def given(x: Any) -> Any:
+            return x
+
+        return given
+
+    def length(x: Any) -> int:
+        return len(x)  # a constant: the tuple's length is in its type
+
+    return length
+
+
 # The dual ascent of one bin (the rules of fast._dual_ascent) is written out inside
 # solve_bins' loop: a call passing its ~40 work buffers cost more than the ascent itself.
 
@@ -357,9 +384,7 @@ def solve_bins(
     u: Any,
     y: Any,
     u_scale: float,
-    nz: int,
-    nv: int,
-    nw: int,
+    sizes: Any,
     vst: Any,
     vsp: Any,
     zst: Any,
@@ -381,7 +406,9 @@ def solve_bins(
         p: (n, nz + ny, nv + nw + nu) complex, P at the bins (``P11 = P12 = 0``, ny = nw).
         u: (n, nu) complex. y: (n, ny) complex.
         u_scale: largest ``||U(n)||`` of the window.
-        nz, nv, nw: dimensions. vst, vsp, zst, zsp: (m,) int, block slices of v and z.
+        sizes: ``(nz, nv, nw, nu, m)`` (m: number of blocks), as five ints or as
+            :func:`size_token` (the kernel is then compiled for those dimensions).
+        vst, vsp, zst, zsp: (m,) int, block slices of v and z.
         max_iter: Newton iterations at most.
         lower, upper: (n,) float out. w_out: (n, nw), v_out: (n, nv), dmat_out: (n, nv, nz),
             z_out: (n, nz), r_out: (n, ny) complex out (``r = Y - P23 U``).
@@ -390,11 +417,14 @@ def solve_bins(
     Returns:
         Newton iterations of the slowest bin answered on the dual.
     """
+    nz = _dim(sizes[0])
+    nv = _dim(sizes[1])
+    nw = _dim(sizes[2])
+    nu = _dim(sizes[3])
+    m = _dim(sizes[4])
     nb = p.shape[0]
     ny = nw
     nx = nv + nw
-    nu = p.shape[2] - nx
-    m = vst.shape[0]
     k = nv
     zu = np.empty(nz, dtype=np.complex128)
     r = np.empty(ny, dtype=np.complex128)
@@ -857,6 +887,18 @@ def solve_bins(
     return worst
 
 
+def size_token(dims: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
+    """``dims`` as tuples of zeros of those lengths (``sizes`` of :func:`solve_bins`).
+
+    A tuple's length is part of its numba type: given these, the kernel is compiled (and
+    cached on disk) for those dimensions alone, every loop bound and buffer shape a
+    constant, so LLVM unrolls the few-by-few loops and indexes the buffers statically.
+    Measured on the tank window: ~30 % less time than with the dimensions as ints (same
+    arithmetic, bit-identical results).
+    """
+    return tuple((0,) * d for d in dims)
+
+
 @dataclass(frozen=True)
 class KernelOutput:
     """What :func:`solve_window` returns (bin axis first).
@@ -871,6 +913,7 @@ class KernelOutput:
         status: (n,) int8, :data:`DONE` or :data:`DEFER`.
         kind: (n,) int8, :data:`KIND_EXPLAINED`, :data:`KIND_DIRECT` or :data:`KIND_DUAL`.
         iterations: Newton iterations of the slowest bin answered on the dual.
+        sized: whether the kernel compiled for these dimensions ran (:data:`SIZED`).
     """
 
     lower: np.ndarray
@@ -883,6 +926,7 @@ class KernelOutput:
     status: np.ndarray
     kind: np.ndarray
     iterations: int
+    sized: bool = False
 
 
 def solve_window(
@@ -895,6 +939,7 @@ def solve_window(
     nw: int,
     max_iter: int,
     threads: int | None = None,
+    sized: bool | None = None,
 ) -> KernelOutput:
     """Run the kernel on every bin of a window.
 
@@ -912,6 +957,9 @@ def solve_window(
         nw: noise dimension.
         max_iter: Newton iterations at most.
         threads: threads to use (default :data:`THREADS`).
+        sized: run the kernel compiled for these dimensions (:func:`size_token`) rather
+            than the general one; default: where the dimensions are in :data:`SIZED`. The
+            results are the same to the bit.
     """
     n = p.shape[0]
     nz, nv = blocks.nz, blocks.nv
@@ -936,6 +984,11 @@ def solve_window(
         iterations=0,
     )
 
+    nu = p.shape[2] - nv - nw
+    dims = (nz, nv, nw, nu, blocks.n_blocks)
+    sized = dims in SIZED if sized is None else sized
+    sizes = size_token(dims) if sized else dims
+
     def run(a: int, b: int) -> int:
         return int(
             solve_bins(
@@ -943,9 +996,7 @@ def solve_window(
                 u[a:b],
                 y[a:b],
                 float(u_scale),
-                nz,
-                nv,
-                nw,
+                sizes,
                 vst,
                 vsp,
                 zst,
@@ -970,7 +1021,7 @@ def solve_window(
     else:
         pending = [_pool().submit(run, a, b) for a, b in itertools.pairwise(cuts[1:])]
         iterations = max([run(cuts[0], cuts[1]), *(f.result() for f in pending)])
-    return dataclasses.replace(out, iterations=iterations)
+    return dataclasses.replace(out, iterations=iterations, sized=sized)
 
 
 def _default_threads() -> int:
@@ -983,6 +1034,32 @@ def _default_threads() -> int:
 THREADS = _default_threads()
 """Threads a window's bins are shared among: the CPUs this process may use, at most 4
 (``TWOTANK_FAST_THREADS`` overrides; 1 runs everything in the calling thread)."""
+
+
+def _sized_default() -> frozenset[tuple[int, ...]]:
+    dims = {(2, 2, 2, 2, 2)}  # the tank models: two scalar blocks, two noises, two inputs
+    for item in os.environ.get("TWOTANK_FAST_SIZED", "").split(";"):
+        if not item.strip():
+            continue
+        try:
+            entry = tuple(int(x) for x in item.split(","))
+        except ValueError:
+            entry = ()
+        if len(entry) != 5 or min(entry) < 0:
+            raise ValueError(
+                f"TWOTANK_FAST_SIZED: {item.strip()!r} is not five non-negative integers "
+                "nz,nv,nw,nu,m (entries separated by ';')"
+            )
+        dims.add(entry)
+    return frozenset(dims)
+
+
+SIZED = _sized_default()
+"""Dimensions ``(nz, nv, nw, nu, number of blocks)`` that get a kernel compiled for them
+(:func:`size_token`, ~30 % faster); every other structure runs the general kernel.
+Each entry costs one more compile (about a minute, once per checkout, then cached on disk),
+so the list holds the shipped models' structure; ``TWOTANK_FAST_SIZED="nz,nv,nw,nu,m;..."``
+adds more."""
 MIN_CHUNK = 256
 """Fewest bins worth a thread of their own."""
 

@@ -264,7 +264,8 @@ def _solve_fast(
         progress(st.n_bins)
     line = (
         f"{st.n_direct + st.n_dual} of {st.n_bins} bins solved ({st.n_compiled} by the "
-        f"compiled per-bin kernel, {st.n_direct + st.n_dual - st.n_compiled} by the batched "
+        f"compiled per-bin kernel{' sized for this structure' if st.kernel_sized else ''}, "
+        f"{st.n_direct + st.n_dual - st.n_compiled} by the batched "
         f"numpy dual), {st.n_fallback} fell back to the per-bin SDP"
     )
     return res.solutions, st.n_fallback, line, res.error
