@@ -34,8 +34,8 @@ registers and small work buffers allocated once per call.
 One source, two kinds of compiled kernel: the general one reads the dimensions from the
 arrays; for the structures in :data:`SIZED` (the shipped tank models') the kernel is
 compiled with the dimensions as constants (:func:`size_token`), which lets LLVM unroll the
-few-by-few loops: ~30 % faster, bit-identical results. Each costs a compile of about a
-minute, once per checkout (numba's on-disk cache).
+few-by-few loops: ~30 % faster, bit-identical results. Each costs a compile of about half
+a minute, once per checkout (numba's on-disk cache).
 """
 
 from __future__ import annotations
@@ -316,6 +316,54 @@ def _evaluate(
     return math.isfinite(phi), phi
 
 
+# Called, not inlined: the same helpers for the sites a bin rarely reaches (another start,
+# backtracking, a 3 x 3 inverse). Every inlined copy grows the kernel numba must analyse,
+# and its compile time grows faster than its size; the arithmetic, and so every bit of the
+# answer, is the same either way.
+
+
+@_jit
+def _inverse_call(a: Any, inv: Any, work: Any) -> bool:
+    """:func:`_inverse`, called."""
+    return _inverse(a, inv, work)
+
+
+@_jit
+def _solve_real_call(a: Any, b: Any, free: Any, x: Any, work: Any, idx: Any) -> bool:
+    """:func:`_solve_real`, called."""
+    return _solve_real(a, b, free, x, work, idx)
+
+
+@_jit
+def _newton_step_call(
+    dnv2: Any, slack: Any, free: Any, newton: Any, amat: Any, rhs: Any, work: Any, idx: Any
+) -> None:
+    """:func:`_newton_step`, called."""
+    _newton_step(dnv2, slack, free, newton, amat, rhs, work, idx)
+
+
+@_jit
+def _evaluate_call(
+    d: Any,
+    gram: Any,
+    gdiag: Any,
+    b: Any,
+    pm: Any,
+    w0: Any,
+    c: Any,
+    vst: Any,
+    vsp: Any,
+    h: Any,
+    sc: Any,
+    low: Any,
+    diag: Any,
+    t: Any,
+    nv2: Any,
+) -> tuple[bool, float]:
+    """:func:`_evaluate`, called."""
+    return _evaluate(d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2)
+
+
 @_inline
 def _noise_inverse(p: Any, n: int, nz: int, nv: int, p22: Any, inv22: Any, work22: Any) -> bool:
     """``inv22 = P22^-1`` at bin ``n``; False where ``P22`` is too ill-conditioned to eliminate."""
@@ -335,7 +383,7 @@ def _noise_inverse(p: Any, n: int, nz: int, nv: int, p22: Any, inv22: Any, work2
         inv22[1, 0] = -p22[1, 0] * idet
         inv22[1, 1] = p22[0, 0] * idet
         return True
-    if not _inverse(p22, inv22, work22):
+    if not _inverse_call(p22, inv22, work22):
         return False
     return _frobenius_cond(p22, inv22) < NOISE_COND
 
@@ -563,7 +611,7 @@ def solve_bins(
             )
             x_scale = math.sqrt(abs(quad) / det)
         else:
-            if not _inverse(gram_o, inv_o, work_o):
+            if not _inverse_call(gram_o, inv_o, work_o):
                 continue
             if not _frobenius_cond(gram_o, inv_o) < GRAM_COND:
                 continue
@@ -655,7 +703,7 @@ def solve_bins(
                             else:
                                 on = i != sub - 1 - m
                             d[i] = cs * dscale[i] if on else 0.0
-                        ok, phi = _evaluate(
+                        ok, phi = _evaluate_call(
                             d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2
                         )
                         if ok:
@@ -771,7 +819,7 @@ def solve_bins(
                             best_d[i] = cand[i]
                 if best_phi == -math.inf:  # reduced step, floored step, ratio test and halvings
                     if not newton_ready:
-                        _newton_step(dnv2, slack, free, newton, amat, cand, real_work, idx)
+                        _newton_step_call(dnv2, slack, free, newton, amat, cand, real_work, idx)
                         newton_ready = True
                     alpha = 1.0
                     for i in range(m):
@@ -789,7 +837,7 @@ def solve_bins(
                                     racc += dnv2[i, j] * sec[j]
                                     amat[i, j] = -dnv2[i, j]
                                 cand[i] = racc
-                            if not _solve_real(amat, cand, red, step, real_work, idx):
+                            if not _solve_real_call(amat, cand, red, step, real_work, idx):
                                 for i in range(m):
                                     step[i] = 0.0
                             for i in range(m):
@@ -801,7 +849,7 @@ def solve_bins(
                             for i in range(m):
                                 cand[i] = max(d[i] + alpha * newton[i], 0.0)
                             alpha *= 0.5
-                        okc, phic = _evaluate(
+                        okc, phic = _evaluate_call(
                             cand, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, lown, diagn, tn, nv2n
                         )
                         last_best = okc and phic >= floor
@@ -825,7 +873,7 @@ def solve_bins(
                     for i in range(m):
                         nv2[i] = nv2n[i]
                 else:
-                    ok, phi = _evaluate(
+                    ok, phi = _evaluate_call(
                         d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2
                     )
                     if not ok:  # cannot happen (the same point was accepted); be safe
@@ -1057,7 +1105,7 @@ def _sized_default() -> frozenset[tuple[int, ...]]:
 SIZED = _sized_default()
 """Dimensions ``(nz, nv, nw, nu, number of blocks)`` that get a kernel compiled for them
 (:func:`size_token`, ~30 % faster); every other structure runs the general kernel.
-Each entry costs one more compile (about a minute, once per checkout, then cached on disk),
+Each entry costs one more compile (~30 s, once per checkout, then cached on disk),
 so the list holds the shipped models' structure; ``TWOTANK_FAST_SIZED="nz,nv,nw,nu,m;..."``
 adds more."""
 MIN_CHUNK = 256
