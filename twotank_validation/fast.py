@@ -1916,7 +1916,7 @@ def _solve_compiled(
         n_direct=n_direct,
         n_dual=n_dual,
         n_fallback=n_fallback,
-        n_infeasible=int(np.sum(np.isinf(lower))),
+        n_infeasible=int(np.count_nonzero(np.isinf(lower))),
         iterations=iterations,
         n_compiled=n_compiled,
         kernel_sized=out.sized,
@@ -2056,7 +2056,7 @@ def _solve_batched(
         n_direct=nb - n_dual - int(back.size),
         n_dual=n_dual,
         n_fallback=int(back.size),
-        n_infeasible=int(np.sum(np.isinf(lower))),
+        n_infeasible=int(np.count_nonzero(np.isinf(lower))),
         iterations=iterations,
     )
     return FastSolutions(solutions=sol, stats=stats, fell_back=~settled, error=win.r.T.copy())
