@@ -342,3 +342,53 @@ def test_model_constants_are_ready_before_the_first_window() -> None:
     monitor.WindowMonitor(FAST, ms)
     for m in ms:
         assert ("pulse_moment", FAST.ts_s) in m.cache
+
+
+def test_fast_path_kernel_is_loaded_before_the_first_window_and_only_then() -> None:
+    """With method="fast" the monitor loads the compiled kernel when it is built (the first
+    window does not wait for numba); with "auto" on the tank models (closed form) it never
+    loads numba at all. In a fresh interpreter, so nothing else has loaded it."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    code = (
+        "import sys\n"
+        "from twotank_validation import monitor\n"
+        "from twotank_validation.model import load_model\n"
+        "ms = [load_model('A'), load_model('B')]\n"
+        "cfg = monitor.MonitorConfig(ts_s=0.8, period_samples=256, method=sys.argv[1])\n"
+        "monitor.WindowMonitor(cfg, ms)\n"
+        "loaded = 'numba' in sys.modules\n"
+        "ready = loaded and bool(sys.modules['twotank_validation.fastkernel'].solve_bins"
+        ".signatures)\n"
+        "print(loaded, ready)\n"
+    )
+    for method, want in (("fast", "True True"), ("auto", "False False")):
+        out = subprocess.run(
+            [sys.executable, "-c", code, method], capture_output=True, text=True, check=True
+        )
+        assert out.stdout.strip() == want, (method, out.stdout, out.stderr[-2000:])
+
+
+@pytest.mark.parametrize("method", ["auto", "fast", "sdp", "closed_form"])
+def test_takes_fast_path_names_validates_route(method: str) -> None:
+    """takes_fast_path says "fast" exactly where validate then reports method "fast": the
+    tank models (closed form under auto) and a three-block model (fast under auto)."""
+    from twotank_validation.datum import make_datum  # noqa: PLC0415
+    from twotank_validation.model import BlockStructure, PlantResponse  # noqa: PLC0415
+    from twotank_validation.validate import takes_fast_path, validate  # noqa: PLC0415
+
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=(512, 2))
+    y = rng.normal(size=(512, 2))
+    datum = make_datum(u, y, ts_s=0.8, period_samples=256)
+    for m in (load_model("A"), load_model("B")):
+        resp = m.response(datum.theta, datum.ts_s)
+        res = validate(datum, m, method=method, response=resp)
+        assert takes_fast_path(resp, method) == (res.method == "fast"), (m.name, res.method)
+    blocks = BlockStructure(((1, 1), (2, 1), (1, 1)))
+    p = rng.normal(size=(4, blocks.nz + 2, blocks.nv + 4)) + 0j
+    p[:, : blocks.nz, : blocks.nv + 2] = 0.0  # z = P13 U: structured, not decoupled
+    resp3 = PlantResponse(p, blocks, 2, 2, 2)
+    assert takes_fast_path(resp3, "auto")
+    assert not takes_fast_path(resp3, "sdp")

@@ -1839,6 +1839,26 @@ def solve_fast(
     )
 
 
+def warm_up(resp: PlantResponse) -> bool:
+    """Load the compiled kernel for this structure now (compile it if this checkout never has).
+
+    A live validator calls this at start-up, so that its first window does not wait for
+    numba's cache (a fraction of a second) or a first compile (~30 s). Runs the kernel on
+    one made-up bin of ``resp``; does nothing where the kernel does not take the structure.
+
+    Returns:
+        Whether the kernel applies to ``resp`` (and is now loaded).
+    """
+    if not resp.p.shape[0] or not kernel_applies(
+        resp.blocks, resp.nw, resp.ny, coupled=resp.coupled
+    ):
+        return False
+    one = PlantResponse(resp.p[:1], resp.blocks, resp.nw, resp.nu, resp.ny)
+    u = np.ones((1, resp.nu), dtype=complex)
+    solve_fast(one, u, np.ones((1, resp.ny), dtype=complex), fallback=False)
+    return True
+
+
 def _solve_compiled(
     resp: PlantResponse,
     u: np.ndarray,

@@ -27,10 +27,16 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation import fast
 from twotank_validation.datum import NormConvention, make_datum
 from twotank_validation.errors import DatumError, ModelError, TwotankError
 from twotank_validation.model import LFTModel, PlantResponse
-from twotank_validation.validate import check_compatible, pulse_moment, validate
+from twotank_validation.validate import (
+    check_compatible,
+    pulse_moment,
+    takes_fast_path,
+    validate,
+)
 
 NS_PER_S = 1_000_000_000
 
@@ -743,6 +749,9 @@ class WindowMonitor:
         }
         for m in self.models:
             pulse_moment(m, config.ts_s)
+            # and the fast path's compiled kernel, where validate will use it
+            if takes_fast_path(self._responses[m.name], config.method):
+                fast.warm_up(self._responses[m.name])
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
 
     def reset_buffer(self) -> None:

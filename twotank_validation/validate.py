@@ -249,6 +249,20 @@ def validate(
     )
 
 
+def takes_fast_path(resp: PlantResponse, method: str) -> bool:
+    """Whether :func:`validate` with this ``method`` takes the fast path for ``resp``.
+
+    ``"fast"`` always; ``"auto"`` where the closed form does not apply and the fast path
+    covers the structure (as :func:`validate` chooses).
+    """
+    if method == "fast":
+        return True
+    if method != "auto":
+        return False
+    structure, _ = solvers.decoupled_structure(resp)
+    return structure is None and fast.coverage(resp.blocks, resp.nw)[0]
+
+
 def _solve_fast(
     resp: PlantResponse, datum: Datum, progress: Callable[[int], None] | None
 ) -> tuple[solvers.BinSolutions, int, str, np.ndarray]:
