@@ -501,3 +501,19 @@ def test_coverage() -> None:
     resp, u, y = random_window(0, ((1, 1),) * 4, 2, 2, 2, coupled=False)
     with pytest.raises(ValueError, match="does not cover"):
         fast.solve_fast(resp, u, y)
+
+
+def test_warm_up_loads_the_kernel_only_for_structures_the_fast_path_takes() -> None:
+    """warm_up on a structure the kernel and the fast path take says so; on one the kernel
+    would take but the fast path does not cover (too many unknowns per bin) it declines,
+    without raising: the monitor calls it at start-up for any model."""
+    resp, _, _ = random_window(3, ((1, 1), (1, 1)), 2, 2, 2, coupled=False)
+    assert fast.warm_up(resp)
+    big = BlockStructure(((8, 1), (8, 1)))
+    assert not fast.coverage(big, 2)[0]
+    p = np.zeros((2, big.nz + 2, big.nv + 2 + 1), dtype=complex)
+    p[:, : big.nz, -1] = 1.0
+    p[:, big.nz :, :] = 1.0
+    assert not fast.warm_up(PlantResponse(p, big, 2, 1, 2))
+    coupled, _, _ = random_window(3, ((1, 1),), 2, 2, 2, coupled=True)
+    assert not fast.warm_up(coupled)

@@ -1844,14 +1844,14 @@ def warm_up(resp: PlantResponse) -> bool:
 
     A live validator calls this at start-up, so that its first window does not wait for
     numba's cache (a fraction of a second) or a first compile (~30 s). Runs the kernel on
-    one made-up bin of ``resp``; does nothing where the kernel does not take the structure.
+    one made-up bin of ``resp``; does nothing (and raises nothing) where the fast path does
+    not cover the structure or the kernel does not take it.
 
     Returns:
         Whether the kernel applies to ``resp`` (and is now loaded).
     """
-    if not resp.p.shape[0] or not kernel_applies(
-        resp.blocks, resp.nw, resp.ny, coupled=resp.coupled
-    ):
+    applies = kernel_applies(resp.blocks, resp.nw, resp.ny, coupled=resp.coupled)
+    if not resp.p.shape[0] or not applies or not coverage(resp.blocks, resp.nw)[0]:
         return False
     one = PlantResponse(resp.p[:1], resp.blocks, resp.nw, resp.nu, resp.ny)
     u = np.ones((1, resp.nu), dtype=complex)
