@@ -262,28 +262,34 @@ def test_shipped_models_get_the_kernel_compiled_for_their_dimensions() -> None:
     assert not stats.kernel_sized
 
 
-@pytest.mark.parametrize("name", ["A", "B"])
-def test_sized_kernel_gives_the_general_kernels_bits_on_the_tank_window(name: str) -> None:
-    """The kernel compiled for the tank's dimensions against the general kernel (dimensions
-    read at run time): the same arithmetic, so every output equal to the bit."""
+def assert_sized_equals_general(resp: PlantResponse, u: np.ndarray, y: np.ndarray) -> None:
+    """The kernel compiled for ``resp``'s dimensions and the general one (dimensions read at
+    run time) on one window: every output equal to the bit (bounds where answered)."""
     from twotank_validation import fastkernel  # noqa: PLC0415
 
-    datum = tank_datum()
-    resp = load_model(name).response(datum.theta, datum.ts_s)
     kw = {
-        "u_scale": float(np.max(np.linalg.norm(datum.u_bins, axis=1))),
+        "u_scale": float(np.max(np.linalg.norm(u, axis=1))),
         "blocks": resp.blocks,
         "nw": resp.nw,
         "max_iter": 60,
         "threads": 1,
     }
-    sized = fastkernel.solve_window(resp.p, datum.u_bins, datum.y_bins, sized=True, **kw)
-    general = fastkernel.solve_window(resp.p, datum.u_bins, datum.y_bins, sized=False, **kw)
+    sized = fastkernel.solve_window(resp.p, u, y, sized=True, **kw)
+    general = fastkernel.solve_window(resp.p, u, y, sized=False, **kw)
+    want = _kernel_outputs(general)
     for what, got in _kernel_outputs(sized).items():
-        np.testing.assert_array_equal(got, _kernel_outputs(general)[what], err_msg=what)
+        np.testing.assert_array_equal(got, want[what], err_msg=what)
     assert sized.iterations == general.iterations
     assert sized.sized
     assert not general.sized
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_sized_kernel_gives_the_general_kernels_bits_on_the_tank_window(name: str) -> None:
+    """The same arithmetic in both kernels, so the same bits on the tank window."""
+    datum = tank_datum()
+    resp = load_model(name).response(datum.theta, datum.ts_s)
+    assert_sized_equals_general(resp, datum.u_bins, datum.y_bins)
 
 
 @settings(max_examples=15, deadline=None)
@@ -293,21 +299,8 @@ def test_sized_kernel_gives_the_general_kernels_bits_on_random_bins(
 ) -> None:
     """Random structured windows of the tank's dimensions (awkward bins planted): the sized
     and the general kernel agree to the bit, deferred bins included."""
-    from twotank_validation import fastkernel  # noqa: PLC0415
-
     resp, u, y = random_window(seed, ((1, 1), (1, 1)), 2, 2, 2, coupled=False, n_bins=40)
-    u, y = u * scale, y * scale
-    kw = {
-        "u_scale": float(np.max(np.linalg.norm(u, axis=1))),
-        "blocks": resp.blocks,
-        "nw": resp.nw,
-        "max_iter": 60,
-        "threads": 1,
-    }
-    sized = _kernel_outputs(fastkernel.solve_window(resp.p, u, y, sized=True, **kw))
-    general = _kernel_outputs(fastkernel.solve_window(resp.p, u, y, sized=False, **kw))
-    for what, got in sized.items():
-        np.testing.assert_array_equal(got, general[what], err_msg=what)
+    assert_sized_equals_general(resp, u * scale, y * scale)
 
 
 def test_sized_dimensions_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
