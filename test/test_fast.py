@@ -303,8 +303,9 @@ def test_sized_kernel_gives_the_general_kernels_bits_on_random_bins(
     assert_sized_equals_general(resp, u * scale, y * scale)
 
 
-def test_sized_dimensions_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
-    """TWOTANK_FAST_SIZED adds structures to the shipped one; a malformed entry is an error."""
+def test_kernel_settings_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """TWOTANK_FAST_SIZED adds structures to the shipped one, TWOTANK_FAST_THREADS sets the
+    threads; a malformed value is an error naming the variable."""
     from twotank_validation import fastkernel  # noqa: PLC0415
 
     monkeypatch.setenv("TWOTANK_FAST_SIZED", "1,1,2,1,1; 3,3,2,2,2")
@@ -312,6 +313,11 @@ def test_sized_dimensions_from_the_environment(monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.setenv("TWOTANK_FAST_SIZED", "1,1,2")
     with pytest.raises(ValueError, match="TWOTANK_FAST_SIZED"):
         fastkernel._sized_default()
+    monkeypatch.setenv("TWOTANK_FAST_THREADS", "3")
+    assert fastkernel._default_threads() == 3
+    monkeypatch.setenv("TWOTANK_FAST_THREADS", "two")
+    with pytest.raises(ValueError, match="TWOTANK_FAST_THREADS"):
+        fastkernel._default_threads()
 
 
 def test_validating_does_not_load_numba_until_the_kernel_runs() -> None:

@@ -1075,7 +1075,13 @@ def solve_window(
 def _default_threads() -> int:
     env = os.environ.get("TWOTANK_FAST_THREADS", "")
     if env.strip():
-        return max(1, int(env))
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(
+                f"TWOTANK_FAST_THREADS: {env.strip()!r} is not an integer (threads for the "
+                "fast path's kernel)"
+            ) from None
     return max(1, min(4, len(os.sched_getaffinity(0))))
 
 
