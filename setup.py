@@ -16,7 +16,7 @@ def _requirements() -> list[str]:
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*", "bench"]),
+    packages=find_packages(exclude=["test", "test.*", "bench", "tools", "tools.*"]),
     package_data={PACKAGE: ["models/*.yaml", "scenarios/*.yaml", "py.typed"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

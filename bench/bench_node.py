@@ -222,7 +222,7 @@ def main() -> None:
     from rosgraph_msgs.msg import Clock  # noqa: PLC0415
     from sensor_msgs.msg import FluidPressure, Temperature  # noqa: PLC0415
 
-    from twotank_validation.ros import interfaces as itf  # noqa: PLC0415
+    from twotank_validation.online import streams as itf  # noqa: PLC0415
     from twotank_validation.ros.validator_node import VALIDATOR_PARAMS  # noqa: PLC0415
 
     defaults = {p.name: p.default for p in VALIDATOR_PARAMS}

@@ -38,10 +38,12 @@ import time
 
 import numpy as np
 
-from twotank_validation import experiment, fast, fastkernel
-from twotank_validation.datum import make_datum
-from twotank_validation.model import load_model
-from twotank_validation.validate import validate
+from twotank_validation import experiment
+from twotank_validation.core.datum import make_datum
+from twotank_validation.core.fast import dispatch as fast
+from twotank_validation.core.fast import kernel as fastkernel
+from twotank_validation.core.model import load_model
+from twotank_validation.core.validate import validate
 
 GOAL_FAST_S = 5e-3
 GOAL_RATIO = 10_000

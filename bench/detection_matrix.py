@@ -61,12 +61,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twotank_validation import monitor, rig
 from twotank_validation.bags.scenario import Scenario, simulate_scenario
+from twotank_validation.core.model import load_model
 from twotank_validation.errors import ModelError
-from twotank_validation.fault_spec import format_fault
-from twotank_validation.model import load_model
-from twotank_validation.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
+from twotank_validation.online import monitor
+from twotank_validation.online.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
+from twotank_validation.sim import rig
+from twotank_validation.sim.fault_spec import format_fault
 
 MODELS = ("A", "B")
 ONSET_PERIOD = 4  # onsets fall in period 4 (0-based), after the judged windows ending 3P, 4P

@@ -22,9 +22,10 @@ import time
 
 import numpy as np
 
-from twotank_validation import experiment, rig
+from twotank_validation import experiment
+from twotank_validation.core.model import load_model_document
 from twotank_validation.diagnose import Window, diagnose
-from twotank_validation.model import load_model_document
+from twotank_validation.sim import rig
 
 A1, H0, T0 = 91.4, 0.47, 0.5
 K_INF, K_DC = -T0 / H0, -0.4674  # Model B's level -> temperature coupling (see test_diagnose)

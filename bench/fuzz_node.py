@@ -2,7 +2,7 @@
 
 Usage: scripts/run bench fuzz_node.py [--seconds 600] [--seed 0] [--case I]
 
-Runs `twotank_validation.ros.nodefuzz.run` on consecutive seeds until the time is up. Each
+Runs `tools.nodefuzz.run` on consecutive seeds until the time is up. Each
 run starts a fresh ValidatorNode (models A and B, Ts = 0.8 s, 256-sample periods,
 use_sim_time) in its own rclpy context and drives /clock and its inputs in lockstep: 3-4
 periods of the nominal rig, a hostile stretch (streamfuzz's random stamps, NaN/inf, 1e300,
@@ -20,8 +20,8 @@ import collections
 import sys
 import time
 
-from twotank_validation.monitor import Alarm
-from twotank_validation.ros import nodefuzz
+from tools import nodefuzz
+from twotank_validation.online.monitor import Alarm
 
 
 def replay(seed: int) -> int:

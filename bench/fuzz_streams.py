@@ -2,7 +2,7 @@
 
 Usage: scripts/run bench fuzz_streams.py [--seconds 300] [--seed 0]
 
-Runs `twotank_validation.streamfuzz.run` on consecutive seeds until the time is up (each
+Runs `tools.streamfuzz.run` on consecutive seeds until the time is up (each
 run: 4 clean periods of the nominal rig, a hostile stretch of random stamps, NaN/inf, huge
 values, bursts, silences, clock jumps and malformed values, then 5 clean periods) and prints
 how many runs, which hostile kinds, how many DatumErrors (malformed values, documented) and
@@ -16,8 +16,8 @@ import argparse
 import collections
 import time
 
-from twotank_validation import streamfuzz
-from twotank_validation.model import load_model
+from tools import streamfuzz
+from twotank_validation.core.model import load_model
 
 
 def main() -> None:

@@ -12,7 +12,7 @@ hours, ``--off-h`` nominal hours between, from ``--first-onset-h``). The default
 about twice the stated detection limits (README "Stated limits") or, for kinds without a
 stated limit, sizes the detection matrix detects within 3 windows in every run.
 
-Prints, and judges (exit 1 on any FAIL; see ``twotank_validation.ros.longrun``):
+Prints, and judges (exit 1 on any FAIL; see ``tools.longrun``):
 
 * every simulated hour: RSS, threads (process and Python), GC-tracked objects, wall time;
   first-to-last deltas and fitted slopes after ``--warmup-h`` hours; tracemalloc's growth
@@ -34,8 +34,8 @@ import sys
 import time
 from dataclasses import replace
 
-from twotank_validation.monitor import Alarm
-from twotank_validation.ros import longrun as lr
+from tools import longrun as lr
+from twotank_validation.online.monitor import Alarm
 
 DEFAULT_KINDS = (
     "valve_weak:hot=0.7",  # 30 % loss; stated limit 15 %

@@ -24,7 +24,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import monitor
+from twotank_validation.online import monitor
 
 # ------------------------------------------------------------ the original (reference) aligner
 
@@ -476,8 +476,8 @@ def test_feed_many_equals_feed_on_hostile_streams(seed: int) -> None:
     """streamfuzz's hostile stretches (NaN, inf, huge values, random and backward stamps,
     clock resets, bursts, duplicates, silences) in clean rig data: feed_many on random
     batches reports exactly what feed reports event by event."""
-    from twotank_validation import streamfuzz  # noqa: PLC0415
-    from twotank_validation.model import load_model  # noqa: PLC0415
+    from tools import streamfuzz  # noqa: PLC0415
+    from twotank_validation.core.model import load_model  # noqa: PLC0415
 
     rng = np.random.default_rng(seed)
     stamps, u, y = streamfuzz.clean_record(9, seed % 4)

@@ -159,7 +159,7 @@ def test_subset_of_topics_and_check_topics(tmp_path, samples, kind):
 
 
 def test_expected_types_are_the_interface_types():
-    from twotank_validation.ros import interfaces as itf  # noqa: PLC0415
+    from twotank_validation.online import streams as itf  # noqa: PLC0415
 
     assert bag_reader.expected_types() == {
         "flow_cmd": (itf.FLOW_CMD_TYPE,),

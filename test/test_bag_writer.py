@@ -41,7 +41,7 @@ from twotank_validation.bags import (
     write_scenario_bag,
 )
 from twotank_validation.errors import TwotankError
-from twotank_validation.ros.interfaces import RigUnits
+from twotank_validation.online.streams import RigUnits
 
 FLOW = "twotank_validation_msgs/msg/FlowCommand"
 REPORT = "twotank_validation_msgs/msg/ValidationReport"

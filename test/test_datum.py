@@ -1,4 +1,4 @@
-"""Tests of twotank_validation.datum: record checks, scaled DFT, periodicity, noise, leakage.
+"""Tests of twotank_validation.core.datum: record checks, scaled DFT, periodicity, noise, leakage.
 
 References are computed independently of the package: Parseval's identity on the time
 samples, closed-form DFTs of sinusoids, the variance of the DFT of white noise, and
@@ -15,7 +15,7 @@ import scipy.signal
 from hypothesis import given
 from hypothesis import strategies as st
 
-from twotank_validation.datum import (
+from twotank_validation.core.datum import (
     NormConvention,
     assess_periodicity,
     check_record,

@@ -26,9 +26,9 @@ from twotank_validation import replay
 from twotank_validation.bags import reader as br
 from twotank_validation.bags import scenario as sc
 from twotank_validation.bags import writer as bw
-from twotank_validation.model import load_model
-from twotank_validation.monitor import MonitorConfig, OnlineValidator
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.core.model import load_model
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import MonitorConfig, OnlineValidator
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_bags as mb

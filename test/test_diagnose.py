@@ -22,9 +22,11 @@ import yaml
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import cli, experiment, rig
+from twotank_validation import cli, experiment
 from twotank_validation.bags import scenario as sc
-from twotank_validation.datum import make_datum
+from twotank_validation.core.datum import make_datum
+from twotank_validation.core.model import load_model, load_model_document, model_from_dict
+from twotank_validation.core.validate import validate
 from twotank_validation.diagnose import (
     DiagnosisConfig,
     DiagnosisError,
@@ -34,9 +36,13 @@ from twotank_validation.diagnose import (
     diagnose,
     split_windows,
 )
-from twotank_validation.model import load_model, load_model_document, model_from_dict
-from twotank_validation.rig import RigParams, linearise_model_a, linearise_model_b, operating_point
-from twotank_validation.validate import validate
+from twotank_validation.sim import rig
+from twotank_validation.sim.rig import (
+    RigParams,
+    linearise_model_a,
+    linearise_model_b,
+    operating_point,
+)
 
 A1, H0, T0 = 91.4, 0.47, 0.5
 NOISE = {"noise_std_height": 0.003, "noise_std_temperature": 0.01}

@@ -1,4 +1,4 @@
-"""Tests of the periodic excitation signals (twotank_validation.excitation).
+"""Tests of the periodic excitation signals (twotank_validation.sim.excitation).
 
 Independent references: the steady-state response of scipy's time-domain Butterworth filter
 to a long repetition of the same white noise, the closed-form magnitude of the bilinear
@@ -15,7 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from twotank_validation.errors import DatumError
-from twotank_validation.excitation import (
+from twotank_validation.sim.excitation import (
     ExcitationConfig,
     excitation_commands,
     excitation_period,

@@ -12,10 +12,11 @@ import scipy.signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import cli, experiment, solvers
-from twotank_validation.datum import NormConvention
-from twotank_validation.model import PlantResponse, load_model
-from twotank_validation.rig import MODEL_HEIGHT_RANGE
+from twotank_validation import cli, experiment
+from twotank_validation.core import solvers
+from twotank_validation.core.datum import NormConvention
+from twotank_validation.core.model import PlantResponse, load_model
+from twotank_validation.sim.rig import MODEL_HEIGHT_RANGE
 
 
 @cache
@@ -157,7 +158,7 @@ def test_demo_writes_report(tmp_path) -> None:
 def test_cli_reports_errors_without_traceback(tmp_path, capsys) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: [unclosed\n")
-    from twotank_validation.model import load_model as load  # noqa: PLC0415
+    from twotank_validation.core.model import load_model as load  # noqa: PLC0415
 
     with pytest.raises(Exception, match="not valid YAML"):
         load(bad)

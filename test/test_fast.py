@@ -13,9 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import experiment, fast, solvers
-from twotank_validation.datum import Datum, make_datum
-from twotank_validation.model import BlockStructure, PlantResponse, load_model
+from twotank_validation import experiment
+from twotank_validation.core import solvers
+from twotank_validation.core.datum import Datum, make_datum
+from twotank_validation.core.fast import dispatch as fast
+from twotank_validation.core.model import BlockStructure, PlantResponse, load_model
 
 RTOL = 1e-6  # agreement asked of the fast path with the cvxpy reference
 # Relative agreement is meaningless at a zero minimum: below FLOOR times the bin's data scale
@@ -234,7 +236,7 @@ def test_kernel_threads_share_the_bins_without_changing_a_bit() -> None:
 
 def _kernel_outputs(out: object) -> dict[str, np.ndarray]:
     """The kernel's outputs; the bounds of a deferred bin are not written (left to numpy)."""
-    from twotank_validation.fastkernel import DONE  # noqa: PLC0415
+    from twotank_validation.core.fast.kernel import DONE  # noqa: PLC0415
 
     names = ("w", "v", "z", "dmat", "r", "status", "kind")
     got = {name: getattr(out, name) for name in names}
@@ -247,7 +249,7 @@ def _kernel_outputs(out: object) -> dict[str, np.ndarray]:
 def test_shipped_models_get_the_kernel_compiled_for_their_dimensions() -> None:
     """Both tank models' dimensions are in fastkernel.SIZED, so the default call runs the
     sized kernel, and it says so in the statistics."""
-    from twotank_validation import fastkernel  # noqa: PLC0415
+    from twotank_validation.core.fast import kernel as fastkernel  # noqa: PLC0415
 
     datum = tank_datum()
     for name in ("A", "B"):
@@ -265,7 +267,7 @@ def test_shipped_models_get_the_kernel_compiled_for_their_dimensions() -> None:
 def assert_sized_equals_general(resp: PlantResponse, u: np.ndarray, y: np.ndarray) -> None:
     """The kernel compiled for ``resp``'s dimensions and the general one (dimensions read at
     run time) on one window: every output equal to the bit (bounds where answered)."""
-    from twotank_validation import fastkernel  # noqa: PLC0415
+    from twotank_validation.core.fast import kernel as fastkernel  # noqa: PLC0415
 
     kw = {
         "u_scale": float(np.max(np.linalg.norm(u, axis=1))),
@@ -306,7 +308,7 @@ def test_sized_kernel_gives_the_general_kernels_bits_on_random_bins(
 def test_kernel_settings_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     """TWOTANK_FAST_SIZED adds structures to the shipped one, TWOTANK_FAST_THREADS sets the
     threads; a malformed value is an error naming the variable."""
-    from twotank_validation import fastkernel  # noqa: PLC0415
+    from twotank_validation.core.fast import kernel as fastkernel  # noqa: PLC0415
 
     monkeypatch.setenv("TWOTANK_FAST_SIZED", "1,1,2,1,1; 3,3,2,2,2")
     assert fastkernel._sized_default() == {(2, 2, 2, 2, 2), (1, 1, 2, 1, 1), (3, 3, 2, 2, 2)}
@@ -327,7 +329,9 @@ def test_validating_does_not_load_numba_until_the_kernel_runs() -> None:
 
     code = (
         "import sys\n"
-        "from twotank_validation import fast, monitor, validate\n"
+        "from twotank_validation.core import validate\n"
+        "from twotank_validation.core.fast import dispatch\n"
+        "from twotank_validation.online import monitor\n"
         "from twotank_validation.ros import validator_node\n"
         "print('numba' in sys.modules)\n"
     )

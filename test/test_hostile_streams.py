@@ -16,10 +16,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import streamfuzz
+from tools import streamfuzz
+from twotank_validation.core.model import load_model
 from twotank_validation.errors import DatumError
-from twotank_validation.model import load_model
-from twotank_validation.monitor import MonitorConfig, OnlineValidator
+from twotank_validation.online.monitor import MonitorConfig, OnlineValidator
 
 MODELS = [load_model("A"), load_model("B")]
 

@@ -1,6 +1,6 @@
 """Long-run checks (issue 7): window accounting, alarm timeline, threads; bench/long_run.py.
 
-The checker (``twotank_validation.ros.longrun``) is first fed made-up report timelines with a
+The checker (``tools.longrun``) is first fed made-up report timelines with a
 dropped window, a duplicate, an alarm that never clears and a false alarm, each of which it
 must flag. Then a short live run (14 periods, 0.8 simulated hours, at Ts 0.8 s / 256-sample
 periods, a fault coming and going) is judged by the same code as the 24-hour bench, and by direct
@@ -15,8 +15,8 @@ from dataclasses import replace
 
 import pytest
 
-from twotank_validation.monitor import NS_PER_S, Alarm
-from twotank_validation.ros import longrun as lr
+from tools import longrun as lr
+from twotank_validation.online.monitor import NS_PER_S, Alarm
 
 TS = 0.8
 PERIOD = 256

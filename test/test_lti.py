@@ -1,4 +1,4 @@
-"""Tests of twotank_validation.lti: realisation, zero-order hold, frequency and pulse responses.
+"""Tests of core.lti: realisation, zero-order hold, frequency and pulse responses.
 
 References: closed-form ZOH of a first-order lag, scipy's cont2discrete applied to the
 transfer function (not the state space), scipy's dfreqresp/dimpulse, and direct evaluation
@@ -13,9 +13,9 @@ import scipy.signal
 from hypothesis import given
 from hypothesis import strategies as st
 
-from twotank_validation import lti
+from twotank_validation.core import lti
+from twotank_validation.core.lti import StateSpace
 from twotank_validation.errors import DimensionError, ModelError, UnstableModelError
-from twotank_validation.lti import StateSpace
 
 
 def _direct_response(a, b, c, d, z):

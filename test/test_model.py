@@ -1,4 +1,4 @@
-"""Tests of twotank_validation.model: shipped YAML models, P(e^{j theta}) assembly, schema errors.
+"""Tests of core.model: shipped YAML models, P(e^{j theta}) assembly, schema errors.
 
 References: zero-order holds computed by the matrix exponential of the augmented matrix
 (scipy.linalg.expm, not cont2discrete) or in closed form for first-order weights, plants
@@ -17,20 +17,20 @@ import pytest
 import scipy.linalg
 import yaml
 
-from twotank_validation import rig, tank_models
-from twotank_validation.errors import (
-    DimensionError,
-    ModelError,
-    ModelFileError,
-    UnstableModelError,
-)
-from twotank_validation.model import (
+from twotank_validation.core.model import (
     BlockStructure,
     LFTModel,
     PlantResponse,
     load_model,
     model_from_dict,
 )
+from twotank_validation.errors import (
+    DimensionError,
+    ModelError,
+    ModelFileError,
+    UnstableModelError,
+)
+from twotank_validation.sim import rig, tank_models
 
 THETA = np.array([0.0, 0.003, 0.05, 0.4, 1.3, np.pi])
 

@@ -9,9 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import monitor, streamfuzz
-from twotank_validation.model import load_model
-from twotank_validation.monitor import Alarm, AlarmConfig, AlarmState, update_alarm
+from tools import streamfuzz
+from twotank_validation.core.model import load_model
+from twotank_validation.online import monitor
+from twotank_validation.online.monitor import Alarm, AlarmConfig, AlarmState, update_alarm
 
 # ------------------------------------------------------------------ alarm
 
@@ -170,8 +171,8 @@ def test_monitor_verdicts_on_the_rig() -> None:
 
 def test_monitor_equals_offline_validation_bit_for_bit() -> None:
     """A judged window's beta equals validate() on the same samples (one code path)."""
-    from twotank_validation.datum import make_datum  # noqa: PLC0415
-    from twotank_validation.validate import validate  # noqa: PLC0415
+    from twotank_validation.core.datum import make_datum  # noqa: PLC0415
+    from twotank_validation.core.validate import validate  # noqa: PLC0415
 
     stamps, u, y = rig_record()
     reports = monitor.monitor_record(stamps, u, y, FAST, models())
@@ -353,13 +354,13 @@ def test_fast_path_kernel_is_loaded_before_the_first_window_and_only_then() -> N
 
     code = (
         "import sys\n"
-        "from twotank_validation import monitor\n"
-        "from twotank_validation.model import load_model\n"
+        "from twotank_validation.online import monitor\n"
+        "from twotank_validation.core.model import load_model\n"
         "ms = [load_model('A'), load_model('B')]\n"
         "cfg = monitor.MonitorConfig(ts_s=0.8, period_samples=256, method=sys.argv[1])\n"
         "monitor.WindowMonitor(cfg, ms)\n"
         "loaded = 'numba' in sys.modules\n"
-        "ready = loaded and bool(sys.modules['twotank_validation.fastkernel'].solve_bins"
+        "ready = loaded and bool(sys.modules['twotank_validation.core.fast.kernel'].solve_bins"
         ".signatures)\n"
         "print(loaded, ready)\n"
     )
@@ -374,9 +375,9 @@ def test_fast_path_kernel_is_loaded_before_the_first_window_and_only_then() -> N
 def test_takes_fast_path_names_validates_route(method: str) -> None:
     """takes_fast_path says "fast" exactly where validate then reports method "fast": the
     tank models (closed form under auto) and a three-block model (fast under auto)."""
-    from twotank_validation.datum import make_datum  # noqa: PLC0415
-    from twotank_validation.model import BlockStructure, PlantResponse  # noqa: PLC0415
-    from twotank_validation.validate import takes_fast_path, validate  # noqa: PLC0415
+    from twotank_validation.core.datum import make_datum  # noqa: PLC0415
+    from twotank_validation.core.model import BlockStructure, PlantResponse  # noqa: PLC0415
+    from twotank_validation.core.validate import takes_fast_path, validate  # noqa: PLC0415
 
     rng = np.random.default_rng(2)
     u = rng.normal(size=(512, 2))

@@ -1,6 +1,6 @@
 """Hostile input through the validator NODE (rclpy, real topics, simulated clock).
 
-A short bounded version of ``bench/fuzz_node.py`` (:mod:`twotank_validation.ros.nodefuzz`):
+A short bounded version of ``bench/fuzz_node.py`` (:mod:`tools.nodefuzz`):
 seeded random hostile stretches, the node-only kinds (``/clock`` jumping back, a wrong-type
 publisher from another participant) explicitly, and the regression the fuzzing found. The
 references are the injected stretch's own steps and stamps (``nodefuzz.check``).
@@ -11,8 +11,8 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation.monitor import Alarm
-from twotank_validation.ros import nodefuzz
+from tools import nodefuzz
+from twotank_validation.online.monitor import Alarm
 
 
 def _assert_clean(res: nodefuzz.RunResult) -> None:

@@ -17,9 +17,9 @@ from report_checks import assert_same_reports
 from sensor_msgs.msg import FluidPressure, Temperature
 from test_monitor import rig_record
 
-from twotank_validation.model import load_model
-from twotank_validation.monitor import Alarm, MonitorConfig, WindowReport, monitor_record
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.core.model import load_model
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import Alarm, MonitorConfig, WindowReport, monitor_record
 from twotank_validation.ros.validator_node import ValidatorNode
 
 FAST = {"ts_s": 0.8, "period_samples": 256}

@@ -14,8 +14,8 @@ from report_checks import assert_same_reports
 
 from twotank_validation import cli, replay
 from twotank_validation.bags import scenario as sc
-from twotank_validation.model import load_model
-from twotank_validation.monitor import Alarm, MonitorConfig, monitor_record
+from twotank_validation.core.model import load_model
+from twotank_validation.online.monitor import Alarm, MonitorConfig, monitor_record
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
 FAST_ARGS = ["--ts", "0.8", "--period", "256", "--quiet"]
@@ -152,7 +152,7 @@ def test_gap_in_the_data_is_flagged_not_bridged(tmp_path) -> None:
     stamps, u, y = sc.simulate_scenario(s)
     keep = np.ones(len(stamps), bool)
     keep[700:720] = False  # 16 s without any message
-    from twotank_validation.monitor import OnlineValidator  # noqa: PLC0415
+    from twotank_validation.online.monitor import OnlineValidator  # noqa: PLC0415
 
     core = OnlineValidator(FAST, models())
     reports = []
@@ -252,7 +252,7 @@ def test_plain_mcap_of_another_tool_replays_like_the_rosbag2_bag(workdir, tmp_pa
     same reports as the rosbag2 bag written by `simulate`."""
     import sys  # noqa: PLC0415
 
-    from twotank_validation.ros.interfaces import RigUnits  # noqa: PLC0415
+    from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
 
     sys.path.insert(0, str(Path(__file__).parent / "data"))
     import make_bags as mb  # noqa: PLC0415

@@ -1,4 +1,4 @@
-"""Tests of the tank-1 model, its linearisations and the simulator (twotank_validation.rig).
+"""Tests of the tank-1 model, its linearisations and the simulator (twotank_validation.sim.rig).
 
 References are independent of the implementation: closed-form equilibria and Jacobians derived
 by hand below, exact zero-order-hold discretisations (matrix exponential) and scipy's lsim.
@@ -15,7 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from twotank_validation.errors import DatumError, DimensionError, ModelError
-from twotank_validation.rig import (
+from twotank_validation.sim.rig import (
     LinearModel,
     OperatingPoint,
     RigParams,

@@ -25,9 +25,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import Bool, Float64
 
-from twotank_validation.model import load_model
-from twotank_validation.monitor import Alarm, WindowMonitor
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.core.model import load_model
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import Alarm, WindowMonitor
 from twotank_validation.ros.live import LiveConfig, run_live
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.validator_node import ValidatorNode

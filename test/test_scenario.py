@@ -17,7 +17,7 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
-from twotank_validation import excitation, experiment, rig
+from twotank_validation import experiment
 from twotank_validation.bags import (
     BagError,
     BagExistsError,
@@ -31,8 +31,9 @@ from twotank_validation.bags import (
     write_scenario_bag,
 )
 from twotank_validation.errors import DatumError, ModelError, TwotankError
-from twotank_validation.fault_spec import parse_fault
-from twotank_validation.ros.interfaces import RigUnits
+from twotank_validation.online.streams import RigUnits
+from twotank_validation.sim import excitation, rig
+from twotank_validation.sim.fault_spec import parse_fault
 
 
 def _reference(

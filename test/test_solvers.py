@@ -8,8 +8,8 @@ import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation import solvers
-from twotank_validation.model import BlockStructure, PlantResponse
+from twotank_validation.core import solvers
+from twotank_validation.core.model import BlockStructure, PlantResponse
 
 
 def random_problem(seed: int, shapes: tuple[tuple[int, int], ...], nw: int, ny: int, nu: int):

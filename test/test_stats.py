@@ -1,4 +1,4 @@
-"""Tests of twotank_validation.stats: residual whiteness and cross-correlation tests."""
+"""Tests of twotank_validation.core.stats: residual whiteness and cross-correlation tests."""
 
 from __future__ import annotations
 
@@ -13,8 +13,7 @@ import scipy.stats
 from hypothesis import given
 from hypothesis import strategies as st
 
-from twotank_validation.errors import DatumError
-from twotank_validation.stats import (
+from twotank_validation.core.stats import (
     CrossCorrelationResult,
     ResidualTests,
     WhitenessResult,
@@ -26,6 +25,7 @@ from twotank_validation.stats import (
     residual_tests,
     whiteness_test,
 )
+from twotank_validation.errors import DatumError
 
 N_SEEDS = 300
 N_SAMPLES = 2000

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twotank_validation import lti
-from twotank_validation.datum import make_datum
+from twotank_validation.core import lti
+from twotank_validation.core.datum import make_datum
+from twotank_validation.core.model import load_model, model_from_dict
+from twotank_validation.core.validate import validate
 from twotank_validation.errors import DimensionError, ModelError
-from twotank_validation.model import load_model, model_from_dict
-from twotank_validation.validate import validate
 
 SISO_INPUT_MULT = {
     "name": "siso_im",

@@ -12,9 +12,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from twotank_validation.datum import NormConvention
+from twotank_validation.core.datum import NormConvention
 from twotank_validation.errors import TwotankError
-from twotank_validation.monitor import WindowReport
+from twotank_validation.online.monitor import WindowReport
 
 
 def _progress_factory(enabled: bool) -> Callable[[str, int], Callable[[int], None]] | None:
@@ -135,7 +135,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
-    from twotank_validation.monitor import STREAMS  # noqa: PLC0415
+    from twotank_validation.online.monitor import STREAMS  # noqa: PLC0415
 
     topics = {s: s for s in STREAMS}
     for pair in pairs or ():
@@ -151,8 +151,8 @@ def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
 def _replay_config(args: argparse.Namespace) -> object:
     """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
     from twotank_validation import replay  # noqa: PLC0415
-    from twotank_validation.monitor import AlarmConfig, MonitorConfig  # noqa: PLC0415
-    from twotank_validation.ros.interfaces import RigUnits  # noqa: PLC0415
+    from twotank_validation.online.monitor import AlarmConfig, MonitorConfig  # noqa: PLC0415
+    from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
 
     try:
         return replay.ReplayConfig(
@@ -175,7 +175,7 @@ def _replay_config(args: argparse.Namespace) -> object:
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     from twotank_validation import replay, report  # noqa: PLC0415
-    from twotank_validation.model import load_model  # noqa: PLC0415
+    from twotank_validation.core.model import load_model  # noqa: PLC0415
 
     models = [load_model(m) for m in (args.model or ["A", "B"])]
     cfg = _replay_config(args)
@@ -232,7 +232,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
     from twotank_validation import diagnose as dg  # noqa: PLC0415
     from twotank_validation import replay, report  # noqa: PLC0415
-    from twotank_validation.model import load_model_document, model_from_dict  # noqa: PLC0415
+    from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
 
     doc, source = load_model_document(args.model)
     model = model_from_dict(doc, source)

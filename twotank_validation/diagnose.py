@@ -2,7 +2,7 @@
 
 Given windows of periodic data (whole excitation periods, as the validator sees them) and a
 structured model (nominal state space + perturbations + noise, the YAML of
-:mod:`twotank_validation.model`), the diagnosis
+:mod:`twotank_validation.core.model`), the diagnosis
 
 1. computes the raw error ``E(n) = Y(n) - G(e^{j theta_n}) U(n)`` of the nominal on every
    output at the excited harmonic bins of the period (where the input carries energy),
@@ -55,12 +55,12 @@ from typing import Any
 import numpy as np
 import scipy.optimize
 
-from twotank_validation import lti, stats
-from twotank_validation.datum import Datum, NormConvention, make_datum
+from twotank_validation.core import lti, stats
+from twotank_validation.core.datum import Datum, NormConvention, make_datum
+from twotank_validation.core.lti import StateSpace
+from twotank_validation.core.model import LFTModel, model_from_dict
+from twotank_validation.core.validate import ValidationResult, inverse_dft, validate
 from twotank_validation.errors import DatumError, ModelError
-from twotank_validation.lti import StateSpace
-from twotank_validation.model import LFTModel, model_from_dict
-from twotank_validation.validate import ValidationResult, inverse_dft, validate
 
 EFFECT_KINDS = ("delay", "lag", "gain", "coupling", "offset", "leak", "heat_loss")
 """Kinds of effect in the catalogue, in the order they are tried."""

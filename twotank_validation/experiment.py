@@ -20,12 +20,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from twotank_validation import excitation, rig, stats
-from twotank_validation.datum import Datum, NormConvention, make_datum
+from twotank_validation.core import stats
+from twotank_validation.core.datum import Datum, NormConvention, make_datum
+from twotank_validation.core.model import LFTModel, load_model, load_model_document
+from twotank_validation.core.validate import ValidationResult, inverse_dft, validate
 from twotank_validation.diagnose import Diagnosis, Window, diagnose
-from twotank_validation.model import LFTModel, load_model, load_model_document
-from twotank_validation.rig import Fault
-from twotank_validation.validate import ValidationResult, inverse_dft, validate
+from twotank_validation.sim import excitation, rig
+from twotank_validation.sim.rig import Fault
 
 
 def _default_rig() -> rig.RigParams:

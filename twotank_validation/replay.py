@@ -1,18 +1,18 @@
 """Validate recorded bags through the live validator's code path.
 
 Messages stream from :mod:`twotank_validation.bags.reader`, go through the same extractors as
-the ROS node (:mod:`twotank_validation.ros.interfaces`, ROS-free) and the same
-:class:`twotank_validation.monitor.OnlineValidator` (alignment, windows, gates, alarm). Memory
-stays bounded: only the window buffer and per-window summaries are kept, plus the samples of
-a few windows of interest (largest beta, first alarm) for the figures.
+the ROS node (:mod:`twotank_validation.online.streams`, ROS-free) and the same
+:class:`~twotank_validation.online.monitor.OnlineValidator` (alignment, windows, gates, alarm).
+Memory stays bounded: only the window buffer and per-window summaries are kept, plus the samples
+of a few windows of interest (largest beta, first alarm) for the figures.
 
 Speed: messages go a few thousand at a time. The reader decodes the three fixed-layout input
 types in bulk (:meth:`~twotank_validation.bags.reader.BagReader.field_batches`, the generic
 deserialiser for anything else), the extractors' unit conversions run on arrays
-(:func:`~twotank_validation.ros.interfaces.stream_values`, the same float operations), and
-:meth:`~twotank_validation.monitor.OnlineValidator.feed_many` aligns regular stretches at once
-(the same samples and reports as feeding the messages one by one, which is what it does with
-anything irregular). A one-hour 10 Hz bag replays for two models in well under 2 s
+(:func:`~twotank_validation.online.streams.stream_values`, the same float operations), and
+:meth:`~twotank_validation.online.monitor.OnlineValidator.feed_many` aligns regular stretches at
+once (the same samples and reports as feeding the messages one by one, which is what it does
+with anything irregular). A one-hour 10 Hz bag replays for two models in well under 2 s
 (``bench/bench_replay.py``).
 """
 
@@ -28,8 +28,9 @@ from typing import Any
 import numpy as np
 
 import twotank_validation.bags.reader as bag_reader
-from twotank_validation.model import LFTModel
-from twotank_validation.monitor import (
+from twotank_validation.core.model import LFTModel
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import (
     NS_PER_S,
     STREAM_KINDS,
     STREAMS,
@@ -38,7 +39,6 @@ from twotank_validation.monitor import (
     OnlineValidator,
     WindowReport,
 )
-from twotank_validation.ros import interfaces as itf
 
 
 @dataclass(frozen=True)

@@ -14,12 +14,12 @@ mpl.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from twotank_validation import lti
-from twotank_validation.datum import Datum
+from twotank_validation.core import lti
+from twotank_validation.core.datum import Datum
+from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.core.validate import ValidationResult, inverse_dft
 from twotank_validation.diagnose import Diagnosis, excited_bins
 from twotank_validation.experiment import ExperimentResult
-from twotank_validation.model import LFTModel, load_model
-from twotank_validation.validate import ValidationResult, inverse_dft
 
 PAPER_BETA = {"A": 1.32, "B": 0.53}
 
@@ -338,8 +338,8 @@ def write_replay_report(
         summary: :func:`twotank_validation.replay.summary_json` of it.
         out_dir: folder to write into.
     """
-    from twotank_validation.datum import make_datum  # noqa: PLC0415
-    from twotank_validation.validate import validate  # noqa: PLC0415
+    from twotank_validation.core.datum import make_datum  # noqa: PLC0415
+    from twotank_validation.core.validate import validate  # noqa: PLC0415
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = [out_dir / "alarm_timeline.png"]

@@ -255,7 +255,7 @@ class BagInfo:
 
 def expected_types() -> dict[str, tuple[str, ...]]:
     """Accepted message types of the validator's default topics (names may be remapped)."""
-    from twotank_validation.ros.interfaces import (  # noqa: PLC0415 - keeps the reader light
+    from twotank_validation.online.streams import (  # noqa: PLC0415 - keeps the reader light
         FLOW_CMD_TYPE,
         HEIGHT_TYPE,
         TEMPERATURE_TYPE,

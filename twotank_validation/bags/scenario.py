@@ -10,7 +10,7 @@ is the same experiment as running the nodes live.
 
 Shipped scenarios live in ``twotank_validation/scenarios/*.yaml`` (``shipped_scenarios()``);
 a YAML file holds the keys of :class:`Scenario` (``units`` as a mapping of
-:class:`~twotank_validation.ros.interfaces.RigUnits` fields).
+:class:`~twotank_validation.online.streams.RigUnits` fields).
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ import yaml
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from twotank_validation import excitation, rig
 from twotank_validation.bags.writer import (
     STORAGES,
     BagExistsError,
@@ -43,13 +42,14 @@ from twotank_validation.bags.writer import (
     temperature_msg,
 )
 from twotank_validation.errors import DatumError, ModelError
-from twotank_validation.fault_spec import parse_fault
-from twotank_validation.ros.interfaces import (
+from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,
     HEIGHT_TYPE,
     TEMPERATURE_TYPE,
     RigUnits,
 )
+from twotank_validation.sim import excitation, rig
+from twotank_validation.sim.fault_spec import parse_fault
 
 __all__ = [
     "CUSTOM_DATA_KEY",
@@ -171,7 +171,7 @@ class Scenario:
         heat_loss_coeff: A permanent heat loss to ambient (undeclared in the models; the
             inflows are retuned to hold the temperature), >= 0.
         faults: Fault specs ``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``
-            (:func:`twotank_validation.fault_spec.parse_fault`), each with its onset inside
+            (:func:`twotank_validation.sim.fault_spec.parse_fault`), each with its onset inside
             the run.
         seed: Seed of the sensor noise, >= 0.
         units: Conversion of level and temperature to Pa and °C in the messages.
@@ -470,7 +470,7 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
     Yields:
         ``(stamp_ns, hot, cold, height, temperature)`` for k = 0 .. n_samples - 1: the stamp
         k ts_ns, the commands applied from k ts_s on and the measurement taken at k ts_s
-        (before command k acts), as :func:`twotank_validation.rig.simulate`.
+        (before command k acts), as :func:`twotank_validation.sim.rig.simulate`.
 
     Raises:
         ModelError: If the tank empties.

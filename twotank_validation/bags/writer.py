@@ -28,7 +28,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from twotank_validation.bags.reader import BagError
-from twotank_validation.ros.interfaces import (
+from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,
     HEIGHT_TYPE,
     TEMPERATURE_TYPE,

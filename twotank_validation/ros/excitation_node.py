@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 
-from twotank_validation import excitation, rig
 from twotank_validation.errors import TwotankError
-from twotank_validation.monitor import NS_PER_S
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import NS_PER_S
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.sim import excitation, rig
 
 EXCITATION_PARAMS = (
     Param(

@@ -25,8 +25,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
-from twotank_validation.monitor import NS_PER_S, Sample, SampleBlock, WindowReport
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import NS_PER_S, Sample, SampleBlock, WindowReport
 from twotank_validation.ros.excitation_node import ExcitationNode
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.validator_node import ValidatorNode

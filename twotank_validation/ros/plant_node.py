@@ -1,11 +1,11 @@
 """Simulated two-tank plant node: valve commands in, level and temperature measurements out.
 
-Runs :class:`twotank_validation.rig.TankSimulator`. Every sample (``ts_s``) it publishes the
+Runs :class:`twotank_validation.sim.rig.TankSimulator`. Every sample (``ts_s``) it publishes the
 measurement taken now on ``height`` (sensor_msgs/FluidPressure, Pa) and ``temperature``
 (sensor_msgs/Temperature, degC) stamped with the node's clock, then applies the latest
 ``flow_cmd`` for one sample. Faults and unmodeled effects are set at run time through the
 string-array parameter ``faults`` (``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``, see
-:mod:`twotank_validation.fault_spec`); setting it replaces the fault set, onsets in simulated
+:mod:`twotank_validation.sim.fault_spec`); setting it replaces the fault set, onsets in simulated
 seconds since the plant started. With ``publish_clock`` the node owns the simulated clock and
 publishes ``/clock``, ``real_time_factor`` times faster than wall time.
 """
@@ -26,12 +26,12 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, Temperature
 
-from twotank_validation import rig
 from twotank_validation.errors import TwotankError
-from twotank_validation.fault_spec import parse_fault
-from twotank_validation.monitor import NS_PER_S
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import NS_PER_S
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.sim import rig
+from twotank_validation.sim.fault_spec import parse_fault
 
 PLANT_PARAMS = (
     Param("ts_s", 0.1, "sample period (s)", 1e-3, 60.0),

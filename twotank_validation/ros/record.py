@@ -22,8 +22,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from twotank_validation.bags.writer import BagWriter
-from twotank_validation.monitor import NS_PER_S, STREAMS
-from twotank_validation.ros import interfaces as itf
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import NS_PER_S, STREAMS
 
 DEFAULT_TYPES = {
     "flow_cmd": itf.FLOW_CMD_TYPE,

@@ -1,6 +1,6 @@
 """The validator node: flow commands, level and temperature in; reports, margin and alarm out.
 
-Thin adapter over :mod:`twotank_validation.monitor`: subscription callbacks only convert a
+Thin adapter over :mod:`twotank_validation.online.monitor`: subscription callbacks only convert a
 message to (stream, stamp, value) and queue it; a worker thread runs the aligner, the window
 monitor and the validation, and publishes. Topics (node-relative, remappable):
 
@@ -38,10 +38,11 @@ from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
-from twotank_validation.datum import NormConvention
+from twotank_validation.core.datum import NormConvention
+from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.errors import TwotankError
-from twotank_validation.model import LFTModel, load_model
-from twotank_validation.monitor import (
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import (
     NS_PER_S,
     Alarm,
     AlarmConfig,
@@ -49,7 +50,6 @@ from twotank_validation.monitor import (
     OnlineValidator,
     WindowReport,
 )
-from twotank_validation.ros import interfaces as itf
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 
 VALIDATOR_PARAMS = (

@@ -27,16 +27,16 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation import fast
-from twotank_validation.datum import NormConvention, make_datum
-from twotank_validation.errors import DatumError, ModelError, TwotankError
-from twotank_validation.model import LFTModel, PlantResponse
-from twotank_validation.validate import (
+from twotank_validation.core.datum import NormConvention, make_datum
+from twotank_validation.core.fast import dispatch as fast
+from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.validate import (
     check_compatible,
     pulse_moment,
     takes_fast_path,
     validate,
 )
+from twotank_validation.errors import DatumError, ModelError, TwotankError
 
 NS_PER_S = 1_000_000_000
 

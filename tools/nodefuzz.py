@@ -1,6 +1,6 @@
 """Hostile message streams through a live :class:`ValidatorNode`, and the invariants it keeps.
 
-The node-level counterpart of :mod:`twotank_validation.streamfuzz`: the same hostile
+The node-level counterpart of :mod:`tools.streamfuzz`: the same hostile
 stretches (its generator and its clean rig record), but sent over real topics to a
 ``ValidatorNode`` running with ``use_sim_time`` in its own rclpy context, plus what only a node
 sees: ``/clock`` jumping backwards (a simulation restart) or forwards, and messages of the wrong
@@ -48,10 +48,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import Bool, Float64, String
 
-from twotank_validation import streamfuzz
-from twotank_validation.model import LFTModel, load_model
-from twotank_validation.monitor import NS_PER_S, Alarm
-from twotank_validation.ros import interfaces as itf
+from tools import streamfuzz
+from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.online import streams as itf
+from twotank_validation.online.monitor import NS_PER_S, Alarm
 from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.validator_node import ValidatorNode
 

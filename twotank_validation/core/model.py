@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from twotank_validation import lti
+from twotank_validation.core import lti
+from twotank_validation.core.lti import StateSpace
 from twotank_validation.errors import DimensionError, ModelError, ModelFileError
-from twotank_validation.lti import StateSpace
 
 PERTURBATION_KINDS = ("output_multiplicative", "input_multiplicative", "additive")
 BUILTIN_MODELS = {"A": "model_a.yaml", "B": "model_b.yaml"}

@@ -1,6 +1,6 @@
 """Batched fast path for Problem 3: every bin of a window solved together with numpy.
 
-The per-bin reference (:func:`twotank_validation.solvers.solve_sdp`) builds one cvxpy SDP per
+The per-bin reference (:func:`twotank_validation.core.solvers.solve_sdp`) builds one cvxpy SDP per
 DFT bin, a few milliseconds each. Here every bin's problem is solved on its Lagrangian dual
 
     phi(d) = min_x ||w||^2 - sum_i d_i (||z_i||^2 - ||v_i||^2),     d >= 0 (one per block),
@@ -41,8 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twotank_validation import solvers
-from twotank_validation.fastrules import (  # the rules the compiled kernel shares
+from twotank_validation.core import solvers
+from twotank_validation.core.fast.rules import (  # the rules the compiled kernel shares
     BACKTRACKS,
     FLAT_ITERATIONS,
     GRAM_COND,
@@ -57,7 +57,7 @@ from twotank_validation.fastrules import (  # the rules the compiled kernel shar
     UNEXCITED,
     kernel_applies,
 )
-from twotank_validation.model import BlockStructure, PlantResponse
+from twotank_validation.core.model import BlockStructure, PlantResponse
 
 MAX_BLOCKS = 3
 """Most blocks the fast path takes (the dual is exact for one or two, a bound for three)."""
@@ -85,7 +85,7 @@ class FastStats:
             whichever route found it.
         iterations: Newton iterations of the slowest batched bin.
         n_compiled: bins (direct or dual) answered by the compiled per-bin kernel
-            (:mod:`twotank_validation.fastkernel`); the rest of ``n_direct + n_dual`` by the
+            (:mod:`twotank_validation.core.fast.kernel`); the rest of ``n_direct + n_dual`` by the
             batched numpy code.
         kernel_sized: the compiled kernel ran in its version compiled for these dimensions
             (:data:`fastkernel.SIZED`), not the general one.
@@ -1805,7 +1805,7 @@ def solve_fast(
 
     Where the model's perturbation inputs do not depend on the unknowns (``z = P13 U``) and
     ``P22`` is square, every bin goes first through the compiled per-bin kernel
-    (:mod:`twotank_validation.fastkernel`), which answers the bins whose bounds meet; the
+    (:mod:`twotank_validation.core.fast.kernel`), which answers the bins whose bounds meet; the
     rest, and every bin of other structures, go through the batched numpy dual, and what
     that leaves unsettled to the per-bin cvxpy reference.
 
@@ -1871,7 +1871,7 @@ def _solve_compiled(
 ) -> FastSolutions:
     """The compiled kernel on every bin, the batched numpy path on the bins it defers."""
     # imported here: numba is loaded only by a process that uses the kernel
-    from twotank_validation.fastkernel import DONE, KIND_DUAL, solve_window  # noqa: PLC0415
+    from twotank_validation.core.fast.kernel import DONE, KIND_DUAL, solve_window  # noqa: PLC0415
 
     blocks = resp.blocks
     nb = u.shape[0]

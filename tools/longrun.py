@@ -37,8 +37,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from twotank_validation.fault_spec import parse_fault
-from twotank_validation.monitor import NS_PER_S, Alarm, WindowReport
+from twotank_validation.online.monitor import NS_PER_S, Alarm, WindowReport
+from twotank_validation.sim.fault_spec import parse_fault
 
 HOUR_S = 3600.0
 DDS_WAIT_S = 2.0  # wall time a report may take over loopback DDS before it counts as lost
@@ -593,7 +593,7 @@ def run_long_run(
     from rclpy.context import Context  # noqa: PLC0415 (ROS-free import of the checks)
     from rclpy.node import Node  # noqa: PLC0415
 
-    from twotank_validation.ros import interfaces as itf  # noqa: PLC0415
+    from twotank_validation.online import streams as itf  # noqa: PLC0415
     from twotank_validation.ros.live import LiveConfig, run_live  # noqa: PLC0415
 
     live = LiveConfig(

@@ -9,11 +9,12 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation import fast, lti, solvers
-from twotank_validation.datum import Datum, NormConvention, leakage_bound
-from twotank_validation.datum import pulse_moment as datum_pulse_moment
+from twotank_validation.core import lti, solvers
+from twotank_validation.core.datum import Datum, NormConvention, leakage_bound
+from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
+from twotank_validation.core.fast import dispatch as fast
+from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.errors import DimensionError, ModelError
-from twotank_validation.model import LFTModel, PlantResponse
 
 METHODS = ("auto", "closed_form", "fast", "sdp")
 _PULSE_DECAY = 1e-12

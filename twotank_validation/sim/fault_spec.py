@@ -2,7 +2,7 @@
 
 ``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``, for example ``leak=0.02@1000``,
 ``sensor_bias:height=0.05@500``, ``valve_stuck:hot@300``, ``valve_weak:cold=0.7@300-900``,
-``mixing_delay=25@0``. Magnitudes and channels mean what :class:`twotank_validation.rig.Fault`
+``mixing_delay=25@0``. Magnitudes and channels mean what :class:`twotank_validation.sim.rig.Fault`
 says.
 """
 
@@ -12,7 +12,7 @@ import math
 import re
 
 from twotank_validation.errors import ModelError
-from twotank_validation.rig import FAULT_KINDS, Fault
+from twotank_validation.sim.rig import FAULT_KINDS, Fault
 
 _SPEC = re.compile(
     r"^\s*(?P<kind>[a-z_]+)(?::(?P<channel>[a-z_]+))?(?:=(?P<mag>[-+0-9.eE]+))?"

@@ -1,13 +1,13 @@
 """The rules the fast path's two implementations share.
 
 No numba here: importing the batched numpy path, or anything that validates, must not load
-the compiler. Used by :mod:`twotank_validation.fast` (batched numpy) and
-:mod:`twotank_validation.fastkernel` (compiled per-bin kernel); see docs/theory.md, Sec. 6.
+the compiler. Used by :mod:`twotank_validation.core.fast.dispatch` (batched numpy) and
+:mod:`twotank_validation.core.fast.kernel` (compiled per-bin kernel); see docs/theory.md, Sec. 6.
 """
 
 from __future__ import annotations
 
-from twotank_validation.model import BlockStructure
+from twotank_validation.core.model import BlockStructure
 
 TINY = 1e-300
 PIVOT_RTOL = 1e-13

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation.model import BlockStructure, PlantResponse
+from twotank_validation.core.model import BlockStructure, PlantResponse
 
 _RANK_RTOL = 1e-10
 _NEGLIGIBLE_Z = 1e-10  # |z_i| below this fraction of the bin's unknowns counts as zero

@@ -1,10 +1,10 @@
 """Compiled per-bin kernel of the fast path, for structured models (``z = P13 U``).
 
-:func:`twotank_validation.fast.solve_fast` hands every bin of a window here first when the
-model's perturbation inputs do not depend on the unknowns (``P11 = P12 = 0``: every
+:func:`~twotank_validation.core.fast.dispatch.solve_fast` hands every bin of a window here
+first when the model's perturbation inputs do not depend on the unknowns (``P11 = P12 = 0``: every
 structured model, the tank models among them) and ``P22`` is square (``nw = ny``). Per bin,
 in one compiled loop over the bins, this does what the batched numpy code does for the same
-bins (the same rules and tolerances, see :mod:`twotank_validation.fast`):
+bins (the same rules and tolerances, see :mod:`twotank_validation.core.fast.dispatch`):
 
 1. ``z = P13 U`` and ``r = Y - P23 U``; blocks with no excitation (``||P13_i U|| <= 1e-12
    ||P13_i||_F u_scale``) or a negligible one (below 1e-10 of the least-norm unknowns) are
@@ -54,7 +54,7 @@ import numba
 import numba.extending
 import numpy as np
 
-from twotank_validation.fastrules import (
+from twotank_validation.core.fast.rules import (
     BACKTRACKS,
     FLAT_ITERATIONS,
     GRAM_COND,
@@ -68,7 +68,7 @@ from twotank_validation.fastrules import (
     TINY,
     UNEXCITED,
 )
-from twotank_validation.model import BlockStructure
+from twotank_validation.core.model import BlockStructure
 
 F = TypeVar("F", bound=Callable[..., Any])
 

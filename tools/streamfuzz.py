@@ -2,7 +2,7 @@
 
 Used by ``test/test_hostile_streams.py`` (a short, bounded, property-based run) and
 ``bench/fuzz_streams.py`` (long runs). A run is: clean rig data through
-:class:`~twotank_validation.monitor.OnlineValidator` for a while, then a hostile stretch
+:class:`~twotank_validation.online.monitor.OnlineValidator` for a while, then a hostile stretch
 (random stamps, NaN and inf, huge values, bursts far above the sample rate, long silences,
 clock jumps backwards, malformed values), then clean data again. The invariants:
 
@@ -13,7 +13,7 @@ clock jumps backwards, malformed values), then clean data again. The invariants:
 * after the hostile stretch the validator judges windows again and Model B's alarm returns
   to OK (the clean data are the nominal rig, which Model B explains).
 
-ROS-free; the rig data come from :mod:`twotank_validation.rig`.
+ROS-free; the rig data come from :mod:`twotank_validation.sim.rig`.
 """
 
 from __future__ import annotations
@@ -26,10 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation import excitation, experiment, rig
+from twotank_validation import experiment
+from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.errors import DatumError
-from twotank_validation.model import LFTModel, load_model
-from twotank_validation.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
+from twotank_validation.online.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
+from twotank_validation.sim import excitation, rig
 
 CONFIG = MonitorConfig(ts_s=0.8, period_samples=256)
 """The same 204.8 s period as the defaults with 8x fewer samples (as the node tests)."""

@@ -2,7 +2,7 @@
 
 Model A (decoupled) and Model B (MIMO linearisation) share the uncertainty description of
 Smith (1995, Sec. 3.4): an output-multiplicative scalar perturbation on each output and
-weighted additive sensor noise. The nominal plants come from :mod:`twotank_validation.rig`
+weighted additive sensor noise. The nominal plants come from :mod:`twotank_validation.sim.rig`
 (Jacobians of the same right-hand side the simulator integrates). The YAML files shipped in
 ``twotank_validation/models/`` are written by ``scripts/make_models.py`` from
 :func:`model_document`; a test keeps them and this derivation consistent.
@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation import rig
+from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.errors import ModelError
-from twotank_validation.model import LFTModel, model_from_dict
+from twotank_validation.sim import rig
 
 HEIGHT_PERTURBATION_WEIGHT = {"tf": {"num": [0.05], "den": [0.25, 1.0]}}
 TEMPERATURE_PERTURBATION_WEIGHT = {"tf": {"num": [16.5, 0.1], "den": [20.0, 1.0]}}

@@ -1,0 +1,1 @@
+"""Test and benchmark harnesses (stream, node and long-run fuzzers); not part of the package."""

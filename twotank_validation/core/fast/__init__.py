@@ -1,0 +1,1 @@
+"""The fast path: the per-bin problem solved by dual ascent over small matrices."""

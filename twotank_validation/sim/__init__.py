@@ -1,0 +1,1 @@
+"""The simulated two-tank rig: physics, excitation, tank models, faults."""
