@@ -16,7 +16,8 @@ from dataclasses import replace
 import pytest
 
 from tools import longrun as lr
-from twotank_validation.online.monitor import NS_PER_S, Alarm
+from twotank_validation.defaults import NS_PER_S
+from twotank_validation.online.monitor import Alarm
 
 TS = 0.8
 PERIOD = 256

@@ -37,7 +37,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from twotank_validation.online.monitor import NS_PER_S, Alarm, WindowReport
+from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.online.monitor import Alarm, WindowReport
 from twotank_validation.sim.fault_spec import parse_fault
 
 HOUR_S = 3600.0
@@ -537,8 +538,8 @@ class LongRunConfig:
     """
 
     hours: float = 24.0
-    ts_s: float = 0.1
-    period_samples: int = 2048
+    ts_s: float = TS_S
+    period_samples: int = PERIOD_SAMPLES
     faults: tuple[str, ...] = ()
     models: tuple[str, ...] = ("A", "B")
     seed: int = 0

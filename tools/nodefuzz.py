@@ -50,8 +50,9 @@ from std_msgs.msg import Bool, Float64, String
 
 from tools import streamfuzz
 from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import NS_PER_S, Alarm
+from twotank_validation.online.monitor import Alarm
 from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.validator_node import ValidatorNode
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from twotank_validation.core.datum import NormConvention
+from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.monitor import WindowReport
 
@@ -303,8 +304,10 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument(
         "--duration", type=float, default=3000.0, help="simulated seconds (default 3000)"
     )
-    live.add_argument("--ts", type=float, default=0.1, help="sample period in s (default 0.1)")
-    live.add_argument("--period", type=int, default=2048, help="excitation period in samples")
+    live.add_argument("--ts", type=float, default=TS_S, help=f"sample period in s (default {TS_S})")
+    live.add_argument(
+        "--period", type=int, default=PERIOD_SAMPLES, help="excitation period in samples"
+    )
     live.add_argument(
         "--model", action="append", help="model name or YAML path (repeat; default A and B)"
     )
@@ -366,8 +369,10 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
     val.add_argument(
         "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
     )
-    val.add_argument("--ts", type=float, default=0.1, help="sample period of the recording (s)")
-    val.add_argument("--period", type=int, default=2048, help="excitation period (samples)")
+    val.add_argument("--ts", type=float, default=TS_S, help="sample period of the recording (s)")
+    val.add_argument(
+        "--period", type=int, default=PERIOD_SAMPLES, help="excitation period (samples)"
+    )
     val.add_argument("--periods-per-window", type=int, default=2)
     val.add_argument("--settle-periods", type=int, default=1)
     val.add_argument("--norm", choices=[c.value for c in NormConvention], default="power")

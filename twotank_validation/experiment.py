@@ -24,6 +24,7 @@ from twotank_validation.core import stats
 from twotank_validation.core.datum import Datum, NormConvention, make_datum
 from twotank_validation.core.model import LFTModel, load_model, load_model_document
 from twotank_validation.core.validate import ValidationResult, inverse_dft, validate
+from twotank_validation.defaults import Method
 from twotank_validation.diagnose import Diagnosis, Window, diagnose
 from twotank_validation.sim import excitation, rig
 from twotank_validation.sim.rig import Fault
@@ -172,7 +173,7 @@ def run_experiment(
         check = None
         if sdp_check:
             cb = progress(f"SDP model {model.name}", datum.theta.size) if progress else None
-            check = validate(datum, model, method="sdp", response=resp, progress=cb)
+            check = validate(datum, model, method=Method.SDP, response=resp, progress=cb)
         residual = nominal_residual(result)
         tests = stats.residual_tests(
             residual,

@@ -29,9 +29,9 @@ import numpy as np
 
 import twotank_validation.bags.reader as bag_reader
 from twotank_validation.core.model import LFTModel
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online import streams as itf
 from twotank_validation.online.monitor import (
-    NS_PER_S,
     STREAM_KINDS,
     STREAMS,
     Alarm,

@@ -65,6 +65,7 @@ from rosbags.interfaces import ConnectionExtRosbag2, Nodetype
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.errors import TwotankError
 
 __all__ = [
@@ -93,7 +94,6 @@ STORAGE_SQLITE3: Final = "sqlite3"
 STORAGE_MCAP_PLAIN: Final = "mcap-plain"
 """``BagInfo.storage`` of an MCAP file outside a rosbag2 directory."""
 
-_NS_PER_S: Final = 1_000_000_000
 _MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 _SQLITE_MAGIC: Final = b"SQLite format 3\x00"
 _MSG_PACKAGE: Final = "twotank_validation_msgs"
@@ -295,7 +295,7 @@ def _norm_type(name: str) -> str:
 
 def _fmt_ns(ns: int) -> str:
     sign = "-" if ns < 0 else ""
-    sec, frac = divmod(abs(ns), _NS_PER_S)
+    sec, frac = divmod(abs(ns), NS_PER_S)
     return f"{sign}{sec}.{frac:09d} s"
 
 
@@ -518,14 +518,14 @@ def _fixed_layout_rows(
     ok = (rows[:, fixed] == rows[0, fixed]).all(axis=1)
     sec = np.ndarray((n,), dtype="<i4", buffer=buf, offset=4, strides=(size,))
     nanosec = np.ndarray((n,), dtype="<u4", buffer=buf, offset=8, strides=(size,))
-    stamps = sec.astype(np.int64) * _NS_PER_S + nanosec.astype(np.int64)
+    stamps = sec.astype(np.int64) * NS_PER_S + nanosec.astype(np.int64)
     values = np.ndarray((n, n_floats), dtype="<f8", buffer=buf, offset=at, strides=(size, 8))
     return stamps, values.astype(np.float64), ok
 
 
 def _header_stamp_ns(msg: Any) -> int:
     st = msg.header.stamp
-    return int(st.sec) * _NS_PER_S + int(st.nanosec)
+    return int(st.sec) * NS_PER_S + int(st.nanosec)
 
 
 _Raw = tuple[str, str, int, Any, _Codec]

@@ -41,6 +41,7 @@ from twotank_validation.bags.writer import (
     fluid_pressure,
     temperature_msg,
 )
+from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,
@@ -85,7 +86,6 @@ PROGRESS_MIN_SAMPLES: Final = 20_000
 CUSTOM_DATA_KEY: Final = "twotank_validation.scenario"
 """Key of the scenario (JSON of ``Scenario.to_dict()``) in a scenario bag's custom_data."""
 
-_NS_PER_S: Final = 1_000_000_000
 _UNIT_KEYS: Final = tuple(f.name for f in dataclasses.fields(RigUnits))
 
 
@@ -184,8 +184,8 @@ class Scenario:
     name: str
     description: str = ""
     duration_s: float
-    ts_s: float = 0.1
-    period_samples: int = 2048
+    ts_s: float = TS_S
+    period_samples: int = PERIOD_SAMPLES
     height: float = 0.47
     temperature: float = 0.5
     excitation_kind: str = "filtered_noise"
@@ -212,7 +212,7 @@ class Scenario:
             raise ScenarioError(f"{where}: description={self.description!r} must be a string")
         put = object.__setattr__
         put(self, "ts_s", _real(where, "ts_s", self.ts_s, lo=0.0, lo_open=True))
-        ts_ns = self.ts_s * _NS_PER_S
+        ts_ns = self.ts_s * NS_PER_S
         if ts_ns < 1.0 or abs(ts_ns - round(ts_ns)) > 1e-3:
             raise ScenarioError(
                 f"{where}: ts_s={self.ts_s!r} must be a whole number of nanoseconds (>= 1 ns) so "
@@ -301,7 +301,7 @@ class Scenario:
     @property
     def ts_ns(self) -> int:
         """Sample period in integer nanoseconds; sample k is stamped k ts_ns."""
-        return round(self.ts_s * _NS_PER_S)
+        return round(self.ts_s * NS_PER_S)
 
     @property
     def substeps(self) -> int:

@@ -28,6 +28,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from twotank_validation.bags.reader import BagError
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,
     HEIGHT_TYPE,
@@ -72,9 +73,8 @@ FRAME_ID: Final = "tank1_base"
 
 DEFAULT_UNITS: Final = RigUnits()
 
-_NS_PER_S: Final = 1_000_000_000
 _MAX_LOG_TIME_NS: Final = 2**63 - 1
-_MAX_STAMP_NS: Final = (2**31 - 1) * _NS_PER_S + _NS_PER_S - 1  # builtin_interfaces/Time, int32 sec
+_MAX_STAMP_NS: Final = (2**31 - 1) * NS_PER_S + NS_PER_S - 1  # builtin_interfaces/Time, int32 sec
 
 
 class BagWriteError(BagError, ValueError):
@@ -336,9 +336,7 @@ def _header(store: Typestore, stamp_ns: int) -> Any:
         raise BagWriteError(f"stamp {ns} ns is outside builtin_interfaces/Time (0 .. 2**31 s)")
     time_cls = store.types["builtin_interfaces/msg/Time"]
     header_cls = store.types["std_msgs/msg/Header"]
-    return header_cls(
-        stamp=time_cls(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S), frame_id=FRAME_ID
-    )
+    return header_cls(stamp=time_cls(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id=FRAME_ID)
 
 
 def flow_command(stamp_ns: int, hot: float, cold: float) -> Any:

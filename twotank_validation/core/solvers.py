@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from twotank_validation.core.model import BlockStructure, PlantResponse
+from twotank_validation.defaults import Method
 
 _RANK_RTOL = 1e-10
 _NEGLIGIBLE_Z = 1e-10  # |z_i| below this fraction of the bin's unknowns counts as zero
@@ -236,7 +237,7 @@ def solve_closed_form(
         z=z,
         delta=delta,
         certified=np.ones(nb, dtype=bool),
-        method="closed_form",
+        method=Method.CLOSED_FORM.value,
     )
 
 
@@ -676,5 +677,5 @@ def solve_sdp(
         z=z,
         delta=delta,
         certified=certified,
-        method="sdp",
+        method=Method.SDP.value,
     )

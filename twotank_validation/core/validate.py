@@ -14,9 +14,9 @@ from twotank_validation.core.datum import Datum, NormConvention, leakage_bound
 from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
 from twotank_validation.core.fast import dispatch as fast
 from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.defaults import METHODS, Method
 from twotank_validation.errors import DimensionError, ModelError
 
-METHODS = ("auto", "closed_form", "fast", "sdp")
 _PULSE_DECAY = 1e-12
 
 
@@ -192,10 +192,10 @@ def validate(
     start = time.perf_counter()
     fallback_bins = 0
     error: np.ndarray | None = None
-    if method == "sdp":
+    if method == Method.SDP:
         sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
         reason = "SDP relaxation (requested)"
-    elif method == "fast":
+    elif method == Method.FAST:
         covered, cover = fast.coverage(resp.blocks, resp.nw)
         if not covered:
             raise ModelError(
@@ -205,7 +205,7 @@ def validate(
         reason = f"fast batched dual (requested): {cover}; {done}"
     else:
         structure, why = solvers.decoupled_structure(resp)
-        if method == "closed_form" and structure is None:
+        if method == Method.CLOSED_FORM and structure is None:
             raise ModelError(
                 f"closed form does not apply to model {model.name!r}: {why}; use method='sdp'"
             )
@@ -256,7 +256,7 @@ def takes_fast_path(resp: PlantResponse, method: str) -> bool:
     ``"fast"`` always; ``"auto"`` where the closed form does not apply and the fast path
     covers the structure (as :func:`validate` chooses).
     """
-    if method == "fast":
+    if method == Method.FAST:
         return True
     if method != "auto":
         return False

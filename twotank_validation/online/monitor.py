@@ -36,9 +36,8 @@ from twotank_validation.core.validate import (
     takes_fast_path,
     validate,
 )
+from twotank_validation.defaults import METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S, Method
 from twotank_validation.errors import DatumError, ModelError, TwotankError
-
-NS_PER_S = 1_000_000_000
 
 
 class Alarm(enum.IntEnum):
@@ -614,8 +613,8 @@ class MonitorConfig:
         alarm: debouncing.
     """
 
-    ts_s: float = 0.1
-    period_samples: int = 2048
+    ts_s: float = TS_S
+    period_samples: int = PERIOD_SAMPLES
     periods_per_window: int = 2
     settle_periods: int = 1
     min_excitation_rms: float = 0.005
@@ -645,7 +644,7 @@ class MonitorConfig:
                 f"input_periodic_rtol must be >= 0, found {self.input_periodic_rtol}",
             ),
             (
-                self.method in ("auto", "closed_form", "fast", "sdp"),
+                self.method in METHODS,
                 f"unknown method {self.method!r}",
             ),
         ]
@@ -909,7 +908,7 @@ class WindowMonitor:
                 beta=res.beta,
             )
             self.alarms[model.name] = state
-            general = res.method in ("sdp", "fast")  # certified lower bound and a witness
+            general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
             reports.append(
                 WindowReport(
                     model=model.name,

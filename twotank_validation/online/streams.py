@@ -14,7 +14,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from twotank_validation.online.monitor import NS_PER_S, WindowReport
+from twotank_validation.defaults import NS_PER_S
+from twotank_validation.online.monitor import WindowReport
 
 _V = TypeVar("_V", float, np.ndarray)  # one value, or many at once (same float operations)
 

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 
+from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import NS_PER_S
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 from twotank_validation.sim import excitation, rig
 
@@ -22,8 +22,8 @@ EXCITATION_PARAMS = (
     Param(
         "kind", "filtered_noise", "filtered_noise or multisine", choices=excitation.EXCITATION_KINDS
     ),
-    Param("ts_s", 0.1, "sample period (s)", 1e-3, 60.0),
-    Param("period_samples", 2048, "excitation period (samples)", 4, 1_000_000),
+    Param("ts_s", TS_S, "sample period (s)", 1e-3, 60.0),
+    Param("period_samples", PERIOD_SAMPLES, "excitation period (samples)", 4, 1_000_000),
     Param("rms_hot", 0.05, "hot valve RMS deviation (model units)", 0.0, 0.5),
     Param("rms_cold", 0.2, "cold valve RMS deviation (model units)", 0.0, 0.5),
     Param("cutoff_hz", 0.006, "filtered noise: low-pass cutoff (Hz)", 1e-6, 1e3),

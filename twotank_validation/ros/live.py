@@ -25,8 +25,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
+from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import NS_PER_S, Sample, SampleBlock, WindowReport
+from twotank_validation.online.monitor import Sample, SampleBlock, WindowReport
 from twotank_validation.ros.excitation_node import ExcitationNode
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.validator_node import ValidatorNode
@@ -55,8 +56,8 @@ class LiveConfig:
     """
 
     duration_s: float = 3000.0
-    ts_s: float = 0.1
-    period_samples: int = 2048
+    ts_s: float = TS_S
+    period_samples: int = PERIOD_SAMPLES
     models: tuple[str, ...] = ("A", "B")
     faults: tuple[str, ...] = ()
     seed: int = 0

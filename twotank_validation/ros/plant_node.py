@@ -26,15 +26,15 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, Temperature
 
+from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import NS_PER_S
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 from twotank_validation.sim import rig
 from twotank_validation.sim.fault_spec import parse_fault
 
 PLANT_PARAMS = (
-    Param("ts_s", 0.1, "sample period (s)", 1e-3, 60.0),
+    Param("ts_s", TS_S, "sample period (s)", 1e-3, 60.0),
     Param("substeps", 0, "RK4 steps per sample (0: automatic, steps of at most 25 ms)", 0, 100000),
     Param("seed", 0, "sensor-noise seed", 0, 2**31 - 1),
     Param("height", 0.47, "operating level (model units)", 0.15, 0.75),

@@ -22,8 +22,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from twotank_validation.bags.writer import BagWriter
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import NS_PER_S, STREAMS
+from twotank_validation.online.monitor import STREAMS
 
 DEFAULT_TYPES = {
     "flow_cmd": itf.FLOW_CMD_TYPE,

@@ -40,10 +40,10 @@ from std_srvs.srv import Trigger
 
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.defaults import METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.online.monitor import (
-    NS_PER_S,
     Alarm,
     AlarmConfig,
     MonitorConfig,
@@ -54,8 +54,8 @@ from twotank_validation.ros.params import Param, ParameterError, declare, run_no
 
 VALIDATOR_PARAMS = (
     Param("models", ["A", "B"], "models to validate: built-in names (A, B) or YAML file paths"),
-    Param("ts_s", 0.1, "sample period of the data (s)", 1e-3, 60.0),
-    Param("period_samples", 2048, "excitation period (samples)", 4, 1_000_000),
+    Param("ts_s", TS_S, "sample period of the data (s)", 1e-3, 60.0),
+    Param("period_samples", PERIOD_SAMPLES, "excitation period (samples)", 4, 1_000_000),
     Param("periods_per_window", 2, "periods validated together; a window every period", 1, 64),
     Param(
         "settle_periods", 1, "periods of periodic input required before a window is judged", 0, 64
@@ -84,7 +84,7 @@ VALIDATOR_PARAMS = (
         "method",
         "auto",
         "solver: auto, closed_form, fast or sdp",
-        choices=("auto", "closed_form", "fast", "sdp"),
+        choices=METHODS,
     ),
     Param("alarm_windows", 2, "consecutive invalidating windows that raise ERROR", 1, 1000),
     Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),

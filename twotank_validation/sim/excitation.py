@@ -18,6 +18,7 @@ import numpy as np
 import scipy.signal
 from numpy.typing import NDArray
 
+from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError
 
 __all__ = [
@@ -206,8 +207,8 @@ class ExcitationConfig:
     """
 
     kind: str = "filtered_noise"
-    ts_s: float = 0.1
-    period_samples: int = 2048
+    ts_s: float = TS_S
+    period_samples: int = PERIOD_SAMPLES
     settle_periods: int = 5
     record_periods: int = 2
     rms: tuple[float, float] = (0.1, 0.1)

@@ -37,6 +37,7 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from twotank_validation.defaults import TS_S
 from twotank_validation.errors import DatumError, DimensionError, ModelError
 
 __all__ = [
@@ -790,7 +791,7 @@ class TankSimulator:
     def __init__(
         self,
         params: RigParams,
-        ts_s: float = 0.1,
+        ts_s: float = TS_S,
         *,
         op: OperatingPoint | None = None,
         seed: int = 0,
@@ -1163,7 +1164,7 @@ class SimResult:
 def simulate(
     params: RigParams,
     commands: FloatArray | Sequence[Sequence[float]],
-    ts_s: float = 0.1,
+    ts_s: float = TS_S,
     *,
     op: OperatingPoint | None = None,
     seed: int = 0,

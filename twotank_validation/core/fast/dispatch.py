@@ -58,6 +58,7 @@ from twotank_validation.core.fast.rules import (  # the rules the compiled kerne
     kernel_applies,
 )
 from twotank_validation.core.model import BlockStructure, PlantResponse
+from twotank_validation.defaults import Method
 
 MAX_BLOCKS = 3
 """Most blocks the fast path takes (the dual is exact for one or two, a bound for three)."""
@@ -1929,7 +1930,7 @@ def _solve_compiled(
         z=z,
         delta=delta,
         certified=certified,
-        method="fast",
+        method=Method.FAST.value,
     )
     stats = FastStats(
         n_bins=nb,
@@ -2068,7 +2069,7 @@ def _solve_batched(
         z=out_z,
         delta=delta,
         certified=certified,
-        method="fast",
+        method=Method.FAST.value,
     )
     n_dual = int(np.sum(settled[dual] & feasible[dual]))
     stats = FastStats(

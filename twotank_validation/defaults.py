@@ -1,0 +1,35 @@
+"""Defaults and names that more than one layer uses, each written once.
+
+Every module that needs one of these imports it from here; nothing else restates them.
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import Final
+
+NS_PER_S: Final = 1_000_000_000
+"""Nanoseconds per second: stamps are integer nanoseconds everywhere."""
+
+TS_S: Final = 0.1
+"""Default sample period of the two-tank rig (s)."""
+
+PERIOD_SAMPLES: Final = 2048
+"""Default excitation period (samples): 204.8 s at :data:`TS_S`."""
+
+
+class Method(enum.StrEnum):
+    """The per-bin solver routes of :func:`twotank_validation.core.validate.validate`."""
+
+    AUTO = "auto"
+    """The closed form where it applies, else the fast path, else the SDP."""
+    CLOSED_FORM = "closed_form"
+    """The exact closed form for one full perturbation block (or none)."""
+    FAST = "fast"
+    """The compiled dual ascent with certified bounds (structured models)."""
+    SDP = "sdp"
+    """The per-bin cvxpy relaxation: the reference."""
+
+
+METHODS: Final = tuple(m.value for m in Method)
+"""The method names, in the order shown to users."""
