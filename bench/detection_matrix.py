@@ -16,7 +16,7 @@ window monitor and debounced alarm of the live node and of bag replay -- with th
 ``MonitorConfig`` and ``AlarmConfig`` (2-period windows judged every period, ERROR after 2
 invalidating windows in a row) and Models A and B.
 
-Fault runs: one fault of issue #3 (``rig.Fault``) switched on at ``onset = 4 P + phase P``
+Fault runs: one fault of issue #3 (``faults.Fault``) switched on at ``onset = 4 P + phase P``
 (P = 204.8 s, the period; the first judged window ends at 3 P, so two nominal windows come
 before the onset), permanent except ``valve_stuck`` (no magnitude in the rig: its severity is
 how long the valve stays stuck). Window 1 is the first window that contains faulty samples
@@ -66,8 +66,8 @@ from twotank_validation.core.model import load_model
 from twotank_validation.errors import ModelError
 from twotank_validation.online import monitor
 from twotank_validation.online.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
-from twotank_validation.sim import rig
-from twotank_validation.sim.fault_spec import format_fault
+from twotank_validation.sim import faults, rig
+from twotank_validation.sim.faults import format_fault
 
 MODELS = ("A", "B")
 ONSET_PERIOD = 4  # onsets fall in period 4 (0-based), after the judged windows ending 3P, 4P
@@ -88,10 +88,10 @@ class FaultType:
     def label(self) -> str:
         return f"{self.kind}:{self.channel}" if self.channel else self.kind
 
-    def fault(self, severity: float, onset_s: float) -> rig.Fault:
+    def fault(self, severity: float, onset_s: float) -> faults.Fault:
         if self.kind == "valve_stuck":  # severity = how long it stays stuck
-            return rig.Fault(self.kind, onset_s, 0.0, self.channel, end_s=onset_s + severity)
-        return rig.Fault(self.kind, onset_s, severity, self.channel)
+            return faults.Fault(self.kind, onset_s, 0.0, self.channel, end_s=onset_s + severity)
+        return faults.Fault(self.kind, onset_s, severity, self.channel)
 
     def describe(self, severity: float) -> str:
         if self.kind == "valve_stuck":
@@ -129,9 +129,9 @@ class LimitType:
     def label(self) -> str:
         return f"{self.kind}:{self.channel}" if self.channel else self.kind
 
-    def fault(self, size: float, onset_s: float) -> rig.Fault:
+    def fault(self, size: float, onset_s: float) -> faults.Fault:
         magnitude = 1.0 - size if self.kind == "valve_weak" else size
-        return rig.Fault(self.kind, onset_s, magnitude, self.channel)
+        return faults.Fault(self.kind, onset_s, magnitude, self.channel)
 
     def describe(self, size: float) -> str:
         if math.isinf(size):
@@ -266,7 +266,7 @@ def alarm_before(reports: Sequence[WindowReport], model: str) -> Alarm:
 def run_case(
     base: Run,
     prefix: list[WindowReport],
-    fault: rig.Fault,
+    fault: faults.Fault,
     *,
     windows_after: int,
     period: int,

@@ -26,13 +26,14 @@ from twotank_validation import experiment
 from twotank_validation.core.model import load_model_document
 from twotank_validation.diagnose import Window, diagnose
 from twotank_validation.sim import rig
+from twotank_validation.sim.faults import Fault
 
 A1, H0, T0 = 91.4, 0.47, 0.5
 K_INF, K_DC = -T0 / H0, -0.4674  # Model B's level -> temperature coupling (see test_diagnose)
 
 
-def sensor_delay(tau: float) -> rig.Fault:
-    return rig.Fault("sensor_delay", 0.0, tau, "temperature")
+def sensor_delay(tau: float) -> Fault:
+    return Fault("sensor_delay", 0.0, tau, "temperature")
 
 
 CASES = [

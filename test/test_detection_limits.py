@@ -25,8 +25,7 @@ from twotank_validation.bags.scenario import Scenario
 from twotank_validation.core.model import load_model
 from twotank_validation.online.monitor import COMMAND, Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig
-from twotank_validation.sim.fault_spec import format_fault
-from twotank_validation.sim.rig import Fault
+from twotank_validation.sim.faults import Fault, format_fault
 
 CONFIG = MonitorConfig()  # the node's defaults: 2-period windows every period, ERROR after 2
 TS = CONFIG.ts_s

@@ -36,13 +36,9 @@ from twotank_validation.diagnose import (
     diagnose,
     split_windows,
 )
-from twotank_validation.sim import rig
-from twotank_validation.sim.rig import (
-    RigParams,
-    linearise_model_a,
-    linearise_model_b,
-    operating_point,
-)
+from twotank_validation.sim import faults
+from twotank_validation.sim.linearise import linearise_model_a, linearise_model_b
+from twotank_validation.sim.rig import RigParams, operating_point
 
 A1, H0, T0 = 91.4, 0.47, 0.5
 NOISE = {"noise_std_height": 0.003, "noise_std_temperature": 0.01}
@@ -193,8 +189,8 @@ def rig_windows(params: RigParams, faults=(), seed=0, rms=RMS, n_windows=4) -> l
     return experiment.diagnosis_windows(dataclasses.replace(cfg, excitation=exc), n_windows)
 
 
-def sensor_delay(tau: float) -> rig.Fault:
-    return rig.Fault("sensor_delay", 0.0, tau, "temperature")
+def sensor_delay(tau: float) -> faults.Fault:
+    return faults.Fault("sensor_delay", 0.0, tau, "temperature")
 
 
 def check(diag, truth: dict, tol: float = 0.15) -> None:

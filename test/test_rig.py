@@ -15,14 +15,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from twotank_validation.errors import DatumError, DimensionError, ModelError
+from twotank_validation.sim.linearise import LinearModel, linearise_model_a, linearise_model_b
 from twotank_validation.sim.rig import (
-    LinearModel,
     OperatingPoint,
     RigParams,
     SimResult,
     TankSimulator,
-    linearise_model_a,
-    linearise_model_b,
     operating_point,
     simulate,
 )

@@ -32,8 +32,8 @@ from twotank_validation.bags import (
 )
 from twotank_validation.errors import DatumError, ModelError, TwotankError
 from twotank_validation.online.streams import RigUnits
-from twotank_validation.sim import excitation, rig
-from twotank_validation.sim.fault_spec import parse_fault
+from twotank_validation.sim import excitation, faults, rig
+from twotank_validation.sim.faults import parse_fault
 
 
 def _reference(
@@ -131,8 +131,8 @@ def test_shipped_scenarios() -> None:
             fault = parse_fault(spec)
             kinds.add(fault.kind)
             assert 0.0 < fault.onset_s < s.duration_s
-    assert kinds == set(rig.FAULT_KINDS)
-    for kind in rig.FAULT_KINDS:  # one scenario per kind, named after it, onset mid-run
+    assert kinds == set(faults.FAULT_KINDS)
+    for kind in faults.FAULT_KINDS:  # one scenario per kind, named after it, onset mid-run
         s = load_scenario(kind)
         (spec,) = s.faults
         assert parse_fault(spec).kind == kind

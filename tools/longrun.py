@@ -39,7 +39,7 @@ import numpy as np
 
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.online.monitor import Alarm, WindowReport
-from twotank_validation.sim.fault_spec import parse_fault
+from twotank_validation.sim.faults import parse_fault
 
 HOUR_S = 3600.0
 DDS_WAIT_S = 2.0  # wall time a report may take over loopback DDS before it counts as lost

@@ -27,7 +27,7 @@ from twotank_validation.core.validate import ValidationResult, inverse_dft, vali
 from twotank_validation.defaults import Method
 from twotank_validation.diagnose import Diagnosis, Window, diagnose
 from twotank_validation.sim import excitation, rig
-from twotank_validation.sim.rig import Fault
+from twotank_validation.sim.faults import Fault
 
 
 def _default_rig() -> rig.RigParams:
@@ -54,7 +54,7 @@ class ExperimentConfig:
         max_lag: lags of the probabilistic residual tests.
         alpha: level of the probabilistic residual tests.
         seed: sensor-noise seed of the simulator.
-        faults: faults and undeclared effects switched on during the run (``rig.Fault``).
+        faults: faults and undeclared effects switched on during the run (``faults.Fault``).
     """
 
     rig: rig.RigParams = field(default_factory=_default_rig)

@@ -50,7 +50,7 @@ from twotank_validation.online.streams import (
     RigUnits,
 )
 from twotank_validation.sim import excitation, rig
-from twotank_validation.sim.fault_spec import parse_fault
+from twotank_validation.sim.faults import MAX_FAULT_DELAY_S, Fault, parse_fault
 
 __all__ = [
     "CUSTOM_DATA_KEY",
@@ -171,7 +171,7 @@ class Scenario:
         heat_loss_coeff: A permanent heat loss to ambient (undeclared in the models; the
             inflows are retuned to hold the temperature), >= 0.
         faults: Fault specs ``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``
-            (:func:`twotank_validation.sim.fault_spec.parse_fault`), each with its onset inside
+            (:func:`twotank_validation.sim.faults.parse_fault`), each with its onset inside
             the run.
         seed: Seed of the sensor noise, >= 0.
         units: Conversion of level and temperature to Pa and °C in the messages.
@@ -252,7 +252,7 @@ class Scenario:
         put(
             self,
             "mixing_delay_s",
-            _real(where, "mixing_delay_s", self.mixing_delay_s, lo=0.0, hi=rig.MAX_FAULT_DELAY_S),
+            _real(where, "mixing_delay_s", self.mixing_delay_s, lo=0.0, hi=MAX_FAULT_DELAY_S),
         )
         for key in ("leak_per_level", "heat_loss_coeff"):
             put(self, key, _real(where, key, getattr(self, key), lo=0.0, hi=5.0))
@@ -346,7 +346,7 @@ class Scenario:
             self.excitation_config(), self.operating_point().commands
         )
 
-    def fault_objects(self) -> tuple[rig.Fault, ...]:
+    def fault_objects(self) -> tuple[Fault, ...]:
         """The faults, parsed."""
         return tuple(parse_fault(spec) for spec in self.faults)
 

@@ -5,7 +5,7 @@ measurement taken now on ``height`` (sensor_msgs/FluidPressure, Pa) and ``temper
 (sensor_msgs/Temperature, degC) stamped with the node's clock, then applies the latest
 ``flow_cmd`` for one sample. Faults and unmodeled effects are set at run time through the
 string-array parameter ``faults`` (``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``, see
-:mod:`twotank_validation.sim.fault_spec`); setting it replaces the fault set, onsets in simulated
+:mod:`twotank_validation.sim.faults`); setting it replaces the fault set, onsets in simulated
 seconds since the plant started. With ``publish_clock`` the node owns the simulated clock and
 publishes ``/clock``, ``real_time_factor`` times faster than wall time.
 """
@@ -30,8 +30,8 @@ from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
-from twotank_validation.sim import rig
-from twotank_validation.sim.fault_spec import parse_fault
+from twotank_validation.sim import faults, rig
+from twotank_validation.sim.faults import parse_fault
 
 PLANT_PARAMS = (
     Param("ts_s", TS_S, "sample period (s)", 1e-3, 60.0),
@@ -66,7 +66,7 @@ PLANT_PARAMS = (
 )
 
 
-def parse_faults(specs: Sequence[str]) -> list[rig.Fault]:
+def parse_faults(specs: Sequence[str]) -> list[faults.Fault]:
     """Faults from the parameter's strings (empty strings ignored)."""
     return [parse_fault(s) for s in specs if s.strip()]
 

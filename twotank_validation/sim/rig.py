@@ -1,4 +1,4 @@
-"""Nonlinear model of tank 1 of the Caltech two-tank rig, its linearisations and a simulator.
+"""Nonlinear model of tank 1 of the Caltech two-tank rig and its simulator.
 
 The physics follows R. S. Smith, "Model validation for robust control: an experimental
 process control application", Automatica 31(11), 1995. All signals are in the paper's
@@ -16,15 +16,15 @@ The outputs are the level h1 and the bulk temperature t1 = E1 / h1. The simulato
 rig's unmodelled physics on the measured temperature (a level-dependent transport delay and an
 optional mixing lag) and white Gaussian sensor noise. Neither is in the linear models.
 
-Faults and unmodelled effects (:class:`Fault`, kinds in ``FAULT_KINDS``) can be switched on
-at a given simulated time: a leak, heat loss to ambient, a stuck or weak valve, a sensor bias
-or delay, a changed mixing delay. With faults the balances become
+Faults and unmodelled effects (:class:`~twotank_validation.sim.faults.Fault`, kinds in
+``FAULT_KINDS``) can be switched on at a given simulated time: a leak, heat loss to ambient, a
+stuck or weak valve, a sensor bias or delay, a changed mixing delay. With faults the balances become
 
 * ``A1 dh1/dt = f_h + f_c - f1 - leak``,
 * ``A1 dE1/dt = f_h t_h + f_c t_c - (f1 + leak) t1 - q (t1 - t_amb)``,
 
 with ``q`` the heat-loss coefficient and ``t_amb = RigParams.ambient_temperature``. Faults are
-not in the linearisations.
+not in the linearisations (:mod:`twotank_validation.sim.linearise`).
 """
 
 from __future__ import annotations
@@ -39,19 +39,14 @@ from numpy.typing import NDArray
 
 from twotank_validation.defaults import TS_S
 from twotank_validation.errors import DatumError, DimensionError, ModelError
+from twotank_validation.sim.faults import SENSOR_CHANNELS, Fault, FaultEffects
 
 __all__ = [
-    "FAULT_KINDS",
-    "MAX_FAULT_DELAY_S",
     "MODEL_HEIGHT_RANGE",
-    "Fault",
-    "LinearModel",
     "OperatingPoint",
     "RigParams",
     "SimResult",
     "TankSimulator",
-    "linearise_model_a",
-    "linearise_model_b",
     "operating_point",
     "simulate",
 ]
@@ -70,7 +65,7 @@ _RK4_STABILITY_MARGIN = 2.5
 _T = TypeVar("_T", float, complex)
 
 
-def _frozen_array(value: object, name: str) -> FloatArray:
+def frozen_array(value: object, name: str) -> FloatArray:
     """Return a read-only float64 copy of ``value``; raise ModelError if it is not finite."""
     arr = np.array(value, dtype=np.float64, copy=True)
     if not np.all(np.isfinite(arr)):
@@ -268,200 +263,10 @@ def operating_point(
     )
 
 
-# --- faults and unmodelled effects -----------------------------------------------------------
-
-FAULT_KINDS: tuple[str, ...] = (
-    "leak",
-    "sensor_bias",
-    "valve_stuck",
-    "valve_weak",
-    "sensor_delay",
-    "mixing_delay",
-    "heat_loss",
-)
-"""Kinds of :class:`Fault` that TankSimulator implements."""
-
-_VALVE_CHANNELS: tuple[str, ...] = ("hot", "cold")
-_SENSOR_CHANNELS: tuple[str, ...] = ("height", "temperature")
-_CHANNELS: dict[str, tuple[str, ...]] = {
-    "leak": (),
-    "sensor_bias": _SENSOR_CHANNELS,
-    "valve_stuck": _VALVE_CHANNELS,
-    "valve_weak": _VALVE_CHANNELS,
-    "sensor_delay": _SENSOR_CHANNELS,
-    "mixing_delay": (),
-    "heat_loss": (),
-}
-
-MAX_FAULT_DELAY_S = 600.0
-"""Largest ``sensor_delay`` or ``mixing_delay`` magnitude accepted, seconds."""
-
-# (low, high, low_inclusive, unit) of the magnitude of each kind; valve_stuck: any finite value.
-_MAGNITUDE_RANGES: dict[str, tuple[float, float, bool, str]] = {
-    "leak": (0.0, 1.0, True, "extra outflow, model flow units (nominal outflow 0.8)"),
-    "sensor_bias": (-1.0, 1.0, True, "additive offset, model units"),
-    "valve_weak": (0.0, 1.0, False, "fraction of the commanded flow delivered"),
-    "sensor_delay": (0.0, MAX_FAULT_DELAY_S, True, "extra transport delay, seconds"),
-    "mixing_delay": (0.0, MAX_FAULT_DELAY_S, True, "mixing delay at mixing_ref_level, seconds"),
-    "heat_loss": (0.0, 1.0, True, "heat-loss coefficient, model flow units"),
-}
-
-
-@dataclass(frozen=True)
-class Fault:
-    """A fault or unmodelled effect of the rig, active from ``onset_s`` until ``end_s``.
-
-    Before ``onset_s`` and from ``end_s`` on the rig is nominal. In a TankSimulator a fault
-    takes effect at the first sample instant k ts_s >= onset_s and is removed at the first
-    sample instant >= end_s (both to a rounding tolerance of 1e-9 sample), so it is at most one
-    sample late. Meaning of ``magnitude`` by ``kind`` (model units, seconds):
-
-    * ``leak``: extra outflow in [0, 1] (model flow units; 0.02 is 2.5 % of the nominal
-      outflow 0.8), leaving at the tank temperature: ``A1 dh1/dt = f_h + f_c - f1 - leak``.
-    * ``sensor_bias``: additive offset in [-1, 1] on the measured ``channel``
-      (``"height"`` or ``"temperature"``).
-    * ``valve_stuck``: the ``channel`` valve (``"hot"`` or ``"cold"``) freezes at its actual
-      flow when the fault takes effect and ignores its command; ``magnitude`` is ignored (any
-      finite value, e.g. 0).
-    * ``valve_weak``: the ``channel`` valve delivers ``magnitude`` in (0, 1] times its
-      (saturated) command; 0.7 is a 30 % loss. The valve lag still applies.
-    * ``sensor_delay``: extra transport delay of ``magnitude`` in [0, 600] s on the measured
-      ``channel``: from onset the measurement is the fault-free measurement ``magnitude`` s
-      earlier (linear interpolation between substeps).
-    * ``mixing_delay``: the measured-temperature transport delay at ``mixing_ref_level``
-      becomes ``magnitude`` in [0, 600] s, replacing ``RigParams.mixing_delay_s`` (still
-      proportional to the level).
-    * ``heat_loss``: heat lost to ambient, ``q (t1 - ambient_temperature)`` in the energy
-      balance with q = ``magnitude`` in [0, 1] (model flow units, e.g. 0.05).
-
-    Several faults combine: leaks, heat losses, biases and sensor delays of the same channel
-    add; weak-valve factors multiply; a stuck valve overrides a weak one; of several active
-    ``mixing_delay`` faults the one registered last applies.
-
-    Attributes:
-        kind: One of ``FAULT_KINDS``.
-        onset_s: Simulated time (seconds, finite, >= 0) at which the fault takes effect.
-        magnitude: Size of the fault, finite, in the range given above for its kind.
-        channel: ``"hot"``/``"cold"`` for valve faults, ``"height"``/``"temperature"`` for
-            sensor faults, ``""`` for the others.
-        end_s: Time (seconds) from which the fault is removed, > ``onset_s``; default never.
-
-    Raises:
-        ModelError: If a field is invalid (unknown kind, missing or wrong channel, magnitude out
-            of range, non-finite or negative onset, end not after onset).
-    """
-
-    kind: str
-    onset_s: float
-    magnitude: float
-    channel: str = ""
-    end_s: float = math.inf
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.kind, str) or self.kind not in FAULT_KINDS:
-            raise ModelError(
-                f"Fault.kind={self.kind!r} is not a known fault kind; use one of {FAULT_KINDS}"
-            )
-        where = f"Fault(kind={self.kind!r})"
-        for name in ("onset_s", "magnitude", "end_s"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ModelError(f"{where}.{name}={value!r} is not a real number; pass a float")
-            object.__setattr__(self, name, float(value))
-        if not (math.isfinite(self.onset_s) and self.onset_s >= 0.0):
-            raise ModelError(
-                f"{where}.onset_s={self.onset_s!r} must be a finite simulated time >= 0 s"
-            )
-        if math.isnan(self.end_s) or self.end_s <= self.onset_s:
-            raise ModelError(
-                f"{where}.end_s={self.end_s!r} must be later than onset_s={self.onset_s!r} "
-                "(math.inf: never removed)"
-            )
-        if not math.isfinite(self.magnitude):
-            raise ModelError(f"{where}.magnitude={self.magnitude!r} is not finite")
-        if self.kind in _MAGNITUDE_RANGES:
-            lo, hi, lo_inclusive, unit = _MAGNITUDE_RANGES[self.kind]
-            above_lo = self.magnitude >= lo if lo_inclusive else self.magnitude > lo
-            if not (above_lo and self.magnitude <= hi):
-                bracket = "[" if lo_inclusive else "("
-                raise ModelError(
-                    f"{where}.magnitude={self.magnitude!r} is outside {bracket}{lo:g}, {hi:g}] "
-                    f"({unit})"
-                )
-        allowed = _CHANNELS[self.kind]
-        if not isinstance(self.channel, str):
-            raise ModelError(f"{where}.channel={self.channel!r} is not a string")
-        if allowed and self.channel not in allowed:
-            raise ModelError(
-                f"{where}.channel={self.channel!r} is invalid; a {self.kind} fault needs "
-                f"channel in {allowed}"
-            )
-        if not allowed and self.channel:
-            raise ModelError(
-                f"{where}.channel={self.channel!r} is invalid; a {self.kind} fault acts on the "
-                'whole tank: leave channel=""'
-            )
-
-
-class _FaultEffects(NamedTuple):
-    """Combined effect of the faults active during one sample (identity: the nominal rig)."""
-
-    leak: float = 0.0
-    heat_loss: float = 0.0
-    valve_gain: tuple[float, float] = (1.0, 1.0)
-    stuck: tuple[bool, bool] = (False, False)
-    bias: tuple[float, float] = (0.0, 0.0)
-    sensor_delay_s: tuple[float, float] = (0.0, 0.0)
-    mixing_delay_s: float | None = None
-
-    @property
-    def changes_dynamics(self) -> bool:
-        """Whether the state equations differ from the nominal ones."""
-        return (
-            self.leak != 0.0
-            or self.heat_loss != 0.0
-            or self.valve_gain != (1.0, 1.0)
-            or self.stuck != (False, False)
-        )
-
-    @classmethod
-    def of(cls, faults: Sequence[Fault]) -> _FaultEffects:
-        leak = heat_loss = 0.0
-        gain = [1.0, 1.0]
-        stuck = [False, False]
-        bias = [0.0, 0.0]
-        delay = [0.0, 0.0]
-        mixing: float | None = None
-        for f in faults:
-            if f.kind == "leak":
-                leak += f.magnitude
-            elif f.kind == "heat_loss":
-                heat_loss += f.magnitude
-            elif f.kind == "valve_weak":
-                gain[_VALVE_CHANNELS.index(f.channel)] *= f.magnitude
-            elif f.kind == "valve_stuck":
-                stuck[_VALVE_CHANNELS.index(f.channel)] = True
-            elif f.kind == "sensor_bias":
-                bias[_SENSOR_CHANNELS.index(f.channel)] += f.magnitude
-            elif f.kind == "sensor_delay":
-                delay[_SENSOR_CHANNELS.index(f.channel)] += f.magnitude
-            else:  # mixing_delay: the last one registered wins
-                mixing = f.magnitude
-        return cls(
-            leak=leak,
-            heat_loss=heat_loss,
-            valve_gain=(gain[0], gain[1]),
-            stuck=(stuck[0], stuck[1]),
-            bias=(bias[0], bias[1]),
-            sensor_delay_s=(delay[0], delay[1]),
-            mixing_delay_s=mixing,
-        )
-
-
 # --- the nonlinear right-hand side, shared by the simulator and the linearisations -----------
 
 
-class _Coefficients(NamedTuple):
+class Coefficients(NamedTuple):
     """Precomputed constants of the right-hand side (plain floats, for speed)."""
 
     inv_tau: float
@@ -475,7 +280,7 @@ class _Coefficients(NamedTuple):
     ambient: float
 
     @classmethod
-    def of(cls, params: RigParams) -> _Coefficients:
+    def of(cls, params: RigParams) -> Coefficients:
         return cls(
             inv_tau=1.0 / params.valve_tau_s,
             inv_area=1.0 / params.area,
@@ -489,8 +294,8 @@ class _Coefficients(NamedTuple):
         )
 
 
-def _rhs(  # noqa: PLR0917 - positional floats: this is the simulator's hot loop
-    k: _Coefficients, fh: _T, fc: _T, h: _T, e: _T, uh: _T, uc: _T
+def nominal_rhs(  # noqa: PLR0917 - positional floats: this is the simulator's hot loop
+    k: Coefficients, fh: _T, fc: _T, h: _T, e: _T, uh: _T, uc: _T
 ) -> tuple[_T, _T, _T, _T]:
     """Time derivative of [f_h, f_c, h1, E1] under saturated commands [uh, uc].
 
@@ -523,7 +328,7 @@ class _FaultyCoefficients(NamedTuple):
     ambient: float
 
     @classmethod
-    def of(cls, params: RigParams, effects: _FaultEffects) -> _FaultyCoefficients:
+    def of(cls, params: RigParams, effects: FaultEffects) -> _FaultyCoefficients:
         inv_tau = 1.0 / params.valve_tau_s
         return cls(
             inv_tau_hot=0.0 if effects.stuck[0] else inv_tau,
@@ -540,7 +345,7 @@ class _FaultyCoefficients(NamedTuple):
         )
 
 
-def _rhs_faulty(  # noqa: PLR0917 - same signature as _rhs
+def _rhs_faulty(  # noqa: PLR0917 - same signature as nominal_rhs
     k: _FaultyCoefficients, fh: float, fc: float, h: float, e: float, uh: float, uc: float
 ) -> tuple[float, float, float, float]:
     """Time derivative of [f_h, f_c, h1, E1] with a leak, heat loss and stuck valves.
@@ -557,165 +362,14 @@ def _rhs_faulty(  # noqa: PLR0917 - same signature as _rhs
     )
 
 
-def _output(h: _T, e: _T) -> tuple[_T, _T]:
+def output(h: _T, e: _T) -> tuple[_T, _T]:
     """Bulk outputs [h1, t1 = E1 / h1] of the state."""
     return (h, e / h)
 
 
-_COMPLEX_STEP = 1e-20
-
-
-def _jacobian(
-    func: Callable[[Sequence[complex]], Sequence[complex]], point: Sequence[float]
-) -> FloatArray:
-    """Jacobian of an analytic ``func`` at real ``point`` by complex step (exact to rounding).
-
-    Returns:
-        (n_outputs, n_inputs) float.
-    """
-    columns = []
-    for j in range(len(point)):
-        z = [complex(v) for v in point]
-        z[j] += 1j * _COMPLEX_STEP
-        columns.append([v.imag / _COMPLEX_STEP for v in func(z)])
-    return np.array(columns, dtype=np.float64).T
-
-
-@dataclass(frozen=True, eq=False)
-class LinearModel:
-    """Continuous-time state-space model in deviations from an operating point.
-
-    Frozen, with read-only arrays; compared by identity (``eq=False``: arrays have no scalar
-    equality).
-
-    dx/dt = a x + b u, y = c x + d u, with u = [hot, cold] command deviations and
-    y = [height, temperature] deviations, all in model units, time in seconds.
-
-    Attributes:
-        a: (n_states, n_states) float.
-        b: (n_states, n_inputs) float.
-        c: (n_outputs, n_states) float.
-        d: (n_outputs, n_inputs) float.
-        state_names: n_states names.
-        input_names: n_inputs names.
-        output_names: n_outputs names.
-    """
-
-    a: FloatArray
-    b: FloatArray
-    c: FloatArray
-    d: FloatArray
-    state_names: tuple[str, ...]
-    input_names: tuple[str, ...] = ("hot", "cold")
-    output_names: tuple[str, ...] = ("height", "temperature")
-
-    def __post_init__(self) -> None:
-        for name in ("a", "b", "c", "d"):
-            object.__setattr__(
-                self, name, _frozen_array(getattr(self, name), f"LinearModel.{name}")
-            )
-            if getattr(self, name).ndim != 2:
-                raise DimensionError(
-                    f"LinearModel.{name} must be 2-D, found shape {getattr(self, name).shape}"
-                )
-        n, m, p = len(self.state_names), len(self.input_names), len(self.output_names)
-        expected = {"a": (n, n), "b": (n, m), "c": (p, n), "d": (p, m)}
-        for name, shape in expected.items():
-            found = getattr(self, name).shape
-            if found != shape:
-                raise DimensionError(
-                    f"LinearModel.{name} has shape {found}, expected {shape} from "
-                    f"{n} state, {m} input and {p} output names"
-                )
-
-    def dc_gain(self) -> FloatArray:
-        """Return the steady-state gain -c a^-1 b + d, (n_outputs, n_inputs) float.
-
-        Raises:
-            ModelError: If ``a`` is singular (the model has an integrator).
-        """
-        try:
-            return np.asarray(-self.c @ np.linalg.solve(self.a, self.b) + self.d)
-        except np.linalg.LinAlgError as exc:
-            raise ModelError("LinearModel.a is singular: the DC gain is infinite") from exc
-
-
-def _op_state(op: OperatingPoint) -> list[float]:
+def op_state(op: OperatingPoint) -> list[float]:
+    """Return the state (hot_flow, cold_flow, height, energy) at ``op``, model units."""
     return [op.hot_flow, op.cold_flow, op.height, op.energy]
-
-
-def linearise_model_b(params: RigParams, op: OperatingPoint) -> LinearModel:
-    """Linearise the full nonlinear model (the paper's Model B) at ``op``.
-
-    The matrices are the complex-step Jacobians of the same right-hand side and output
-    functions that TankSimulator integrates. The mixing delay and lag are not included.
-
-    Args:
-        params: Rig parameters.
-        op: Operating point (an equilibrium of ``params``).
-
-    Returns:
-        Model with states [hot_flow, cold_flow, height, energy] (E1 = h1 t1),
-        inputs [hot, cold], outputs [height, temperature].
-    """
-    k = _Coefficients.of(params)
-    point = [*_op_state(op), op.hot_flow, op.cold_flow]
-
-    def f(z: Sequence[complex]) -> Sequence[complex]:
-        return _rhs(k, z[0], z[1], z[2], z[3], z[4], z[5])
-
-    def g(z: Sequence[complex]) -> Sequence[complex]:
-        return _output(z[2], z[3])
-
-    jf = _jacobian(f, point)
-    jg = _jacobian(g, point)
-    return LinearModel(
-        a=jf[:, :4],
-        b=jf[:, 4:],
-        c=jg[:, :4],
-        d=jg[:, 4:],
-        state_names=("hot_flow", "cold_flow", "height", "energy"),
-    )
-
-
-def linearise_model_a(params: RigParams, op: OperatingPoint) -> LinearModel:
-    """Linearise the paper's decoupled Model A at ``op``.
-
-    The height channel is the mass-balance Jacobian (identical to Model B). The temperature
-    channel is the energy balance with h1 held at its operating value (so f1 is constant):
-    A1 h1 dt1/dt = f_h t_h + f_c t_c - f1 t1, which at the paper's point gives
-    t1 = 1.25 / (1 + 53.8 s) f_h and h1 = 1.34 / (1 + 122.5 s) (f_h + f_c), each times the
-    valve lag. Both channels are Jacobians of the simulator's right-hand side.
-
-    Args:
-        params: Rig parameters.
-        op: Operating point (an equilibrium of ``params``).
-
-    Returns:
-        Model with states [hot_flow, cold_flow, height, temperature], inputs [hot, cold],
-        outputs [height, temperature].
-    """
-    k = _Coefficients.of(params)
-    h0 = op.height
-    point = [op.hot_flow, op.cold_flow, op.height, op.temperature, op.hot_flow, op.cold_flow]
-
-    def f(z: Sequence[complex]) -> Sequence[complex]:
-        dfh, dfc, dh, _ = _rhs(k, z[0], z[1], z[2], h0 * z[3], z[4], z[5])
-        # Height held: E1 = h0 t1, so dt1/dt = dE1/dt / h0 with h1 = h0 in the energy balance.
-        de_held = _rhs(k, z[0], z[1], complex(h0), h0 * z[3], z[4], z[5])[3]
-        return (dfh, dfc, dh, de_held / h0)
-
-    jf = _jacobian(f, point)
-    c = np.zeros((2, 4))
-    c[0, 2] = 1.0
-    c[1, 3] = 1.0
-    return LinearModel(
-        a=jf[:, :4],
-        b=jf[:, 4:],
-        c=c,
-        d=np.zeros((2, 2)),
-        state_names=("hot_flow", "cold_flow", "height", "temperature"),
-    )
 
 
 # --- simulator ----------------------------------------------------------------------------
@@ -814,11 +468,11 @@ class TankSimulator:
         self._ts = float(ts_s)
         self._substeps = substeps
         self._dt = dt
-        self._k = _Coefficients.of(params)
+        self._k = Coefficients.of(params)
         self._rng = np.random.default_rng(seed)
         self._noise_std = (params.noise_std_height, params.noise_std_temperature)
         self._n_samples = 0
-        self._fh, self._fc, self._h, self._e = _op_state(self._op)
+        self._fh, self._fc, self._h, self._e = op_state(self._op)
         t0 = self._op.temperature
         # Delay history of the bulk temperature at the substep grid (ring buffer).
         self._delay_per_height = params.mixing_delay_s / params.mixing_ref_level / dt  # substeps
@@ -844,7 +498,7 @@ class TankSimulator:
         # order. The effects are recomputed only at sample index _next_change.
         self._faults: list[tuple[Fault, float, float]] = []
         self._active: tuple[Fault, ...] = ()
-        self._effects = _FaultEffects()
+        self._effects = FaultEffects()
         self._faulty_k: _FaultyCoefficients | None = None  # None: nominal dynamics
         self._next_change = -math.inf
         # Fault-free measured [height, temperature] at the substep grid (ring buffers), kept
@@ -894,7 +548,7 @@ class TankSimulator:
             total = [0.0, 0.0]
             for f, _, _ in self._faults:
                 if f.kind == "sensor_delay":
-                    total[_SENSOR_CHANNELS.index(f.channel)] += f.magnitude
+                    total[SENSOR_CHANNELS.index(f.channel)] += f.magnitude
             capacity = math.ceil(max(total) / self._dt) + 3
             hist_h, hist_t = self._sensor_history
             if capacity > len(hist_h):
@@ -914,7 +568,7 @@ class TankSimulator:
         """
         self._faults.clear()
         self._active = ()
-        self._effects = _FaultEffects()
+        self._effects = FaultEffects()
         self._faulty_k = None
         self._next_change = -math.inf
         self._set_mixing_delay(self._params.mixing_delay_s)
@@ -946,7 +600,7 @@ class TankSimulator:
                 next_change = min(next_change, first)
         self._next_change = next_change
         self._active = tuple(active)
-        effects = _FaultEffects.of(active)
+        effects = FaultEffects.of(active)
         self._effects = effects
         params = self._params
         self._faulty_k = (
@@ -1064,7 +718,7 @@ class TankSimulator:
     def _advance(self, uh: float, uc: float) -> None:
         """Integrate one sample with the saturated commands held (no validation: hot loop)."""
         k: object = self._k
-        rhs: Callable[..., tuple[float, float, float, float]] = _rhs
+        rhs: Callable[..., tuple[float, float, float, float]] = nominal_rhs
         if self._faults:
             self._refresh_faults()
             if self._faulty_k is not None:

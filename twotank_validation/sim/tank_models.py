@@ -24,6 +24,7 @@ import numpy as np
 from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.errors import ModelError
 from twotank_validation.sim import rig
+from twotank_validation.sim.linearise import linearise_model_a, linearise_model_b
 
 HEIGHT_PERTURBATION_WEIGHT = {"tf": {"num": [0.05], "den": [0.25, 1.0]}}
 TEMPERATURE_PERTURBATION_WEIGHT = {"tf": {"num": [16.5, 0.1], "den": [20.0, 1.0]}}
@@ -62,9 +63,9 @@ def model_document(which: str, params: rig.RigParams | None = None) -> dict[str,
     params = params or rig.RigParams()
     op = rig.operating_point(params)
     if which == "A":
-        lin = rig.linearise_model_a(params, op)
+        lin = linearise_model_a(params, op)
     elif which == "B":
-        lin = rig.linearise_model_b(params, op)
+        lin = linearise_model_b(params, op)
     else:
         raise ModelError(f"unknown tank model {which!r}: use 'A' or 'B'")
     return {

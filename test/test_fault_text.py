@@ -9,8 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from twotank_validation.errors import ModelError
-from twotank_validation.sim.fault_spec import format_fault, parse_fault
-from twotank_validation.sim.rig import Fault
+from twotank_validation.sim.faults import Fault, format_fault, parse_fault
 
 
 def test_examples() -> None:
