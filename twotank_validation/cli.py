@@ -239,7 +239,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     model = model_from_dict(doc, source)
     cfg = _replay_config(args)
     assert isinstance(cfg, replay.ReplayConfig)
-    windows, replayed = dg.windows_from_bag(args.bag, model, cfg)
+    windows, replayed = replay.windows_from_bag(args.bag, model, cfg)
     for problem in replayed.problems:
         print(f"WARNING: {problem}", file=sys.stderr)
     print(f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}")

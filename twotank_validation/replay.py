@@ -30,6 +30,7 @@ import numpy as np
 import twotank_validation.bags.reader as bag_reader
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import NS_PER_S
+from twotank_validation.diagnose import Window
 from twotank_validation.online import streams as itf
 from twotank_validation.online.monitor import (
     STREAM_KINDS,
@@ -271,3 +272,38 @@ def summary_json(result: ReplayResult) -> dict[str, Any]:
         "counters": dict(result.counters),
         "models": models,
     }
+
+
+def windows_from_bag(
+    path: str | Path, model: LFTModel, config: ReplayConfig | None = None
+) -> tuple[list[Window], ReplayResult]:
+    """The judged, non-overlapping windows of a bag, read through the replay path.
+
+    Args:
+        path: rosbag2 directory or MCAP file.
+        model: the model (the replay validates it on the way; its reports are returned).
+        config: topics, units, window settings.
+
+    Returns:
+        ``(windows, replay_result)``; windows are in time order, times in s from the bag
+        start.
+
+    Raises:
+        BagError subclasses: the path is not a readable bag.
+    """
+    cfg = config or ReplayConfig()
+    kept: list[tuple[int, WindowSnapshot]] = []
+
+    def collect(rep: WindowReport, snap: WindowSnapshot) -> None:
+        if kept and snap.stamps_ns[0] <= kept[-1][1].stamps_ns[-1]:
+            return  # overlaps the last kept window
+        kept.append((int(snap.stamps_ns[0]), snap))
+
+    result = replay_bag(path, [model], cfg, on_window=collect)
+    t0 = result.bag_start_ns
+    mon = cfg.monitor
+    windows = [
+        Window(snap.u, snap.y, mon.ts_s, mon.period_samples, (start - t0) * 1e-9)
+        for start, snap in kept
+    ]
+    return windows, result

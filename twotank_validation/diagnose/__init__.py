@@ -1,0 +1,104 @@
+"""Close the loop: from the residual of a validation to the effect the model lacks.
+
+Given windows of periodic data (whole excitation periods, as the validator sees them) and a
+structured model (nominal state space + perturbations + noise, the YAML of
+:mod:`twotank_validation.core.model`), the diagnosis
+
+1. computes the raw error ``E(n) = Y(n) - G(e^{j theta_n}) U(n)`` of the nominal on every
+   output at the excited harmonic bins of the period (where the input carries energy),
+   scaled per output by the model's own noise weight, so that the outputs are comparable;
+2. fits every applicable effect of a catalogue (:data:`EFFECT_KINDS`) -- each a structured
+   change of the nominal state space with a few physical parameters -- by nonlinear least
+   squares on the scaled error of the *fit* windows;
+3. judges each fitted effect on *held-out* windows (never used to fit), with a penalty per
+   parameter, keeps the best one when it removes at least ``min_reduction`` of the held-out
+   error, and tries a second effect on top when the first leaves enough unexplained;
+4. reports, on the held-out windows, the validation beta, the RMS simulation error per output
+   and the paper's Section 2.1 residual statistics before and after, with the evidence for
+   the chosen effect(s) and why each rejected candidate was rejected; the changed model is a
+   YAML document the validator accepts as it is.
+
+The catalogue of effects, with each effect's form and parameters, is described in
+:mod:`twotank_validation.diagnose.effects`.
+
+Modules (each imports only those above it):
+
+* :mod:`~twotank_validation.diagnose.inputs`: what a diagnosis takes: :class:`Window` (whole
+  periods in model units), :func:`split_windows` (fit / held-out), :class:`DiagnosisConfig`,
+  and :class:`DiagnosisError`.
+* :mod:`~twotank_validation.diagnose.effects`: :class:`Nominal` (the nominal plant of a model
+  file), :class:`EffectSpec` and :func:`catalogue` (the candidate effects of a model).
+* :mod:`~twotank_validation.diagnose.fit`: :class:`BinData` (the excited bins, step 1), the
+  scaled error and :func:`cost`, :func:`fit_effects` (step 2), :class:`Assessment` and
+  :func:`assess` (a model judged on held-out windows).
+* :mod:`~twotank_validation.diagnose.evidence`: why the data point at a fitted effect, in words.
+* :mod:`~twotank_validation.diagnose.diagnosis`: :func:`diagnose` (steps 2-4: selection,
+  evidence, the changed document) and its outcome :class:`Diagnosis`.
+
+Bags are not read here: :func:`twotank_validation.replay.windows_from_bag` gives the judged
+windows of a recorded bag.
+
+Everything here is ROS-free and works on numpy arrays. scipy.optimize.least_squares does the
+fitting; the catalogue and the selection rule are this package's own (no library does
+model-structure diagnosis of LFT models).
+"""
+
+from twotank_validation.diagnose.diagnosis import (
+    Diagnosis,
+    FittedEffect,
+    changed_document,
+    diagnose,
+)
+from twotank_validation.diagnose.effects import (
+    EFFECT_KINDS,
+    THERMAL_STATES,
+    EffectSpec,
+    Nominal,
+    catalogue,
+    channel_time_constants,
+)
+from twotank_validation.diagnose.fit import (
+    Assessment,
+    BinData,
+    assess,
+    bin_data,
+    cost,
+    excited_bins,
+    fit_effects,
+    noise_floor,
+    noise_scale,
+    scaled_error,
+)
+from twotank_validation.diagnose.inputs import (
+    DiagnosisConfig,
+    DiagnosisError,
+    Window,
+    split_windows,
+)
+
+__all__ = [
+    "EFFECT_KINDS",
+    "THERMAL_STATES",
+    "Assessment",
+    "BinData",
+    "Diagnosis",
+    "DiagnosisConfig",
+    "DiagnosisError",
+    "EffectSpec",
+    "FittedEffect",
+    "Nominal",
+    "Window",
+    "assess",
+    "bin_data",
+    "catalogue",
+    "changed_document",
+    "channel_time_constants",
+    "cost",
+    "diagnose",
+    "excited_bins",
+    "fit_effects",
+    "noise_floor",
+    "noise_scale",
+    "scaled_error",
+    "split_windows",
+]

@@ -1,0 +1,396 @@
+"""The driver: the effect (or pair) a model lacks, judged on held-out windows.
+
+Fits every effect of the catalogue, judges each on the held-out windows, keeps the best one
+(or pair) and writes the changed model document.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from twotank_validation.core.datum import Datum, NormConvention, make_datum
+from twotank_validation.core.model import model_from_dict
+from twotank_validation.diagnose.effects import EffectSpec, Nominal, catalogue
+from twotank_validation.diagnose.evidence import evidence
+from twotank_validation.diagnose.fit import (
+    Assessment,
+    BinData,
+    _apply_all,
+    assess,
+    bin_data,
+    cost,
+    fit_effects,
+    noise_floor,
+)
+from twotank_validation.diagnose.inputs import (
+    DiagnosisConfig,
+    DiagnosisError,
+    Window,
+    split_windows,
+)
+
+
+@dataclass(frozen=True)
+class FittedEffect:
+    """An effect with fitted parameters.
+
+    Attributes:
+        spec: the catalogue entry.
+        values: fitted parameters, in ``spec.names`` order (SI units).
+        fit_cost: scaled squared error on the fit windows with the effect.
+        heldout_cost: the same on the held-out windows.
+        reduction: fraction of the held-out error (penalised) removed, relative to the model
+            it was added to.
+        evidence: why the data point at it (or, for a rejected one, why not).
+    """
+
+    spec: EffectSpec
+    values: np.ndarray
+    fit_cost: float
+    heldout_cost: float
+    reduction: float
+    evidence: str = ""
+
+    def to_dict(self, outputs: Sequence[str]) -> dict[str, Any]:
+        """The documented JSON entry of an effect."""
+        out: dict[str, Any] = {
+            "kind": self.spec.kind,
+            "channel": outputs[self.spec.channel],
+            "parameters": {
+                **{n: float(v) for n, v in zip(self.spec.names, self.values, strict=True)},
+                **{n: float(v) for n, v in self.spec.fixed.items()},
+            },
+            "evidence": self.evidence,
+            "heldout_reduction": self.reduction,
+        }
+        if self.spec.source is not None:
+            out["source"] = outputs[self.spec.source]
+        return out
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Outcome of :func:`diagnose`.
+
+    Attributes:
+        model: name of the diagnosed model.
+        before: the model judged on the held-out windows.
+        after: the changed model judged on the same windows (``before`` when nothing added).
+        effects: the effects added (0, 1 or 2), in the order they were added.
+        rejected: every other candidate, as ``(label, held-out reduction, reason)``.
+        not_applicable: catalogue entries that do not apply, with why.
+        document: the changed model's YAML document (``None`` when nothing was added).
+        outputs: output names.
+        fit_windows, heldout_windows: start times (s) of the windows used for each role.
+        adequate: no effect needed: the model explains this datum as well as any candidate.
+        summary: one paragraph for the report.
+        noise_ratio: held-out error of the model before, as a multiple of what the
+            measurement noise alone would give (see ``DiagnosisConfig.material``).
+        heldout: the held-out datums (for figures).
+        fit_bins: the fit windows' excited bins (for figures).
+        nominal_before, nominal_after: the nominal plants before and after.
+    """
+
+    model: str
+    before: Assessment
+    after: Assessment
+    effects: list[FittedEffect]
+    rejected: list[tuple[str, float, str]]
+    not_applicable: list[tuple[str, str]]
+    document: dict[str, Any] | None
+    outputs: tuple[str, ...]
+    fit_windows: list[float]
+    heldout_windows: list[float]
+    adequate: bool
+    summary: str
+    noise_ratio: float = math.nan
+    heldout: list[Datum] = field(default_factory=list, repr=False)
+    fit_bins: BinData | None = field(default=None, repr=False)
+    nominal_before: Nominal | None = field(default=None, repr=False)
+    nominal_after: Nominal | None = field(default=None, repr=False)
+
+    def to_json(self, model_file: str | None = None) -> dict[str, Any]:
+        """The documented JSON (README "Diagnosis")."""
+
+        def side(a: Assessment) -> dict[str, Any]:
+            return a.to_dict()
+
+        return {
+            "model": self.model,
+            "adequate": self.adequate,
+            "noise_ratio": self.noise_ratio,
+            "summary": self.summary,
+            "before": side(self.before),
+            "effects": [e.to_dict(self.outputs) for e in self.effects],
+            "after": side(self.after),
+            "model_file": model_file,
+            "rejected": [
+                {"candidate": lab, "heldout_reduction": red, "reason": why}
+                for lab, red, why in self.rejected
+            ],
+            "not_applicable": [
+                {"candidate": lab, "reason": why} for lab, why in self.not_applicable
+            ],
+            "fit_windows_start_s": self.fit_windows,
+            "heldout_windows_start_s": self.heldout_windows,
+        }
+
+
+def changed_document(
+    doc: Mapping[str, Any],
+    nominal: Nominal,
+    effects: Sequence[FittedEffect],
+    outputs: Sequence[str],
+) -> dict[str, Any]:
+    """The model file with the effects added to its nominal (a new name and description)."""
+    new = copy.deepcopy(dict(doc))
+    new["nominal"] = nominal.to_node()
+    labels = [e.spec.label(outputs) for e in effects]
+    new["name"] = f"{doc.get('name', 'model')}_diagnosed"
+    params = "; ".join(
+        f"{e.spec.label(outputs)}: "
+        + ", ".join(f"{n} = {v:.4g}" for n, v in zip(e.spec.names, e.values, strict=True))
+        for e in effects
+    )
+    new["description"] = (
+        f"{doc.get('description', '')} Diagnosed from data: added {', '.join(labels)} ({params})."
+    ).strip()
+    new["derivation"] = (
+        f"{doc.get('derivation', doc.get('name', ''))}; then twotank-validation diagnose added "
+        f"{', '.join(labels)}"
+    )
+    return new
+
+
+def _datums(windows: Sequence[Window], convention: NormConvention) -> list[Datum]:
+    return [
+        make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=w.period_samples, convention=convention)
+        for w in windows
+    ]
+
+
+def diagnose(
+    windows: Sequence[Window],
+    doc: Mapping[str, Any],
+    config: DiagnosisConfig | None = None,
+    *,
+    source: str = "model",
+    convention: NormConvention = NormConvention.POWER,
+) -> Diagnosis:
+    """Trace the residual of ``doc``'s model on ``windows`` to the effect it lacks.
+
+    Args:
+        windows: non-overlapping windows of whole periods (same ts and period).
+        doc: the model document (as loaded from YAML).
+        config: settings.
+        source: label of the model in messages.
+        convention: norm convention of the validations.
+
+    Raises:
+        DiagnosisError: too little data, no excitation, or a model that cannot be changed.
+    """
+    cfg = config or DiagnosisConfig()
+    model = model_from_dict(doc, source)
+    nominal = Nominal.from_document(doc, source)
+    outputs = model.output_names
+    fit_w, held_w = split_windows(windows)
+    fit_d, held_d = _datums(fit_w, convention), _datums(held_w, convention)
+    ts = fit_d[0].ts_s
+    fit_data = bin_data(fit_d, model, cfg.excitation_floor)
+    held_data = bin_data(held_d, model, cfg.excitation_floor)
+    if fit_data.theta.size == 0 or held_data.theta.size == 0:
+        raise DiagnosisError(
+            "the windows carry no excitation at the harmonics of the period: a model error "
+            "cannot be traced without excitation"
+        )
+    specs, skipped = catalogue(
+        nominal,
+        outputs,
+        period_s=fit_w[0].period_samples * ts,
+        operating_point=model.operating_point,
+        max_time_fraction=cfg.max_time_fraction,
+    )
+    before = assess(model, held_d, held_w, cfg)
+    j0 = cost(nominal, held_data, ts)
+
+    def judged(
+        chosen: Sequence[EffectSpec], starts: Sequence[np.ndarray] | None
+    ) -> tuple[np.ndarray, float, float]:
+        values, fit_cost = fit_effects(nominal, chosen, fit_data, ts, starts)
+        j = cost(_apply_all(nominal, chosen, values), held_data, ts)
+        k = sum(s.n_params for s in chosen)
+        return values, fit_cost, j * (1.0 + cfg.param_penalty * k)
+
+    singles = []
+    for s in specs:
+        values, fit_cost, adj = judged([s], None)
+        singles.append(FittedEffect(s, values, fit_cost, adj, 1.0 - adj / j0))
+    singles.sort(key=lambda e: -e.reduction)
+    singles = _prefer_parsimonious(singles, cfg.parsimony)
+    chosen: list[FittedEffect] = []
+    best = singles[0] if singles else None
+    floor = noise_floor(held_data)
+    material = j0 >= cfg.material * floor
+    if best is not None and material and cfg.max_effects >= 1:
+        if best.reduction >= cfg.min_reduction:
+            chosen.append(best)
+        left = best.heldout_cost / (1.0 + cfg.param_penalty * best.spec.n_params)
+        if cfg.max_effects >= 2 and left >= cfg.material * floor:
+            # a pair when one effect alone does not explain the data: it must remove
+            # min_reduction of the error, and min_second_reduction of what the best single
+            # effect leaves
+            pair = _best_pair(singles, specs, judged, cfg)
+            if (
+                pair is not None
+                and pair[0] <= (1.0 - cfg.min_second_reduction) * best.heldout_cost
+                and pair[0] <= (1.0 - cfg.min_reduction) * j0
+            ):
+                chosen = [pair[1], pair[2]]
+    changed = nominal
+    for e in chosen:
+        changed = e.spec.apply(changed, e.values)
+    # evidence: each chosen effect against the model with the other chosen effects added, so
+    # that its own signature shows; its reduction is what it removes on top of the others
+    j_all = cost(changed, held_data, ts)
+    with_evidence = []
+    for i, e in enumerate(chosen):
+        base = nominal
+        for other in chosen[:i] + chosen[i + 1 :]:
+            base = other.spec.apply(base, other.values)
+        red = 1.0 - j_all / max(cost(base, held_data, ts), 1e-300)
+        text = evidence(e.spec, e.values, base, fit_data, ts, outputs, red)
+        with_evidence.append(replace(e, reduction=red, evidence=text))
+    chosen = with_evidence
+    chosen_specs = {id(e.spec) for e in chosen}
+    rejected = []
+    for e in singles:
+        if id(e.spec) in chosen_specs:
+            continue
+        label = e.spec.label(outputs)
+        if not material:
+            why = (
+                f"not needed: the model's held-out error is {j0 / max(floor, 1e-300):.1f} times "
+                f"what the measurement noise alone gives (material from {cfg.material:g}); "
+                f"it would remove {max(e.reduction, 0.0):.0%} of it"
+            )
+        elif chosen and e.reduction >= cfg.min_reduction:
+            why = (
+                f"removes {e.reduction:.0%} of the held-out error alone, but "
+                f"{' with '.join(c.spec.label(outputs) for c in chosen)} explains the data better"
+            )
+        elif e.reduction < cfg.min_reduction:
+            why = (
+                f"removes {max(e.reduction, 0.0):.0%} of the held-out error with "
+                f"{e.spec.n_params} parameter(s) (at least {cfg.min_reduction:.0%} needed)"
+            )
+        else:
+            why = f"removes {e.reduction:.0%} of the held-out error"
+        bounds = zip(e.spec.names, e.values, e.spec.lower, e.spec.upper, strict=True)
+        at_bound = [n for n, v, lo, hi in bounds if np.isclose(v, lo) or np.isclose(v, hi)]
+        if at_bound and e.reduction > 0:
+            why += f"; fitted {', '.join(at_bound)} at the search bound"
+        rejected.append((label, float(e.reduction), why))
+    document = changed_document(doc, changed, chosen, outputs) if chosen else None
+    if document is not None:
+        after_model = model_from_dict(document, f"{source} (diagnosed)")
+        after = assess(after_model, held_d, held_w, cfg)
+    else:
+        after = before
+    summary = _summary(model.name, before, after, chosen, outputs)
+    return Diagnosis(
+        model=model.name,
+        before=before,
+        after=after,
+        effects=chosen,
+        rejected=rejected,
+        not_applicable=skipped,
+        document=document,
+        outputs=tuple(outputs),
+        fit_windows=[w.start_s for w in fit_w],
+        heldout_windows=[w.start_s for w in held_w],
+        adequate=not chosen,
+        summary=summary,
+        noise_ratio=j0 / floor if floor > 0 else math.inf,
+        heldout=held_d,
+        fit_bins=fit_data,
+        nominal_before=nominal,
+        nominal_after=changed,
+    )
+
+
+def _best_pair(
+    singles: Sequence[FittedEffect],
+    specs: Sequence[EffectSpec],
+    judged: Callable[
+        [Sequence[EffectSpec], Sequence[np.ndarray] | None], tuple[np.ndarray, float, float]
+    ],
+    cfg: DiagnosisConfig,
+) -> tuple[float, FittedEffect, FittedEffect] | None:
+    """The best pair of effects, fitted jointly, each of the leading singles as the first.
+
+    Not greedy: a first effect that fits best alone can be the wrong one when a second
+    effect is present (a lag mimics part of a delay plus a leak), so every pair with one of
+    the ``pair_candidates`` best singles is fitted and judged on the held-out windows.
+
+    Returns:
+        ``(penalised held-out cost, first, second)`` or ``None``.
+    """
+    results: list[tuple[float, FittedEffect, FittedEffect]] = []
+    seen: set[frozenset[int]] = set()
+    firsts = [e for e in singles[: cfg.pair_candidates] if e.reduction > 0.0]  # best first
+    for first in firsts:
+        for s in specs:
+            key = frozenset((id(first.spec), id(s)))
+            same = s.kind == first.spec.kind and s.channel == first.spec.channel
+            if same or key in seen:
+                continue
+            seen.add(key)
+            values, fit_cost, adj = judged([first.spec, s], [first.values])
+            n1 = first.spec.n_params
+            second = FittedEffect(s, values[n1:], fit_cost, adj, 1.0 - adj / first.heldout_cost)
+            results.append((adj, replace(first, values=values[:n1]), second))
+    if not results:
+        return None
+    results.sort(key=lambda t: t[0])
+    close = [t for t in results if t[0] <= cfg.parsimony * results[0][0]]
+    return min(close, key=lambda t: (t[1].spec.n_params + t[2].spec.n_params, t[0]))
+
+
+def _prefer_parsimonious(ranked: list[FittedEffect], factor: float) -> list[FittedEffect]:
+    """Move the most parsimonious of the near-best candidates to the front.
+
+    Near-best: held-out error left within ``factor`` of the best one's; most parsimonious:
+    fewest parameters, then least error. The rest keep their order.
+    """
+    if not ranked:
+        return ranked
+    left = [max(1.0 - e.reduction, 1e-12) for e in ranked]
+    close = [i for i, v in enumerate(left) if v <= factor * left[0]]
+    pick = min(close, key=lambda i: (ranked[i].spec.n_params, left[i]))
+    return [ranked[pick], *ranked[:pick], *ranked[pick + 1 :]]
+
+
+def _summary(
+    name: str,
+    before: Assessment,
+    after: Assessment,
+    chosen: Sequence[FittedEffect],
+    outputs: Sequence[str],
+) -> str:
+    if not chosen:
+        return (
+            f"Model {name} is adequate for this datum: no effect of the catalogue removes enough "
+            f"of the held-out error to be worth its parameters (held-out beta {before.beta:.3f})."
+        )
+    added = " and ".join(e.spec.label(outputs) for e in chosen)
+    rms = ", ".join(f"{o} {before.rms[o]:.4g} -> {after.rms[o]:.4g}" for o in outputs)
+    return (
+        f"Model {name} lacks {added}. On held-out data beta {before.beta:.3f} -> "
+        f"{after.beta:.3f}; RMS simulation error {rms} (model units)."
+    )

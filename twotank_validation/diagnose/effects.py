@@ -1,0 +1,382 @@
+"""The nominal plant as a model file states it, and the catalogue of effects that change it.
+
+Catalogue (parameters in SI units; rates in 1/s, times in s):
+
+* ``delay`` on an output: ``y_c(t) -> y_c(t - tau)`` (``output_delays_s`` in the YAML).
+* ``lag`` on an output: ``y_c -> y_c / (1 + T s)`` (an extra state).
+* ``gain`` on an output: ``y_c -> (1 + g) y_c``.
+* ``coupling`` from output a into output c: ``y_c += K(s) y_a`` with
+  ``K(s) = (k0 + k_inf T s) / (1 + T s)`` (DC gain ``k0``, high-frequency gain ``k_inf``,
+  time constant ``T``; an extra state). The paper's Model A lacks the level-to-temperature
+  coupling of Model B, which is exactly this form with T the temperature time constant.
+* ``leak``: an extra outflow proportional to the level; the mass (``height``) and the
+  energy/temperature states both decay faster by the rate ``r`` (needs state names).
+* ``heat_loss``: heat lost to ambient, ``q (t - t_amb)``; the energy/temperature state decays
+  faster by ``c`` and, for an energy state E = h t, the level feeds it with ``+c t0``
+  (needs state names and the operating temperature).
+* ``offset``: a sensor drift, ``y_c += d (t - mean t)`` within each window. The mean is
+  removed before the DFT, so a constant offset is invisible to the validation by design;
+  a drift is not a property of an LTI model: it is reported (with its rate) but not added to
+  the model file, and the engineer is told to recalibrate the sensor.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from twotank_validation.core import lti
+from twotank_validation.core.lti import StateSpace
+from twotank_validation.core.model import model_from_dict
+from twotank_validation.diagnose.inputs import DiagnosisError
+
+EFFECT_KINDS = ("delay", "lag", "gain", "coupling", "offset", "leak", "heat_loss")
+"""Kinds of effect in the catalogue, in the order they are tried."""
+
+THERMAL_STATES = ("energy", "temperature")
+"""State names that the leak and heat-loss effects recognise as the thermal state."""
+
+
+# --------------------------------------------------------------------------- nominal plant
+
+
+@dataclass(frozen=True)
+class Nominal:
+    """A continuous-time nominal plant as it appears in a model file.
+
+    Attributes:
+        a, b, c, d: state-space matrices (n, n), (n, nu), (ny, n), (ny, nu).
+        delays_s: (ny,) float, output transport delays in s.
+        states: one name per state (``""`` when unnamed).
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    delays_s: np.ndarray
+    states: tuple[str, ...]
+
+    @classmethod
+    def from_document(cls, doc: Mapping[str, Any], source: str = "model") -> Nominal:
+        """Read the nominal of a model document (``nominal: {ss: ...}`` or ``tf``/``gain``).
+
+        Raises:
+            DiagnosisError: a generalized-plant model or a discrete-time nominal.
+        """
+        if "generalized_plant" in doc or "nominal" not in doc:
+            raise DiagnosisError(
+                f"{source}: diagnosis needs a structured model (nominal, perturbations, noise); "
+                "a generalized plant has no nominal channels to change"
+            )
+        sys = model_from_dict(doc, source).nominal
+        assert sys is not None
+        if sys.is_discrete:
+            raise DiagnosisError(
+                f"{source}: the nominal is discrete-time; diagnosis changes continuous-time "
+                "plants (give the nominal in continuous time)"
+            )
+        node = doc["nominal"]
+        names: list[str] = []
+        if isinstance(node, Mapping) and isinstance(node.get("ss"), Mapping):
+            names = [str(s) for s in node["ss"].get("states") or []]
+        if len(names) != sys.n_states:
+            names = [""] * sys.n_states
+        ny = sys.shape[0]
+        delays = np.array(sys.output_delays_s or (0.0,) * ny, dtype=float)
+        return cls(sys.a, sys.b, sys.c, sys.d, delays, tuple(names))
+
+    def state_space(self) -> StateSpace:
+        """The continuous-time state space with its delays."""
+        return StateSpace(self.a, self.b, self.c, self.d, None, tuple(self.delays_s.tolist()))
+
+    def response(self, theta: np.ndarray, ts_s: float) -> np.ndarray:
+        """ZOH-discretised response at ``exp(j theta)``: (n_bins, ny, nu) complex."""
+        return lti.frequency_response(lti.discretise(self.state_space(), ts_s), theta)
+
+    def hold_response(self, theta: np.ndarray, ts_s: float) -> np.ndarray:
+        """Fast response for fitting: ``G(j w) (1 - e^{-j theta}) / (j theta)`` times delays.
+
+        The continuous response times the zero-order hold's; it differs from the exact ZOH
+        discretisation (:meth:`response`) only by aliasing, ``O(|G(j(w + 2 pi / ts))|)``,
+        i.e. ~1e-4 relative at the excited bins of the tank models (< 0.1 Hz at 10 Hz
+        sampling). One batched solve instead of a matrix exponential per evaluation: the
+        fit evaluates thousands of candidate plants. Shape (n_bins, ny, nu).
+        """
+        omega = np.asarray(theta, dtype=float) / ts_s
+        n = self.a.shape[0]
+        jw = 1j * omega[:, None, None] * np.eye(n)[None]
+        x = np.linalg.solve(jw - self.a[None], np.broadcast_to(self.b, (omega.size, *self.b.shape)))
+        g = np.einsum("pn,knm->kpm", self.c, x) + self.d[None]
+        th = np.where(theta == 0.0, 1.0, theta)
+        hold = np.where(theta == 0.0, 1.0, (1.0 - np.exp(-1j * th)) / (1j * th))
+        delay = np.exp(-1j * omega[:, None] * self.delays_s[None, :])
+        return g * hold[:, None, None] * delay[:, :, None]
+
+    def to_node(self) -> dict[str, Any]:
+        """The ``nominal`` node of a model file."""
+
+        def rows(m: np.ndarray) -> list[list[float]]:
+            return [[float(f"{x:.12g}") for x in r] for r in np.atleast_2d(m)]
+
+        ss: dict[str, Any] = {
+            "A": rows(self.a),
+            "B": rows(self.b),
+            "C": rows(self.c),
+            "D": rows(self.d),
+        }
+        if any(self.states):
+            ss["states"] = list(self.states)
+        if np.any(self.delays_s > 0):
+            ss["output_delays_s"] = [float(f"{t:.12g}") for t in self.delays_s]
+        return {"ss": ss}
+
+    def with_state(
+        self, a_row_extra: np.ndarray, a_new: float, b_new: np.ndarray, name: str
+    ) -> Nominal:
+        """Append one state ``x' = a_row_extra @ x + a_new x_new + b_new @ u``."""
+        n = self.a.shape[0]
+        a = np.zeros((n + 1, n + 1))
+        a[:n, :n] = self.a
+        a[n, :n] = a_row_extra
+        a[n, n] = a_new
+        b = np.vstack([self.b, b_new[None, :]])
+        c = np.hstack([self.c, np.zeros((self.c.shape[0], 1))])
+        return replace(self, a=a, b=b, c=c, states=(*self.states, name))
+
+
+# --------------------------------------------------------------------------- the catalogue
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """One candidate effect: a structured change of the nominal with named parameters.
+
+    Attributes:
+        kind: one of :data:`EFFECT_KINDS`.
+        channel: index of the output it changes.
+        source: coupling source output index (``None`` otherwise).
+        names: parameter names (SI units in the name suffix).
+        lower, upper: bounds per parameter.
+        grid: values of the first parameter tried before the local fit.
+        defaults: starting values of the other parameters.
+        apply: ``(nominal, values) -> nominal``.
+        fixed: parameters taken from the model, not fitted (reported with the fitted ones).
+    """
+
+    kind: str
+    channel: int
+    source: int | None
+    names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    grid: tuple[float, ...]
+    defaults: tuple[float, ...]
+    apply: Callable[[Nominal, np.ndarray], Nominal] = field(repr=False, compare=False)
+    fixed: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def n_params(self) -> int:
+        """Number of fitted parameters."""
+        return len(self.names)
+
+    def label(self, outputs: Sequence[str]) -> str:
+        """Human-readable name, e.g. ``delay on temperature``."""
+        if self.kind == "coupling" and self.source is not None:
+            t = self.fixed.get("time_constant_s")
+            via = f" (T {t:.4g} s)" if t is not None else ""
+            return f"coupling {outputs[self.source]} -> {outputs[self.channel]}{via}"
+        if self.kind in ("leak", "heat_loss"):
+            return self.kind.replace("_", " ")
+        return f"{self.kind} on {outputs[self.channel]}"
+
+
+def _delay(ch: int) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        delays = nom.delays_s.copy()
+        delays[ch] += p[0]
+        return replace(nom, delays_s=delays)
+
+    return apply
+
+
+def _lag(ch: int, name: str) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        t = max(float(p[0]), 1e-9)
+        out = nom.with_state(nom.c[ch] / t, -1.0 / t, nom.d[ch] / t, name)
+        c, d = out.c.copy(), out.d.copy()
+        c[ch] = 0.0
+        c[ch, -1] = 1.0
+        d[ch] = 0.0
+        return replace(out, c=c, d=d)
+
+    return apply
+
+
+def _gain(ch: int) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        c, d = nom.c.copy(), nom.d.copy()
+        c[ch] *= 1.0 + p[0]
+        d[ch] *= 1.0 + p[0]
+        return replace(nom, c=c, d=d)
+
+    return apply
+
+
+def _coupling(src: int, ch: int, name: str, t_s: float) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        k0, k_inf = float(p[0]), float(p[1])
+        c_src, d_src = nom.c[src].copy(), nom.d[src].copy()
+        out = nom.with_state(c_src / t_s, -1.0 / t_s, d_src / t_s, name)
+        c, d = out.c.copy(), out.d.copy()
+        c[ch, : c_src.size] += k_inf * c_src
+        c[ch, -1] += k0 - k_inf
+        d[ch] += k_inf * d_src
+        return replace(out, c=c, d=d)
+
+    return apply
+
+
+def channel_time_constants(nom: Nominal, ch: int, min_s: float) -> list[float]:
+    """Time constants (s) of the real modes that output ``ch`` sees and some input drives.
+
+    A coupling into ``ch`` enters through the channel's own dynamics, so its time constant
+    is one of these (the fit picks which).
+    """
+    lam, vec = np.linalg.eig(nom.a)
+    left = np.linalg.inv(vec)
+    seen = np.abs(nom.c[ch] @ vec) * np.linalg.norm(left @ nom.b, axis=1)
+    scale = float(np.max(seen, initial=0.0))
+    out = sorted(
+        {
+            float(f"{-1.0 / lam[i].real:.6g}")
+            for i in range(lam.size)
+            if abs(lam[i].imag) < 1e-9
+            and lam[i].real < 0
+            and seen[i] > 1e-6 * scale
+            and -1.0 / lam[i].real >= min_s
+        }
+    )
+    return out
+
+
+def _state_rate(rows: Sequence[tuple[int, int, float]]) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        a = nom.a.copy()
+        for i, j, scale in rows:
+            a[i, j] += scale * p[0]
+        return replace(nom, a=a)
+
+    return apply
+
+
+def catalogue(
+    nominal: Nominal,
+    outputs: Sequence[str],
+    *,
+    period_s: float,
+    operating_point: Mapping[str, float],
+    max_time_fraction: float = 0.25,
+) -> tuple[list[EffectSpec], list[tuple[str, str]]]:
+    """The candidate effects that apply to this model, and those that do not (with why).
+
+    Args:
+        nominal: the model's nominal plant.
+        outputs: output names (``height``/``temperature`` for the tank models).
+        period_s: excitation period (s): bounds delays and time constants.
+        operating_point: operating output values (the heat loss needs the temperature).
+        max_time_fraction: delays and time constants up to this fraction of the period.
+    """
+    t_max = max_time_fraction * period_s
+    times = tuple(float(x) for x in np.geomspace(0.5, t_max, 16))
+    specs: list[EffectSpec] = []
+    skipped: list[tuple[str, str]] = []
+    for ch, out in enumerate(outputs):
+        specs.append(
+            EffectSpec(
+                "delay", ch, None, ("delay_s",), (0.0,), (t_max,), (0.0, *times), (), _delay(ch)
+            )
+        )
+        specs.append(
+            EffectSpec(
+                "lag",
+                ch,
+                None,
+                ("time_constant_s",),
+                (0.0,),
+                (t_max,),
+                times,
+                (),
+                _lag(ch, f"lag_{out}"),
+            )
+        )
+        specs.append(
+            EffectSpec(
+                "gain",
+                ch,
+                None,
+                ("gain_error",),
+                (-0.9,),
+                (5.0,),
+                (-0.5, -0.2, 0.0, 0.2, 0.5, 1.0),
+                (),
+                _gain(ch),
+            )
+        )
+    for ch, out in enumerate(outputs):
+        for t_c in channel_time_constants(nominal, ch, min_s=1.0):
+            for src, src_name in enumerate(outputs):
+                if src == ch:
+                    continue
+                specs.append(
+                    EffectSpec(
+                        "coupling",
+                        ch,
+                        src,
+                        ("dc_gain", "hf_gain"),
+                        (-50.0, -50.0),
+                        (50.0, 50.0),
+                        (0.0,),
+                        (0.0,),
+                        _coupling(src, ch, f"coupling_{src_name}_to_{out}", t_c),
+                        fixed={"time_constant_s": t_c},
+                    )
+                )
+    names = list(nominal.states)
+    thermal = next((n for n in THERMAL_STATES if n in names), None)
+    if "height" not in names or thermal is None:
+        why = (
+            "not applicable: the model's nominal has no states named 'height' and "
+            "'energy'/'temperature' (the mass and energy balances a {} changes); "
+            "add `states:` to the nominal `ss`"
+        )
+        skipped += [("leak", why.format("leak")), ("heat_loss", why.format("heat loss"))]
+        return specs, skipped
+    ih, it = names.index("height"), names.index(thermal)
+    base = max(abs(nominal.a[ih, ih]), abs(nominal.a[it, it]), 1e-6)
+    rates = tuple(float(x) for x in np.geomspace(base * 1e-2, base * 10.0, 16))
+    h_ch = outputs.index("height") if "height" in outputs else 0
+    specs.append(
+        EffectSpec(
+            "leak", h_ch, None, ("rate_per_s",), (0.0,), (20.0 * base,), rates, (),
+            _state_rate([(ih, ih, -1.0), (it, it, -1.0)]),
+        )
+    )  # fmt: skip
+    heat_rows = [(it, it, -1.0)]
+    if thermal == "energy":
+        t0 = operating_point.get("temperature")
+        if t0 is None:
+            skipped.append(("heat_loss", "not applicable: the model has no operating temperature"))
+            return specs, skipped
+        heat_rows.append((it, ih, float(t0)))
+    t_ch = outputs.index("temperature") if "temperature" in outputs else ih
+    specs.append(
+        EffectSpec(
+            "heat_loss", t_ch, None, ("rate_per_s",), (0.0,), (20.0 * base,), rates, (),
+            _state_rate(heat_rows),
+        )
+    )  # fmt: skip
+    return specs, skipped
