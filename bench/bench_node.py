@@ -188,7 +188,7 @@ def steady_period() -> tuple[np.ndarray, np.ndarray]:
     """One period of the nominal scenario in periodic steady state: (u, y), (2048, 2) each."""
     import dataclasses  # noqa: PLC0415
 
-    from twotank_validation.bags import scenario as sc  # noqa: PLC0415
+    from twotank_validation.sim import scenario as sc  # noqa: PLC0415
 
     scen = sc.load_scenario("nominal")
     scen = dataclasses.replace(scen, duration_s=3 * scen.period_samples * scen.ts_s)

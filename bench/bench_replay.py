@@ -23,12 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from twotank_validation import replay
-from twotank_validation.bags import reader as bag_reader
-from twotank_validation.bags import scenario as sc
+from twotank_validation import bags, replay
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.online import streams as itf
 from twotank_validation.online.monitor import STREAMS, OnlineValidator, WindowReport
+from twotank_validation.sim import scenario as sc
 
 GOAL = 2000.0  # times real time (issue 6)
 
@@ -38,7 +37,7 @@ def per_message(path: Path, models: list[LFTModel]) -> list[WindowReport]:
     cfg = replay.ReplayConfig()
     core = OnlineValidator(cfg.monitor, models, jitter_fraction=cfg.jitter_fraction)
     reports: list[WindowReport] = []
-    with bag_reader.open_bag(path) as bag:
+    with bags.open_bag(path) as bag:
         for m in bag.messages(list(STREAMS)):
             value = replay.extractor(m.topic, cfg.units)(m.msg)
             reports += core.feed(m.topic, itf.stamp_ns(m.msg), value)
@@ -71,7 +70,7 @@ def main() -> None:
             print(f"using the bag in {out}")
         else:
             t0 = time.perf_counter()
-            sc.write_scenario_bag(scen, out, storage=args.storage)
+            bags.write_scenario_bag(scen, out, storage=args.storage)
             print(
                 f"wrote {duration:.0f} s of 10 Hz data ({scen.n_samples * 3} messages) "
                 f"in {time.perf_counter() - t0:.1f} s"

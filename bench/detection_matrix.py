@@ -35,7 +35,7 @@ Shortcut (checked): per seed, the nominal run is simulated and fed once up to 10
 earliest onset, then the simulator and the validator are copied for each fault case and the
 fault is registered on the copy (onset >= 100 s later, longer than any delay read back, so the
 rig's delay buffers hold the true past). Unless ``--no-check``, one case per fault type is
-re-run from scratch through ``bags.scenario.simulate_scenario`` (fault registered at t = 0) and
+re-run from scratch through ``sim.scenario.simulate_scenario`` (fault registered at t = 0) and
 must give bit-identical reports.
 
 ``--limits``: for leak, sensor bias (both channels) and valve loss (``valve_weak`` on each
@@ -61,13 +61,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twotank_validation.bags.scenario import Scenario, simulate_scenario
 from twotank_validation.core.model import load_model
 from twotank_validation.errors import ModelError
 from twotank_validation.online import monitor
 from twotank_validation.online.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.sim import faults, rig
 from twotank_validation.sim.faults import format_fault
+from twotank_validation.sim.scenario import Scenario, simulate_scenario
 
 MODELS = ("A", "B")
 ONSET_PERIOD = 4  # onsets fall in period 4 (0-based), after the judged windows ending 3P, 4P

@@ -117,16 +117,16 @@ def make_case(
 
 def run_case(path: Path) -> str:
     """Open, check and read a bag; the outcome class name ("ok" if it all read)."""
-    from twotank_validation.bags import reader  # noqa: PLC0415 - imported in the worker
+    from twotank_validation import bags  # noqa: PLC0415 - imported in the worker
 
     try:
-        with reader.open_bag(path) as bag:
-            checks = (reader.TopicMissingError, reader.TopicTypeError, reader.BagEmptyError)
+        with bags.open_bag(path) as bag:
+            checks = (bags.TopicMissingError, bags.TopicTypeError, bags.BagEmptyError)
             with contextlib.suppress(*checks):  # a refusal is a valid outcome; read anyway
-                bag.check_topics(reader.expected_types())
+                bag.check_topics(bags.expected_types())
             for _ in bag.messages(list(bag.info.topics)):
                 pass
-    except reader.BagError as err:
+    except bags.BagError as err:
         return type(err).__name__
     return "ok"
 

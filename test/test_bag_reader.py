@@ -29,8 +29,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation.bags import reader as bag_reader
-from twotank_validation.bags.reader import (
+from twotank_validation.bags import (
     BagCorruptError,
     BagEmptyError,
     BagError,
@@ -38,6 +37,7 @@ from twotank_validation.bags.reader import (
     BagNotFoundError,
     TopicMissingError,
     TopicTypeError,
+    expected_types,
     open_bag,
 )
 from twotank_validation.errors import TwotankError
@@ -152,7 +152,7 @@ def test_round_trip_exact_values_stamps_and_log_time_order(tmp_path, samples, ki
 def test_subset_of_topics_and_check_topics(tmp_path, samples, kind):
     path = write(kind, tmp_path / "bag", samples)
     with open_bag(path) as bag:
-        bag.check_topics(bag_reader.expected_types())  # all present with the right types
+        bag.check_topics(expected_types())  # all present with the right types
         got = [as_tuple(m) for m in bag.messages(["height"])]
     want = [expected_tuple(s) for s in samples if s.topic == "height"]
     assert got == want
@@ -161,7 +161,7 @@ def test_subset_of_topics_and_check_topics(tmp_path, samples, kind):
 def test_expected_types_are_the_interface_types():
     from twotank_validation.online import streams as itf  # noqa: PLC0415
 
-    assert bag_reader.expected_types() == {
+    assert expected_types() == {
         "flow_cmd": (itf.FLOW_CMD_TYPE,),
         "height": (itf.HEIGHT_TYPE,),
         "temperature": (itf.TEMPERATURE_TYPE,),
@@ -218,7 +218,7 @@ def test_relative_topic_names_find_absolute_ones(tmp_path):
         assert bag.resolve_topic("height") == "/height"
         assert bag.resolve_topic("/height") == "/height"
         assert bag.resolve_topic("nothing") is None
-        bag.check_topics(bag_reader.expected_types())
+        bag.check_topics(expected_types())
         got = {m.topic for m in bag.messages(["height", "temperature"])}
     assert got == {"height", "temperature"}  # reported under the requested names
 
@@ -272,7 +272,7 @@ def test_empty_bag(tmp_path, kind):
         assert bag.info.message_counts == ({} if kind == "plain" else dict.fromkeys(TOPICS, 0))
         assert bag.info.start_ns is None
         with pytest.raises(BagEmptyError, match="holds no messages"):
-            bag.check_topics(bag_reader.expected_types())
+            bag.check_topics(expected_types())
         with pytest.raises(BagEmptyError):
             bag.messages(TOPICS)
 
@@ -283,7 +283,7 @@ def test_missing_topic_is_named_and_the_bag_topics_listed(tmp_path, kind):
     path = write(kind, tmp_path / "bag", msgs)
     with open_bag(path) as bag:
         with pytest.raises(TopicMissingError) as info:
-            bag.check_topics(bag_reader.expected_types())
+            bag.check_topics(expected_types())
         err = info.value
         assert err.missing == ("temperature",)
         assert set(err.available) == {"flow_cmd", "height"}
@@ -301,7 +301,7 @@ def test_recorded_topic_without_messages_counts_as_missing(tmp_path):
     with open_bag(path) as bag:
         assert bag.info.message_counts["temperature"] == 0
         with pytest.raises(TopicMissingError, match="holds no readable message"):
-            bag.check_topics(bag_reader.expected_types())
+            bag.check_topics(expected_types())
         assert list(bag.messages(["temperature"])) == []
 
 
@@ -572,7 +572,7 @@ def test_flipped_bits_give_only_bag_errors(fuzz_fixtures, name, flips):
             try:
                 with open_bag(bag) as reader:
                     with contextlib.suppress(TopicMissingError, TopicTypeError, BagEmptyError):
-                        reader.check_topics(bag_reader.expected_types())
+                        reader.check_topics(expected_types())
                     for _ in reader.messages(list(reader.info.topics)):
                         pass
             except BagError:

@@ -31,17 +31,16 @@ from twotank_validation.bags import (
     BagError,
     BagExistsError,
     BagWriter,
-    Scenario,
     flow_command,
     fluid_pressure,
     interface_msg_dir,
-    simulate_scenario,
     temperature_msg,
     typestore,
     write_scenario_bag,
 )
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.streams import RigUnits
+from twotank_validation.sim.scenario import Scenario, simulate_scenario
 
 FLOW = "twotank_validation_msgs/msg/FlowCommand"
 REPORT = "twotank_validation_msgs/msg/ValidationReport"
@@ -317,7 +316,8 @@ def test_tracemalloc_peak_does_not_grow_with_length(tmp_path: Path) -> None:
 
 _TWO_HOURS = """
 import resource, sys
-from twotank_validation.bags import load_scenario, write_scenario_bag
+from twotank_validation.bags import write_scenario_bag
+from twotank_validation.sim.scenario import load_scenario
 import dataclasses
 s = load_scenario("nominal")
 write_scenario_bag(dataclasses.replace(s, duration_s=1.0), sys.argv[1] + "/warm")

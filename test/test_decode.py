@@ -22,13 +22,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from report_checks import assert_same_reports
 
-from twotank_validation import replay
-from twotank_validation.bags import reader as br
-from twotank_validation.bags import scenario as sc
-from twotank_validation.bags import writer as bw
+from twotank_validation import bags, replay
+from twotank_validation.bags import decode
 from twotank_validation.core.model import load_model
 from twotank_validation.online import streams as itf
 from twotank_validation.online.monitor import MonitorConfig, OnlineValidator
+from twotank_validation.sim import scenario as sc
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_bags as mb
@@ -52,8 +51,8 @@ def message(msgtype: str, sec: int, nanosec: int, a: float, b: float, frame: str
     return STORE.types[msgtype](header=header, **{f1: a, f2: b})
 
 
-def codec(msgtype: str) -> br._Codec:
-    return br._Codec(
+def codec(msgtype: str) -> decode._Codec:
+    return decode._Codec(
         lambda data: STORE.deserialize_cdr(data, msgtype), msgtype, lambda: STORE.fielddefs
     )
 
@@ -77,11 +76,11 @@ def bulk(datas, msgtype, fields=None):
     fields = TYPES[msgtype] if fields is None else fields
     c = codec(msgtype)
     n = len(datas)
-    batch = br._RawBatch(["t"] * n, [msgtype] * n, list(range(n)), list(datas), [c] * n)
-    return br._decode_fields(batch, {"t": 0}, {"t": tuple(fields)}, len(fields), ("t",))
+    batch = decode._RawBatch(["t"] * n, [msgtype] * n, list(range(n)), list(datas), [c] * n)
+    return decode._decode_fields(batch, {"t": 0}, {"t": tuple(fields)}, len(fields), ("t",))
 
 
-def assert_same_as_rosbags(datas, msgtype) -> br.FieldBatch:
+def assert_same_as_rosbags(datas, msgtype) -> bags.FieldBatch:
     out, failure = bulk(datas, msgtype)
     rows, err = reference(datas, msgtype)
     assert (failure is None) == (err is None)
@@ -184,17 +183,17 @@ def test_bulk_path_is_taken_and_checks_every_message() -> None:
 def test_layout_comes_from_the_definition() -> None:
     """Only header + float64 types are read in bulk; the definition decides, not the name."""
     defs = STORE.fielddefs
-    assert br._header_float_layout(defs, mb.FLOW_CMD_TYPE) == ("hot", "cold")
-    assert br._header_float_layout(defs, mb.HEIGHT_TYPE) == ("fluid_pressure", "variance")
-    assert br._header_float_layout(defs, "std_msgs/msg/Float64") is None  # no header
-    assert br._header_float_layout(defs, "sensor_msgs/msg/Range") is None  # uint8, float32
+    assert decode._header_float_layout(defs, mb.FLOW_CMD_TYPE) == ("hot", "cold")
+    assert decode._header_float_layout(defs, mb.HEIGHT_TYPE) == ("fluid_pressure", "variance")
+    assert decode._header_float_layout(defs, "std_msgs/msg/Float64") is None  # no header
+    assert decode._header_float_layout(defs, "sensor_msgs/msg/Range") is None  # uint8, float32
     # a type of the same name with another field order reads by its own definition
     other = mb.typestore()
     other.fielddefs[mb.HEIGHT_TYPE] = (
         [],
         [*defs[mb.HEIGHT_TYPE][1][:1], *defs[mb.HEIGHT_TYPE][1][:0:-1]],
     )
-    assert br._header_float_layout(other.fielddefs, mb.HEIGHT_TYPE) == (
+    assert decode._header_float_layout(other.fielddefs, mb.HEIGHT_TYPE) == (
         "variance",
         "fluid_pressure",
     )
@@ -219,12 +218,12 @@ def via_messages(path, topics, fields):
     rows = []
     err = None
     try:
-        with br.open_bag(path) as bag:
+        with bags.open_bag(path) as bag:
             for m in bag.messages(topics):
                 st_ = m.msg.header.stamp
                 vals = [float(getattr(m.msg, f)) for f in fields[m.topic]]
                 rows.append((m.topic, m.log_time_ns, int(st_.sec) * NS + int(st_.nanosec), vals))
-    except br.BagError as e:
+    except bags.BagError as e:
         err = e
     return rows, err
 
@@ -233,13 +232,13 @@ def via_batches(path, topics, fields, size):
     rows = []
     err = None
     try:
-        with br.open_bag(path) as bag:
+        with bags.open_bag(path) as bag:
             for b in bag.field_batches(topics, fields, size=size):
                 for i in range(len(b)):
                     t = b.topics[int(b.topic[i])]
                     vals = b.values[i, : len(fields[t])].tolist()
                     rows.append((t, int(b.log_time_ns[i]), int(b.stamp_ns[i]), vals))
-    except br.BagError as e:
+    except bags.BagError as e:
         err = e
     return rows, err
 
@@ -260,7 +259,7 @@ def assert_same_stream(path, topics=("flow_cmd", "height", "temperature"), size=
     assert type(gerr) is type(werr)
     if werr is not None:
         assert str(gerr) == str(werr)
-        if isinstance(werr, br.BagCorruptError):
+        if isinstance(werr, bags.BagCorruptError):
             assert (gerr.messages_read, gerr.last_good_ns) == (
                 werr.messages_read,
                 werr.last_good_ns,
@@ -293,14 +292,14 @@ def odd_messages() -> list:
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_field_batches_equal_messages_on_odd_messages(tmp_path, storage) -> None:
     path = tmp_path / "odd"
-    with bw.BagWriter(path, storage) as bag:
+    with bags.BagWriter(path, storage) as bag:
         for topic, msgtype in mb.TOPIC_TYPES.items():
             bag.add_topic(topic, msgtype)
         for topic, msgtype, t, msg, big in odd_messages():
             bag.write_raw(topic, t, cdr(msg, msgtype, little=not big))
     for size in (3, 64):
         assert assert_same_stream(path, size=size) == 120
-    with br.open_bag(path) as bag:
+    with bags.open_bag(path) as bag:
         fields = {t: itf.STREAM_FIELDS[t] for t in mb.TOPIC_TYPES}
         decoded = sum(b.bulk_decoded for b in bag.field_batches(list(fields), fields))
     assert 60 < decoded < 120  # bulk where the layout repeats, generic elsewhere
@@ -334,7 +333,7 @@ def replay_per_message(path, cfg: replay.ReplayConfig):
     reports, problems, n, windows = [], [], 0, []
     stream_of = {cfg.topics[s]: s for s in ("flow_cmd", "height", "temperature")}
     try:
-        with br.open_bag(path) as bag:
+        with bags.open_bag(path) as bag:
             for m in bag.messages(list(stream_of)):
                 value = replay.extractor(stream_of[m.topic], cfg.units)(m.msg)
                 n += 1
@@ -343,7 +342,7 @@ def replay_per_message(path, cfg: replay.ReplayConfig):
                     if rep.judged:
                         windows.append(core.monitor.last_window())
                 reports += new
-    except br.BagCorruptError as err:
+    except bags.BagCorruptError as err:
         problems.append(str(err))
     return reports, problems, n, dict(vars(core.aligner.counters)), windows
 
@@ -376,7 +375,7 @@ def fast_scenario(periods: float = 7, **changes) -> sc.Scenario:
 
 
 def test_replay_equals_per_message_replay_on_a_clean_bag(tmp_path) -> None:
-    bag = sc.write_scenario_bag(fast_scenario(), tmp_path / "nominal")
+    bag = bags.write_scenario_bag(fast_scenario(), tmp_path / "nominal")
     res = assert_same_replay(bag)
     assert res.complete
     assert sum(r.judged for r in res.reports) >= 6
@@ -387,7 +386,7 @@ def messy_bag(path: Path, storage: str, seed: int) -> Path:
     rng = np.random.default_rng(seed)
     stamps, u, y = sc.simulate_scenario(fast_scenario())
     units = itf.RigUnits()
-    with bw.BagWriter(path, storage) as bag:
+    with bags.BagWriter(path, storage) as bag:
         for topic, msgtype in mb.TOPIC_TYPES.items():
             bag.add_topic(topic, msgtype)
         shift = 0
@@ -398,21 +397,23 @@ def messy_bag(path: Path, storage: str, seed: int) -> Path:
             if 300 <= k < 310:
                 continue  # a gap
             events = [
-                ("flow_cmd", bw.flow_command(t, *u[k])),
+                ("flow_cmd", bags.flow_command(t, *u[k])),
                 (
                     "height",
-                    bw.fluid_pressure(t + int(rng.integers(-5, 5)) * 1_000_000, y[k, 0], units),
+                    bags.fluid_pressure(t + int(rng.integers(-5, 5)) * 1_000_000, y[k, 0], units),
                 ),
-                ("temperature", bw.temperature_msg(t, y[k, 1], units)),
+                ("temperature", bags.temperature_msg(t, y[k, 1], units)),
             ]
             if rng.random() < 0.01:
-                events[1] = ("height", bw.fluid_pressure(t, math.nan, units))
+                events[1] = ("height", bags.fluid_pressure(t, math.nan, units))
             if rng.random() < 0.01:
                 events.append(events[0])  # duplicate
             if rng.random() < 0.01 and k > 5:
-                events.append(("temperature", bw.temperature_msg(t - 3 * 800_000_000, 0.5, units)))
+                events.append(
+                    ("temperature", bags.temperature_msg(t - 3 * 800_000_000, 0.5, units))
+                )
             if rng.random() < 0.01:
-                events[2] = ("temperature", bw.temperature_msg(t + 300_000_000, y[k, 1], units))
+                events[2] = ("temperature", bags.temperature_msg(t + 300_000_000, y[k, 1], units))
             for i, (topic, msg) in enumerate(events):
                 if k % 97 == 5:  # now and then a big-endian message
                     bag.write_raw(
@@ -432,7 +433,7 @@ def test_replay_equals_per_message_replay_on_messy_bags(tmp_path, storage, seed)
 
 
 def test_replay_equals_per_message_replay_on_truncated_bags(tmp_path) -> None:
-    bag = sc.write_scenario_bag(fast_scenario(), tmp_path / "nominal")
+    bag = bags.write_scenario_bag(fast_scenario(), tmp_path / "nominal")
     data = next(bag.glob("*.mcap"))
     raw = data.read_bytes()
     for frac in (0.35, 0.7, 0.93):

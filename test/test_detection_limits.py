@@ -21,11 +21,11 @@ import math
 import numpy as np
 import pytest
 
-from twotank_validation.bags.scenario import Scenario
 from twotank_validation.core.model import load_model
 from twotank_validation.online.monitor import COMMAND, Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig
 from twotank_validation.sim.faults import Fault, format_fault
+from twotank_validation.sim.scenario import Scenario
 
 CONFIG = MonitorConfig()  # the node's defaults: 2-period windows every period, ERROR after 2
 TS = CONFIG.ts_s

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from twotank_validation import cli, experiment
-from twotank_validation.bags import scenario as sc
+from twotank_validation.bags import write_scenario_bag
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model, load_model_document, model_from_dict
 from twotank_validation.core.validate import validate
@@ -37,6 +37,7 @@ from twotank_validation.diagnose import (
     split_windows,
 )
 from twotank_validation.sim import faults
+from twotank_validation.sim import scenario as sc
 from twotank_validation.sim.linearise import linearise_model_a, linearise_model_b
 from twotank_validation.sim.rig import RigParams, operating_point
 
@@ -317,7 +318,7 @@ def test_diagnose_command_on_a_bag(tmp_path: Path, capsys):
         faults=("sensor_delay:temperature=10@0",),
     )
     bag = tmp_path / "bag"
-    sc.write_scenario_bag(scen, bag)
+    write_scenario_bag(scen, bag)
     out_json, out_model, report = tmp_path / "d.json", tmp_path / "b_diag.yaml", tmp_path / "rep"
     code = cli.main(
         ["diagnose", str(bag), "--model", "B", "--json", str(out_json),
@@ -350,7 +351,7 @@ def test_diagnose_command_reports_problems(tmp_path: Path, capsys):
     assert "ERROR" in capsys.readouterr().err
     scen = sc.Scenario(name="short", duration_s=204.8 * 2, mixing_delay_s=0.0)
     bag = tmp_path / "short"
-    sc.write_scenario_bag(scen, bag)
+    write_scenario_bag(scen, bag)
     assert cli.main(["diagnose", str(bag), "--model", "B"]) == 2
     assert "no judged window" in capsys.readouterr().err
 

@@ -1,4 +1,4 @@
-"""Tests of the faults and unmodelled effects of the simulator (twotank_validation.sim.rig.Fault).
+"""Tests of the faults and unmodelled effects of the simulator (sim.faults.Fault).
 
 References are closed forms derived here from the balances
 A1 dh/dt = f_h + f_c - f1 - leak, A1 d(h t)/dt = f_h t_h + f_c t_c - (f1 + leak) t - q (t - t_amb)

@@ -13,9 +13,10 @@ import pytest
 from report_checks import assert_same_reports
 
 from twotank_validation import cli, replay
-from twotank_validation.bags import scenario as sc
+from twotank_validation.bags import write_scenario_bag
 from twotank_validation.core.model import load_model
 from twotank_validation.online.monitor import Alarm, MonitorConfig, monitor_record
+from twotank_validation.sim import scenario as sc
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
 FAST_ARGS = ["--ts", "0.8", "--period", "256", "--quiet"]
@@ -32,7 +33,7 @@ def fast_scenario(name: str = "nominal", periods: float = 8, **changes) -> sc.Sc
 def nominal_bag(tmp: str, storage: str = "mcap") -> Path:
     out = Path(tmp) / f"nominal_{storage}"
     if not out.exists():
-        sc.write_scenario_bag(fast_scenario(), out, storage=storage)
+        write_scenario_bag(fast_scenario(), out, storage=storage)
     return out
 
 
@@ -98,7 +99,7 @@ def test_json_follows_the_documented_schema(workdir, tmp_path) -> None:
 
 def test_leak_scenario_alarm_in_bag(tmp_path) -> None:
     s = fast_scenario("leak", periods=10, faults=("leak=0.04@1270",))
-    bag = sc.write_scenario_bag(s, tmp_path / "leak", storage="mcap")
+    bag = write_scenario_bag(s, tmp_path / "leak", storage="mcap")
     res = replay.replay_bag(bag, [load_model("B")], replay.ReplayConfig(monitor=FAST))
     summary = replay.summary_json(res)
     first = summary["models"]["B"]["first_alarm"]

@@ -21,19 +21,21 @@ from twotank_validation import experiment
 from twotank_validation.bags import (
     BagError,
     BagExistsError,
-    Scenario,
-    ScenarioError,
-    load_scenario,
-    scenario_from_dict,
-    shipped_scenarios,
     simulate_command,
-    simulate_scenario,
     write_scenario_bag,
 )
 from twotank_validation.errors import DatumError, ModelError, TwotankError
 from twotank_validation.online.streams import RigUnits
 from twotank_validation.sim import excitation, faults, rig
 from twotank_validation.sim.faults import parse_fault
+from twotank_validation.sim.scenario import (
+    Scenario,
+    ScenarioError,
+    load_scenario,
+    scenario_from_dict,
+    shipped_scenarios,
+    simulate_scenario,
+)
 
 
 def _reference(
@@ -146,10 +148,11 @@ def test_shipped_scenarios() -> None:
 
 def test_shipped_files_are_package_data() -> None:
     root = Path(__file__).resolve().parents[1]
-    files = sorted(p.stem for p in (root / "twotank_validation" / "scenarios").glob("*.yaml"))
+    folder = root / "twotank_validation" / "sim" / "scenarios"
+    files = sorted(p.stem for p in folder.glob("*.yaml"))
     assert files == list(shipped_scenarios())
-    assert '"scenarios/*.yaml"' in (root / "setup.py").read_text()
-    assert "${PROJECT_NAME}/scenarios/" in (root / "CMakeLists.txt").read_text()
+    assert '"sim/scenarios/*.yaml"' in (root / "setup.py").read_text()
+    assert "${PROJECT_NAME}/sim/scenarios/" in (root / "CMakeLists.txt").read_text()
 
 
 def test_defaults_and_derived_settings() -> None:

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-import twotank_validation.bags.reader as bag_reader
+import twotank_validation.bags as bag_reader
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.diagnose import Window

@@ -27,7 +27,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from twotank_validation.bags.reader import BagError
+from twotank_validation.bags.errors import BagExistsError, BagWriteError
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,
@@ -43,9 +43,6 @@ __all__ = [
     "INTERFACE_PACKAGE",
     "REPORT_TYPE",
     "STORAGES",
-    "BagError",
-    "BagExistsError",
-    "BagWriteError",
     "BagWriter",
     "flow_command",
     "fluid_pressure",
@@ -75,14 +72,6 @@ DEFAULT_UNITS: Final = RigUnits()
 
 _MAX_LOG_TIME_NS: Final = 2**63 - 1
 _MAX_STAMP_NS: Final = (2**31 - 1) * NS_PER_S + NS_PER_S - 1  # builtin_interfaces/Time, int32 sec
-
-
-class BagWriteError(BagError, ValueError):
-    """A bag cannot be written as asked (storage, topic, type, time, or a closed bag)."""
-
-
-class BagExistsError(BagWriteError, FileExistsError):
-    """The bag's path exists already; bags are never overwritten."""
 
 
 def _msg_dir_candidates() -> list[Path]:
