@@ -1,11 +1,56 @@
-"""Install twotank_validation (ament_python layout; also a plain pip package)."""
+"""Build description of twotank_validation, the one list for colcon and pip alike.
+
+colcon builds this folder as the ROS 2 package twotank_validation (package.xml, build type
+ament_python: `setup.py install`, console scripts into lib/twotank_validation as setup.cfg
+says, so that `ros2 run twotank_validation <name>` finds them); pip installs it as a plain
+Python distribution (`pip install -e .` in scripts/run, or `pip install .`: console scripts
+into the environment's bin/). Both take the entry points, package data and data files below.
+
+The ROS interfaces are the separate package twotank_validation_msgs (folder
+twotank_validation_msgs/, a CMake project generating the top-level msg/*.msg): colcon builds it
+as a package of its own, scripts/build_msgs.sh builds it into the venv on the pip path. colcon
+does not look for packages inside a package folder, so a workspace names that folder too, e.g.
+with this repository at src/twotank_validation:
+
+    colcon build --base-paths src src/twotank_validation/twotank_validation_msgs
+
+(or --paths src/twotank_validation src/twotank_validation/twotank_validation_msgs).
+
+Data files are globbed, relative to this file: a folder that does not exist (yet) installs
+nothing, and a new launch file, model or scenario needs no edit here.
+"""
 
 from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "twotank_validation"
-HERE = Path(__file__).parent
+HERE = Path(__file__).resolve().parent
+SHARE = f"share/{PACKAGE}"
+
+# Package data (inside the Python package, found with importlib.resources), relative to
+# twotank_validation/; the YAML files are also installed under share/ below.
+MODELS = "models/*.yaml"
+SCENARIOS = "sim/scenarios/*.yaml"
+
+
+def _files(pattern: str) -> list[str]:
+    """Files matching pattern, relative to this directory (sorted; [] if there are none)."""
+    return sorted(p.relative_to(HERE).as_posix() for p in HERE.glob(pattern) if p.is_file())
+
+
+def _data_files() -> list[tuple[str, list[str]]]:
+    """(destination, files) pairs under the install prefix; empty groups are left out."""
+    groups = [
+        # ament index marker and manifest: `ros2 pkg`, `ros2 run` and `ros2 launch` find the
+        # package through them
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (SHARE, ["package.xml"]),
+        (f"{SHARE}/launch", _files("launch/*.launch.py")),
+        (f"{SHARE}/models", _files(f"{PACKAGE}/{MODELS}")),
+        (f"{SHARE}/scenarios", _files(f"{PACKAGE}/{SCENARIOS}")),
+    ]
+    return [(dest, files) for dest, files in groups if files]
 
 
 def _requirements() -> list[str]:
@@ -17,16 +62,8 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*", "bench", "tools", "tools.*"]),
-    package_data={PACKAGE: ["models/*.yaml", "scenarios/*.yaml", "py.typed"]},
-    data_files=[
-        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
-        (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/msg", [str(p) for p in sorted(Path("msg").glob("*.msg"))]),
-        (
-            f"share/{PACKAGE}/models",
-            [str(p) for p in sorted(Path(PACKAGE, "models").glob("*.yaml"))],
-        ),
-    ],
+    package_data={PACKAGE: [MODELS, SCENARIOS, "py.typed"]},
+    data_files=_data_files(),
     install_requires=_requirements(),
     zip_safe=True,
     maintainer="twotank_validation developers",

@@ -1,21 +1,23 @@
 #!/usr/bin/env bash
 # Build the package's ROS 2 interfaces (the top-level msg/*.msg files) as the ROS package
-# twotank_validation_msgs (CMake project msgs/) with the ROS 2 PyPI wheels, and install them
-# into a venv prefix: afterwards `from twotank_validation_msgs.msg import FlowCommand` works in
-# the venv's Python with no extra environment variables.
+# twotank_validation_msgs (CMake project in the folder twotank_validation_msgs/) with the ROS 2
+# PyPI wheels, and install them into a venv prefix: afterwards
+# `from twotank_validation_msgs.msg import FlowCommand` works in the venv's Python with no extra
+# environment variables.
 #
 #   scripts/build_msgs.sh [--force] [VENV]     (VENV default: $TWOTANK_VENV or .venv)
 #
-# Idempotent: a stamp in the venv holds the hash of the .msg files, of msgs/, of this script
-# and of the requirement files; when it matches and the installed files are all present,
-# nothing is rebuilt. The venv must already hold requirements.txt and requirements-ros.txt
-# (scripts/run does that first). Needs cmake, a C and a C++ compiler, and ninja or make.
+# Idempotent: a stamp in the venv holds the hash of the .msg files, of the CMake project, of
+# this script and of the requirement files; when it matches and the installed files are all
+# present, nothing is rebuilt. The venv must already hold requirements.txt and
+# requirements-ros.txt (scripts/run does that first). Needs cmake, a C and a C++ compiler, and
+# ninja or make.
 #
-# Two snags of the PyPI wheels are worked around here and in msgs/CMakeLists.txt without
-# touching any installed file: the wheels' exported CMake targets name the wheel builder's
-# Python/NumPy include dirs (msgs/CMakeLists.txt re-points missing ones at this
-# interpreter's), and the rosidl type-support lookup needs AMENT_PREFIX_PATH=<venv> at build
-# time (exported below for cmake only).
+# Two snags of the PyPI wheels are worked around here and in
+# twotank_validation_msgs/CMakeLists.txt without touching any installed file: the wheels'
+# exported CMake targets name the wheel builder's Python/NumPy include dirs (the CMakeLists.txt
+# re-points missing ones at this interpreter's), and the rosidl type-support lookup needs
+# AMENT_PREFIX_PATH=<venv> at build time (exported below for cmake only).
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 
@@ -26,7 +28,7 @@ if [[ "${1:-}" == "--force" ]]; then
 fi
 VENV=${1:-${TWOTANK_VENV:-$ROOT/.venv}}
 PKG=twotank_validation_msgs
-SRC=$ROOT/msgs
+SRC=$ROOT/$PKG
 
 say() { echo "[twotank] $*" >&2; }
 die() {
@@ -48,7 +50,7 @@ shopt -u nullglob
 # Everything that decides the build output (names and contents).
 want=$(
   cd "$ROOT"
-  for f in msg/*.msg msgs/CMakeLists.txt msgs/package.xml scripts/build_msgs.sh \
+  for f in msg/*.msg $PKG/CMakeLists.txt $PKG/package.xml scripts/build_msgs.sh \
     requirements.txt requirements-ros.txt; do
     printf '== %s\n' "$f"
     cat "$f"

@@ -1,17 +1,19 @@
 """The package's ROS 2 messages: build, CDR round trips with rclpy, decoding with rosbags.
 
 The messages are the top-level ``msg/*.msg`` files, generated as the ROS package
-``twotank_validation_msgs`` (``msgs/``) by ``scripts/build_msgs.sh``, which ``scripts/run``
-calls. No node or DDS participant is started here: serialisation needs no ``rclpy.init()``.
-The slow test builds both ROS packages of the repository with colcon in a temporary workspace.
+``twotank_validation_msgs`` (CMake project in the folder ``twotank_validation_msgs/``) by
+``scripts/build_msgs.sh``, which ``scripts/run`` calls. No node or DDS participant is started
+here: serialisation needs no ``rclpy.init()``. The slow test builds both ROS packages of the
+repository with colcon in a temporary workspace (``twotank_validation``: ament_python from
+``setup.py``, the same entry points and data files as the pip install).
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import importlib.util
 import math
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -222,13 +224,25 @@ def run_logged(cmd: list[str], log: Path, **kwargs: Any) -> subprocess.Completed
         )
 
 
+def console_scripts(dist: importlib.metadata.Distribution) -> dict[str, str]:
+    return {ep.name: ep.value for ep in dist.entry_points if ep.group == "console_scripts"}
+
+
+def names(folder: Path, pattern: str) -> list[str]:
+    return sorted(p.name for p in folder.glob(pattern))
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is not installed")
 def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     """colcon (from PyPI) builds twotank_validation_msgs and twotank_validation.
 
-    The ROS 2 underlay is this venv (its PyPI wheels); msgs/ is named explicitly because
-    colcon does not descend into the top-level package.
+    The ROS 2 underlay is this venv (its PyPI wheels). The folder twotank_validation_msgs/ is
+    named as a base path of its own because colcon does not descend into a package folder
+    (the repository root is the ament_python package twotank_validation). The install layout
+    is ament_python's: console scripts in lib/twotank_validation, launch files, models and
+    scenarios in share/twotank_validation, the Python package with its package data in
+    site-packages; the console scripts are the ones the pip install of setup.py has.
     """
     log = tmp_path / "colcon-test.log"
     venv_python = Path(sys.executable)
@@ -245,6 +259,23 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
             "colcon is not installed and could not be installed (run the tests through "
             f"`bash scripts/run test`, which installs it):\n{log.read_text()[-2000:]}"
         )
+    # colcon builds an ament_python package with the interpreter colcon runs on (`setup.py
+    # install`), and that interpreter goes into the #! line of the console scripts. A ROS
+    # install has one Python for both; here colcon sits in a venv of its own, so its code runs
+    # on this venv's interpreter (as `python -m colcon` would), with the colcon venv's
+    # site-packages on the path of the colcon process only: setup.py runs with this venv's
+    # setuptools, the launchers start this venv's Python. setup.py needs colcon_core alone
+    # (colcon adds its distutils command symlink_data), from a folder on PYTHONPATH.
+    colcon_site = sysconfig.get_path("purelib", vars={"base": str(tools), "platbase": str(tools)})
+    colcon = [
+        str(venv_python),
+        "-c",
+        f"import sys; sys.path.insert(0, {colcon_site!r}); "
+        "from colcon_core.command import main; sys.exit(main())",
+    ]
+    colcon_core_only = tmp_path / "colcon_core_only"
+    colcon_core_only.mkdir()
+    (colcon_core_only / "colcon_core").symlink_to(Path(colcon_site, "colcon_core"))
 
     src = tmp_path / "ws/src/twotank_validation"
     ignore = shutil.ignore_patterns(
@@ -259,32 +290,54 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     env |= {"AMENT_PREFIX_PATH": str(prefix), "CMAKE_PREFIX_PATH": str(prefix)}
     build = run_logged(
         [
-            str(tools / "bin/colcon"),
+            *colcon,
             "build",
             "--base-paths",
             "src",
-            "src/twotank_validation/msgs",
+            f"src/twotank_validation/{PKG}",
             "--cmake-args",
             f"-DPython3_EXECUTABLE={venv_python}",
             "-DBUILD_TESTING=OFF",
         ],
         log,
         cwd=tmp_path / "ws",
-        env=env,
+        env=env | {"PYTHONPATH": str(colcon_core_only)},
     )
     assert build.returncode == 0, f"colcon build failed:\n{log.read_text()[-6000:]}"
 
     install = tmp_path / "ws/install"
     site = sysconfig.get_path("purelib", vars={"base": "", "platbase": ""}).lstrip("/")
-    launchers = install / "twotank_validation/lib/twotank_validation"
-    for name in ("twotank_validator", "twotank_plant", "twotank_excitation", "twotank-validation"):
-        assert os.access(launchers / name, os.X_OK), name
-    assert re.search(
-        r"from twotank_validation\.ros\.validator_node import main",
-        (launchers / "twotank_validator").read_text(),
+    own = install / "twotank_validation"
+    share = own / "share/twotank_validation"
+    (built,) = (
+        d
+        for d in importlib.metadata.distributions(path=[str(own / site)])
+        if d.metadata["Name"] == "twotank_validation"
     )
-    for model in ("model_a.yaml", "model_b.yaml"):
-        assert (install / "twotank_validation/share/twotank_validation/models" / model).is_file()
+    scripts = console_scripts(built)
+    assert set(scripts) == {
+        "twotank_validator",
+        "twotank_plant",
+        "twotank_excitation",
+        "twotank-validation",
+    }
+    assert scripts == console_scripts(importlib.metadata.distribution("twotank_validation"))
+    assert scripts["twotank_validator"] == "twotank_validation.ros.validator_node:main"
+    launchers = own / "lib/twotank_validation"
+    for name in scripts:
+        assert os.access(launchers / name, os.X_OK), name
+        assert (launchers / name).read_text().startswith(f"#!{venv_python}\n"), name
+    assert (own / "share/ament_index/resource_index/packages/twotank_validation").is_file()
+    assert (share / "package.xml").read_text() == (ROOT / "package.xml").read_text()
+    assert names(share / "launch", "*") == names(ROOT / "launch", "*.launch.py")
+    assert len(names(share / "launch", "*")) == 2
+    assert names(share / "models", "*") == ["model_a.yaml", "model_b.yaml"]
+    package = ROOT / "twotank_validation"
+    assert names(share / "scenarios", "*") == names(package / "sim/scenarios", "*.yaml")
+    # package data (importlib.resources), next to the modules
+    installed = own / site / "twotank_validation"
+    assert names(installed / "models", "*.yaml") == ["model_a.yaml", "model_b.yaml"]
+    assert names(installed / "sim/scenarios", "*") == names(package / "sim/scenarios", "*.yaml")
     assert (install / PKG / "share" / PKG / "msg/ValidationReport.msg").read_text() == (
         MSG_DIR / "ValidationReport.msg"
     ).read_text()
@@ -292,8 +345,10 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     # In the workspace's environment (colcon's setup.sh), both come from install/.
     probe = (
         "import twotank_validation, twotank_validation_msgs.msg as m; "
+        "from importlib.resources import files; "
         "print(twotank_validation.__file__); print(m.__file__); "
-        "print(m.ValidationReport.STALE, m.FlowCommand(hot=0.5).hot)"
+        "print(m.ValidationReport.STALE, m.FlowCommand(hot=0.5).hot); "
+        "print(files(twotank_validation).joinpath('models', 'model_a.yaml').is_file())"
     )
     shell = subprocess.run(
         ["sh", "-c", f'. ./setup.sh && exec "{venv_python}" -c "{probe}"'],
@@ -305,10 +360,11 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
         check=False,
     )
     assert shell.returncode == 0, shell.stderr
-    core_file, msgs_file, values = shell.stdout.split("\n")[:3]
-    assert core_file.startswith(str(install / "twotank_validation" / site))
+    core_file, msgs_file, values, model_found = shell.stdout.split("\n")[:4]
+    assert core_file.startswith(str(own / site))
     assert msgs_file.startswith(str(install / PKG / site))
     assert values == "3 0.5"
+    assert model_found == "True"
     cli = subprocess.run(
         ["sh", "-c", f'. ./setup.sh && exec "{launchers / "twotank-validation"}" --help'],
         cwd=install,
