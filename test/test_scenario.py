@@ -152,7 +152,6 @@ def test_shipped_files_are_package_data() -> None:
     files = sorted(p.stem for p in folder.glob("*.yaml"))
     assert files == list(shipped_scenarios())
     assert '"sim/scenarios/*.yaml"' in (root / "setup.py").read_text()
-    assert "${PROJECT_NAME}/sim/scenarios/" in (root / "CMakeLists.txt").read_text()
 
 
 def test_defaults_and_derived_settings() -> None:
