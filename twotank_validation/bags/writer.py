@@ -106,8 +106,8 @@ def interface_msg_dir(search: Sequence[Path] | None = None) -> Path:
     raise BagWriteError(
         f"cannot find the message definitions {', '.join(n + '.msg' for n in _OWN_MESSAGES)} "
         f"of {INTERFACE_PACKAGE}; looked in:\n  {looked}\n"
-        "install the interface package (bash scripts/run exec true, or a colcon build of twotank_validation_msgs/) "
-        "or run from a checkout of the repository"
+        "install the interface package (bash scripts/run exec true, or a colcon build of "
+        "twotank_validation_msgs/) or run from a checkout of the repository"
     )
 
 
