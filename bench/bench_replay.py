@@ -27,8 +27,8 @@ from twotank_validation import replay
 from twotank_validation.bags import reader as bag_reader
 from twotank_validation.bags import scenario as sc
 from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.online import STREAMS, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import STREAMS, OnlineValidator, WindowReport
 
 GOAL = 2000.0  # times real time (issue 6)
 

@@ -27,8 +27,8 @@ from twotank_validation.bags import reader as br
 from twotank_validation.bags import scenario as sc
 from twotank_validation.bags import writer as bw
 from twotank_validation.core.model import load_model
+from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import MonitorConfig, OnlineValidator
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_bags as mb

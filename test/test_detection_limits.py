@@ -23,7 +23,7 @@ import pytest
 
 from twotank_validation.bags.scenario import Scenario
 from twotank_validation.core.model import load_model
-from twotank_validation.online.monitor import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig
 from twotank_validation.sim.fault_spec import format_fault
 from twotank_validation.sim.rig import Fault
