@@ -152,7 +152,7 @@ def test_gap_in_the_data_is_flagged_not_bridged(tmp_path) -> None:
     stamps, u, y = sc.simulate_scenario(s)
     keep = np.ones(len(stamps), bool)
     keep[700:720] = False  # 16 s without any message
-    from twotank_validation.online import OnlineValidator  # noqa: PLC0415
+    from twotank_validation.online import OnlineValidator, input_fault_text  # noqa: PLC0415
 
     core = OnlineValidator(FAST, models())
     reports = []
@@ -167,6 +167,10 @@ def test_gap_in_the_data_is_flagged_not_bridged(tmp_path) -> None:
         not r.judged and "gap" in r.data_quality and r.alarm is Alarm.STALE for r in touching
     )
     assert reports[-1].judged
+    # the input fault (the node's STALE text) was cleared by the judged windows after it; the
+    # run's summary names it in the same words, as the replay of such a bag does
+    assert core.input_fault is None
+    assert core.input_problems() == [input_fault_text({"gaps"})]
 
 
 def test_recorded_live_run_replays_to_the_same_reports_bit_for_bit(tmp_path) -> None:
