@@ -31,6 +31,7 @@ shared cores.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import statistics
@@ -115,7 +116,7 @@ def child() -> None:
                     "objects": objects,
                     "traced_bytes": traced,
                     "reports_kept": len(node.reports),
-                    "counters": dict(vars(node.aligner.counters)),
+                    "counters": dataclasses.asdict(node.core.counters()),
                     "samples": node.core.samples_seen,
                     "gc_pauses": [(g, round(d, 6)) for g, d in pauses if g == 2 or d > 0.002],
                     "gc_count": len(pauses),
@@ -223,6 +224,7 @@ def main() -> None:
     from sensor_msgs.msg import FluidPressure, Temperature  # noqa: PLC0415
 
     from twotank_validation.online import streams as itf  # noqa: PLC0415
+    from twotank_validation.ros import messages  # noqa: PLC0415
     from twotank_validation.ros.validator_node import VALIDATOR_PARAMS  # noqa: PLC0415
 
     defaults = {p.name: p.default for p in VALIDATOR_PARAMS}
@@ -240,7 +242,7 @@ def main() -> None:
     node_proc = Child()
     rclpy.init()
     rig = Node("bench_rig")
-    flow_cls, report_cls = itf.message_classes()
+    flow_cls, report_cls = messages.message_classes()
     pub_clock = rig.create_publisher(Clock, "/clock", 10)
     pubs = [
         rig.create_publisher(flow_cls, "flow_cmd", 1000),

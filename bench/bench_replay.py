@@ -25,8 +25,8 @@ from pathlib import Path
 
 from twotank_validation import bags, replay
 from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.online import STREAMS, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import STREAMS, OnlineValidator, WindowReport
 from twotank_validation.sim import scenario as sc
 
 GOAL = 2000.0  # times real time (issue 6)

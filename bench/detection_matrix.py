@@ -11,7 +11,7 @@ simulated hours of nominal data); ``--limits``: about 15 minutes (``--jobs 2`` h
 Every run is the default scenario (``Scenario`` defaults: filtered-noise excitation 0.05/0.2
 RMS, cutoff 0.006 Hz, excitation seed 2, mixing delay 15 s, sensor noise 0.003/0.01, Ts 0.1 s,
 2048-sample periods) with noise seed ``seed``, fed sample by sample as the three streams
-(``flow_cmd``, ``height``, ``temperature``) into ``monitor.OnlineValidator`` -- the aligner,
+(``flow_cmd``, ``height``, ``temperature``) into ``online.OnlineValidator`` -- the aligner,
 window monitor and debounced alarm of the live node and of bag replay -- with the default
 ``MonitorConfig`` and ``AlarmConfig`` (2-period windows judged every period, ERROR after 2
 invalidating windows in a row) and Models A and B.
@@ -63,8 +63,7 @@ import numpy as np
 
 from twotank_validation.core.model import load_model
 from twotank_validation.errors import ModelError
-from twotank_validation.online import monitor
-from twotank_validation.online.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
+from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.sim import faults, rig
 from twotank_validation.sim.faults import format_fault
 from twotank_validation.sim.scenario import Scenario, simulate_scenario
@@ -200,7 +199,7 @@ def events(k0: int, commands: np.ndarray, measured: np.ndarray, ts_ns: int):
     """The three streams of samples k0.. as OnlineValidator.feed_many events (bag order)."""
     n = len(commands)
     stamps = np.repeat(np.arange(k0, k0 + n, dtype=np.int64) * ts_ns, 3)
-    kinds = np.tile(np.array([monitor.COMMAND, 0, 1]), n)
+    kinds = np.tile(np.array([COMMAND, 0, 1]), n)
     values = np.zeros((3 * n, 2))
     values[0::3] = commands
     values[1::3, 0] = measured[:, 0]

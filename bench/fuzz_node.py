@@ -21,7 +21,7 @@ import sys
 import time
 
 from tools import nodefuzz
-from twotank_validation.online.monitor import Alarm
+from twotank_validation.online import Alarm
 
 
 def replay(seed: int) -> int:

@@ -35,7 +35,7 @@ import time
 from dataclasses import replace
 
 from tools import longrun as lr
-from twotank_validation.online.monitor import Alarm
+from twotank_validation.online import Alarm
 
 DEFAULT_KINDS = (
     "valve_weak:hot=0.7",  # 30 % loss; stated limit 15 %

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from twotank_validation.online.monitor import WindowReport
+from twotank_validation.online import WindowReport
 
 
 def assert_same_reports(got: Sequence[WindowReport], want: Sequence[WindowReport]) -> None:

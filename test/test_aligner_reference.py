@@ -24,7 +24,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twotank_validation.online import monitor
+from twotank_validation import online
+from twotank_validation.defaults import NS_PER_S
+from twotank_validation.errors import DatumError
 
 # ------------------------------------------------------------ the original (reference) aligner
 
@@ -61,13 +63,13 @@ class ReferenceAligner:
         reset_after_s: float = 60.0,
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0):
-            raise monitor.DatumError(f"sample period must be positive, found {ts_s}")
-        self.ts_ns = round(ts_s * monitor.NS_PER_S)
+            raise DatumError(f"sample period must be positive, found {ts_s}")
+        self.ts_ns = round(ts_s * NS_PER_S)
         self.n_inputs = n_inputs
         self.output_names = tuple(output_names)
         self.tol_ns = round(jitter_fraction * self.ts_ns)
-        self.reset_ns = round(reset_after_s * monitor.NS_PER_S)
-        self.counters = monitor.AlignerCounters()
+        self.reset_ns = round(reset_after_s * NS_PER_S)
+        self.counters = online.AlignerCounters()
         self._clear()
 
     def _clear(self) -> None:
@@ -87,11 +89,11 @@ class ReferenceAligner:
         assert self.t0_ns is not None
         return self.t0_ns + index * self.ts_ns
 
-    def push_command(self, stamp_ns: int, values: Sequence[float]) -> list[monitor.Sample]:
+    def push_command(self, stamp_ns: int, values: Sequence[float]) -> list[online.Sample]:
         """Add a command (held from ``stamp_ns`` on). Returns samples it completes."""
         u = np.asarray(values, dtype=float)
         if u.shape != (self.n_inputs,):
-            raise monitor.DatumError(f"command needs {self.n_inputs} values, found shape {u.shape}")
+            raise DatumError(f"command needs {self.n_inputs} values, found shape {u.shape}")
         if self.last_command_ns is not None and stamp_ns <= self.last_command_ns:
             if stamp_ns == self.last_command_ns:
                 self.counters.duplicates += 1
@@ -104,7 +106,7 @@ class ReferenceAligner:
         self.last_command_ns = stamp_ns
         return self._finalise()
 
-    def push_measurement(self, channel: int, stamp_ns: int, value: float) -> list[monitor.Sample]:
+    def push_measurement(self, channel: int, stamp_ns: int, value: float) -> list[online.Sample]:
         """Add one measurement of output ``channel``. Returns the samples now complete."""
         if self.t0_ns is None:
             self.t0_ns = stamp_ns
@@ -145,8 +147,8 @@ class ReferenceAligner:
             self._held = self._commands.popleft()[1]
         return self._held.copy()
 
-    def _finalise(self) -> list[monitor.Sample]:
-        out: list[monitor.Sample] = []
+    def _finalise(self) -> list[online.Sample]:
+        out: list[online.Sample] = []
         while self._pending:
             k = self.next_index
             newest = max(self._pending)
@@ -167,7 +169,7 @@ class ReferenceAligner:
                     if not s
                 ]
                 names = ", ".join(missing) if pend else ", ".join(self.output_names)
-                flag = f"gap: no {names} sample at t = {t_k / monitor.NS_PER_S:.3f} s"
+                flag = f"gap: no {names} sample at t = {t_k / NS_PER_S:.3f} s"
                 y = pend.y if pend else np.full(len(self.output_names), np.nan)
             else:
                 break
@@ -180,7 +182,7 @@ class ReferenceAligner:
                 )
             self._pending.pop(k, None)
             self.next_index += 1
-            out.append(monitor.Sample(k, t_k, u, y, flag))
+            out.append(online.Sample(k, t_k, u, y, flag))
         return out
 
 
@@ -190,7 +192,7 @@ TS_NS = 100_000_000
 NAMES = ("height", "temperature")
 
 
-def same_samples(got: list[monitor.Sample], want: list[monitor.Sample]) -> None:
+def same_samples(got: list[online.Sample], want: list[online.Sample]) -> None:
     assert len(got) == len(want)
     for a, b in zip(got, want, strict=True):
         assert (a.index, a.stamp_ns, a.flag) == (b.index, b.stamp_ns, b.flag)
@@ -202,7 +204,7 @@ def same_samples(got: list[monitor.Sample], want: list[monitor.Sample]) -> None:
 
 def run_both(events, *, ts_s: float = 0.1, reset_after_s: float = 60.0) -> int:
     """Feed ``events`` (("cmd", t, (hot, cold)) | (channel, t, value)) to both aligners."""
-    new = monitor.SampleAligner(ts_s, 2, NAMES, reset_after_s=reset_after_s)
+    new = online.SampleAligner(ts_s, 2, NAMES, reset_after_s=reset_after_s)
     ref = ReferenceAligner(ts_s, 2, NAMES, reset_after_s=reset_after_s)
     n = 0
     for kind, t, value in events:
@@ -289,19 +291,19 @@ def test_command_value_types_convert_as_before() -> None:
         events.append(("cmd", TS_NS, value))
         assert run_both(events) == 2
     for bad in ([0.5], [[0.5, 0.25]], 0.5):
-        with pytest.raises(monitor.DatumError):
-            monitor.SampleAligner(0.1, 2, NAMES).push_command(0, bad)
+        with pytest.raises(DatumError):
+            online.SampleAligner(0.1, 2, NAMES).push_command(0, bad)
 
 
 # ---------------------------------------------------------------------- batches (push_events)
 
-KIND = {"cmd": monitor.COMMAND, 0: 0, 1: 1}
+KIND = {"cmd": online.COMMAND, 0: 0, 1: 1}
 
 
-def expand(pieces) -> list[monitor.Sample]:
-    out: list[monitor.Sample] = []
+def expand(pieces) -> list[online.Sample]:
+    out: list[online.Sample] = []
     for p in pieces:
-        out.extend(p.samples() if isinstance(p, monitor.SampleBlock) else [p])
+        out.extend(p.samples() if isinstance(p, online.SampleBlock) else [p])
     return out
 
 
@@ -316,19 +318,19 @@ def as_arrays(events):
 
 def run_batched(events, rng: np.random.Generator, *, ts_s: float = 0.1, jitter=0.25) -> int:
     """push_events on random splits of ``events`` == the reference aligner event by event."""
-    new = monitor.SampleAligner(ts_s, 2, NAMES, jitter_fraction=jitter)
+    new = online.SampleAligner(ts_s, 2, NAMES, jitter_fraction=jitter)
     ref = ReferenceAligner(ts_s, 2, NAMES, jitter_fraction=jitter)
     kinds, stamps, values = as_arrays(events)
     cuts = np.sort(
         rng.choice(np.arange(1, len(events)), size=min(6, len(events) - 1), replace=False)
     )
-    got: list[monitor.Sample] = []
+    got: list[online.Sample] = []
     blocks = 0
     for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), len(events)], strict=True):
         pieces = new.push_events(kinds[a:b], stamps[a:b], values[a:b])
-        blocks += sum(isinstance(p, monitor.SampleBlock) for p in pieces)
+        blocks += sum(isinstance(p, online.SampleBlock) for p in pieces)
         got.extend(expand(pieces))
-    want: list[monitor.Sample] = []
+    want: list[online.Sample] = []
     for kind, t, v in events:
         want.extend(ref.push_command(t, v) if kind == "cmd" else ref.push_measurement(kind, t, v))
     same_samples(got, want)
@@ -446,17 +448,17 @@ def test_push_events_follows_the_hostile_input_rules() -> None:
         if kind == 4:
             events.append(("cmd", (k + 50_000) * TS_NS, (0.1, 0.1)))  # bogus future command
     assert any(abs(e[2] if e[0] != "cmd" else e[2][1]) > 1e6 for e in events)
-    new = monitor.SampleAligner(0.1, 2, NAMES, jitter_fraction=0.25)
-    one = monitor.SampleAligner(0.1, 2, NAMES, jitter_fraction=0.25)
+    new = online.SampleAligner(0.1, 2, NAMES, jitter_fraction=0.25)
+    one = online.SampleAligner(0.1, 2, NAMES, jitter_fraction=0.25)
     kinds, stamps, values = as_arrays(events)
     cuts = np.sort(rng.choice(np.arange(1, len(events)), size=8, replace=False)).tolist()
-    got: list[monitor.Sample] = []
+    got: list[online.Sample] = []
     blocks = 0
     for a, b in zip([0, *cuts], [*cuts, len(events)], strict=True):
         pieces = new.push_events(kinds[a:b], stamps[a:b], values[a:b])
-        blocks += sum(isinstance(p, monitor.SampleBlock) for p in pieces)
+        blocks += sum(isinstance(p, online.SampleBlock) for p in pieces)
         got.extend(expand(pieces))
-    want: list[monitor.Sample] = []
+    want: list[online.Sample] = []
     for kind, t, v in events:
         want.extend(one.push_command(t, v) if kind == "cmd" else one.push_measurement(kind, t, v))
     same_samples(got, want)
@@ -488,10 +490,10 @@ def test_feed_many_equals_feed_on_hostile_streams(seed: int) -> None:
     )
     events = [e for e in events if not isinstance(e[2], str) and len(np.atleast_1d(e[2])) <= 2]
     models = [load_model("B")]
-    one = monitor.OnlineValidator(streamfuzz.CONFIG, models)
-    many = monitor.OnlineValidator(streamfuzz.CONFIG, models)
+    one = online.OnlineValidator(streamfuzz.CONFIG, models)
+    many = online.OnlineValidator(streamfuzz.CONFIG, models)
     want = [rep for s, t, v in events for rep in one.feed(s, t, v)]
-    kinds = np.array([monitor.STREAM_KINDS[s] for s, _, _ in events], dtype=np.int8)
+    kinds = np.array([online.STREAM_KINDS[s] for s, _, _ in events], dtype=np.int8)
     stamps_ = np.array([t for _, t, _ in events], dtype=np.int64)
     values = np.array([v if s == "flow_cmd" else (v, np.nan) for s, _, v in events], float)
     cuts = np.sort(rng.choice(np.arange(1, len(events)), size=10, replace=False)).tolist()
@@ -509,4 +511,4 @@ def test_feed_many_equals_feed_on_hostile_streams(seed: int) -> None:
             z.alarm,
         )
         assert x.beta == z.beta or (math.isnan(x.beta) and math.isnan(z.beta))
-    assert many.aligner.counters == one.aligner.counters
+    assert many.counters() == one.counters()

@@ -25,8 +25,8 @@ from report_checks import assert_same_reports
 from twotank_validation import bags, replay
 from twotank_validation.bags import decode
 from twotank_validation.core.model import load_model
+from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import MonitorConfig, OnlineValidator
 from twotank_validation.sim import scenario as sc
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))
@@ -340,11 +340,11 @@ def replay_per_message(path, cfg: replay.ReplayConfig):
                 new = core.feed(stream_of[m.topic], itf.stamp_ns(m.msg), value)
                 for rep in new:
                     if rep.judged:
-                        windows.append(core.monitor.last_window())
+                        windows.append(core.last_window())
                 reports += new
     except bags.BagCorruptError as err:
         problems.append(str(err))
-    return reports, problems, n, dict(vars(core.aligner.counters)), windows
+    return reports, problems, n, dict(vars(core.counters())), windows
 
 
 def assert_same_replay(path) -> replay.ReplayResult:

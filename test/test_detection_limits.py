@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from twotank_validation.core.model import load_model
-from twotank_validation.online.monitor import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig
 from twotank_validation.sim.faults import Fault, format_fault
 from twotank_validation.sim.scenario import Scenario

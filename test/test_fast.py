@@ -331,7 +331,7 @@ def test_validating_does_not_load_numba_until_the_kernel_runs() -> None:
         "import sys\n"
         "from twotank_validation.core import validate\n"
         "from twotank_validation.core.fast import dispatch\n"
-        "from twotank_validation.online import monitor\n"
+        "from twotank_validation.online import validator\n"
         "from twotank_validation.ros import validator_node\n"
         "print('numba' in sys.modules)\n"
     )

@@ -17,7 +17,7 @@ import pytest
 
 from tools import longrun as lr
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.online.monitor import Alarm
+from twotank_validation.online import Alarm
 
 TS = 0.8
 PERIOD = 256

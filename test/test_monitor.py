@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools import streamfuzz
+from twotank_validation import online
 from twotank_validation.core.model import load_model
-from twotank_validation.online import monitor
-from twotank_validation.online.monitor import Alarm, AlarmConfig, AlarmState, update_alarm
+from twotank_validation.online import Alarm, AlarmConfig, AlarmState, update_alarm
 
 # ------------------------------------------------------------------ alarm
 
@@ -44,7 +44,7 @@ def test_latched_alarm_needs_reset() -> None:
     for v in [True, True, False, False, False, False]:
         state = update_alarm(state, cfg, judged=True, invalidated=v, beta=1.5 if v else 0.1)
     assert state.level is Alarm.ERROR
-    state = monitor.reset_alarm(state)
+    state = online.reset_alarm(state)
     state = update_alarm(state, cfg, judged=True, invalidated=False, beta=0.1)
     assert state.level is Alarm.OK
 
@@ -80,7 +80,7 @@ TS_NS = 100_000_000
 
 
 def make_aligner():
-    return monitor.SampleAligner(0.1, 2, ("height", "temperature"))
+    return online.SampleAligner(0.1, 2, ("height", "temperature"))
 
 
 def test_aligner_zero_order_holds_commands_and_matches_grid() -> None:
@@ -141,7 +141,7 @@ def test_aligner_restarts_on_clock_jump_backwards() -> None:
 
 # ------------------------------------------------------------------ monitor on the rig
 
-FAST = monitor.MonitorConfig(ts_s=0.8, period_samples=256)  # same 204.8 s period, 8x fewer samples
+FAST = online.MonitorConfig(ts_s=0.8, period_samples=256)  # same 204.8 s period, 8x fewer samples
 
 
 def rig_record(n_periods: int = 6, seed: int = 0):
@@ -155,7 +155,7 @@ def models():
 
 def test_monitor_verdicts_on_the_rig() -> None:
     stamps, u, y = rig_record()
-    reports = monitor.monitor_record(stamps, u, y, FAST, models())
+    reports = online.monitor_record(stamps, u, y, FAST, models())
     by_model = {m: [r for r in reports if r.model == m] for m in ("A", "B")}
     assert len(by_model["A"]) == 5  # windows end at periods 2..6
     assert not by_model["A"][0].judged
@@ -175,7 +175,7 @@ def test_monitor_equals_offline_validation_bit_for_bit() -> None:
     from twotank_validation.core.validate import validate  # noqa: PLC0415
 
     stamps, u, y = rig_record()
-    reports = monitor.monitor_record(stamps, u, y, FAST, models())
+    reports = online.monitor_record(stamps, u, y, FAST, models())
     last = [r for r in reports if r.model == "B"][-1]
     n = FAST.window_samples
     datum = make_datum(u[-n:], y[-n:], ts_s=0.8, period_samples=256)
@@ -190,9 +190,9 @@ def test_monitor_with_the_fast_path_agrees_with_the_closed_form() -> None:
     import dataclasses  # noqa: PLC0415
 
     stamps, u, y = rig_record()
-    auto = monitor.monitor_record(stamps, u, y, FAST, models())
+    auto = online.monitor_record(stamps, u, y, FAST, models())
     fast_cfg = dataclasses.replace(FAST, method="fast")
-    quick = monitor.monitor_record(stamps, u, y, fast_cfg, models())
+    quick = online.monitor_record(stamps, u, y, fast_cfg, models())
     assert [(r.model, r.judged, r.invalidated) for r in quick] == [
         (r.model, r.judged, r.invalidated) for r in auto
     ]
@@ -214,8 +214,8 @@ def test_aligner_path_equals_direct_path_under_shuffled_arrival(seed: int) -> No
     the same reports as feeding the aligned record directly."""
     stamps, u, y = rig_record()
     rng = np.random.default_rng(seed)
-    al = monitor.SampleAligner(0.8, 2, ("height", "temperature"))
-    mon = monitor.WindowMonitor(FAST, models())
+    al = online.SampleAligner(0.8, 2, ("height", "temperature"))
+    mon = online.WindowMonitor(FAST, models())
     live = []
     for k in range(len(stamps)):
         jitter = rng.integers(-50_000_000, 50_000_000, size=3)
@@ -232,7 +232,7 @@ def test_aligner_path_equals_direct_path_under_shuffled_arrival(seed: int) -> No
                 samples = al.push_measurement(int(kind[1]), t, float(val))
             for s in samples:
                 live.extend(mon.push(s))
-    offline = monitor.monitor_record(stamps, u, y, FAST, models())
+    offline = online.monitor_record(stamps, u, y, FAST, models())
     # the aligner finalises the last sample only when the next one arrives
     offline = offline[: len(live)]
     assert len(live) == len(offline) >= 8
@@ -251,25 +251,25 @@ def test_monitor_refuses_windows_unfit_to_judge() -> None:
     stamps, u, y = rig_record()
     y_nan = y.copy()
     y_nan[700, 1] = np.nan
-    reports = monitor.monitor_record(stamps, u, y_nan, FAST, models()[:1])
+    reports = online.monitor_record(stamps, u, y_nan, FAST, models()[:1])
     affected = [r for r in reports if r.start_ns <= stamps[700] <= r.end_ns]
     assert affected
     assert all(not r.judged and "non-finite" in r.data_quality for r in affected)
     # input changed (excitation switched): not periodic
     u2 = u.copy()
     u2[800:] = u2[800:] * 0.5 + 0.2
-    reports = monitor.monitor_record(stamps, u2, y, FAST, models()[:1])
+    reports = online.monitor_record(stamps, u2, y, FAST, models()[:1])
     assert any("input not periodic" in r.data_quality for r in reports)
     # no excitation at all
     flat = np.tile(u[0], (len(u), 1))
-    reports = monitor.monitor_record(stamps, flat, y, FAST, models()[:1])
+    reports = online.monitor_record(stamps, flat, y, FAST, models()[:1])
     assert all(not r.judged for r in reports)
     assert "too little excitation" in reports[-1].data_quality
 
 
 def test_monitor_config_rejects_bad_values() -> None:
     with pytest.raises(ValueError, match="period_samples"):
-        monitor.MonitorConfig(period_samples=1)
+        online.MonitorConfig(period_samples=1)
     with pytest.raises(ValueError, match="alarm_windows"):
         AlarmConfig(alarm_windows=0)
 
@@ -287,18 +287,18 @@ def test_push_block_equals_push_one_by_one(seed: int) -> None:
     y = y.copy()
     y[rng.integers(0, len(y), 3), 0] = np.nan  # some unusable samples
     flags = [None if np.isfinite(y[k]).all() else "non-finite value" for k in range(len(y))]
-    one = monitor.WindowMonitor(FAST, models())
-    many = monitor.WindowMonitor(FAST, models())
+    one = online.WindowMonitor(FAST, models())
+    many = online.WindowMonitor(FAST, models())
     want, want_windows = [], []
     for k in range(len(stamps)):
-        reps = one.push(monitor.Sample(k, int(stamps[k]), u[k].copy(), y[k].copy(), flags[k]))
+        reps = one.push(online.Sample(k, int(stamps[k]), u[k].copy(), y[k].copy(), flags[k]))
         want += reps
         want_windows += [one.last_window() for _ in reps]
     got, got_windows = [], []
     k = 0
     while k < len(stamps):
         m = int(rng.integers(1, 700))
-        block = monitor.SampleBlock(
+        block = online.SampleBlock(
             k, stamps[k : k + m].copy(), u[k : k + m].copy(), y[k : k + m].copy(), flags[k : k + m]
         )
         got += many.push_block(block, lambda rep: got_windows.append(many.last_window()))
@@ -322,11 +322,11 @@ def test_push_block_equals_push_one_by_one(seed: int) -> None:
 
 def test_window_data_in_time_order_across_the_ring_end() -> None:
     """last_window() against the samples pushed, at every phase of the ring buffer."""
-    cfg = monitor.MonitorConfig(ts_s=0.8, period_samples=8, periods_per_window=2, settle_periods=1)
-    mon = monitor.WindowMonitor(cfg, models())
+    cfg = online.MonitorConfig(ts_s=0.8, period_samples=8, periods_per_window=2, settle_periods=1)
+    mon = online.WindowMonitor(cfg, models())
     rows = []
     for k in range(60):
-        s = monitor.Sample(k, k * 800, np.array([k, -k], float), np.array([2 * k, 0.5]), None)
+        s = online.Sample(k, k * 800, np.array([k, -k], float), np.array([2 * k, 0.5]), None)
         mon.push(s)
         rows.append(s)
         stamps, u, y = mon.last_window()
@@ -340,7 +340,7 @@ def test_model_constants_are_ready_before_the_first_window() -> None:
     """The pulse-response moment (leakage bound) is computed when the monitor is built, so
     the first window's report does not wait for it."""
     ms = [load_model("A"), load_model("B")]
-    monitor.WindowMonitor(FAST, ms)
+    online.WindowMonitor(FAST, ms)
     for m in ms:
         assert ("pulse_moment", FAST.ts_s) in m.cache
 
@@ -354,11 +354,11 @@ def test_fast_path_kernel_is_loaded_before_the_first_window_and_only_then() -> N
 
     code = (
         "import sys\n"
-        "from twotank_validation.online import monitor\n"
+        "from twotank_validation.online import window\n"
         "from twotank_validation.core.model import load_model\n"
         "ms = [load_model('A'), load_model('B')]\n"
-        "cfg = monitor.MonitorConfig(ts_s=0.8, period_samples=256, method=sys.argv[1])\n"
-        "monitor.WindowMonitor(cfg, ms)\n"
+        "cfg = window.MonitorConfig(ts_s=0.8, period_samples=256, method=sys.argv[1])\n"
+        "window.WindowMonitor(cfg, ms)\n"
         "loaded = 'numba' in sys.modules\n"
         "ready = loaded and bool(sys.modules['twotank_validation.core.fast.kernel'].solve_bins"
         ".signatures)\n"

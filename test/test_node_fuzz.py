@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools import nodefuzz
-from twotank_validation.online.monitor import Alarm
+from twotank_validation.online import Alarm
 
 
 def _assert_clean(res: nodefuzz.RunResult) -> None:

@@ -18,8 +18,9 @@ from sensor_msgs.msg import FluidPressure, Temperature
 from test_monitor import rig_record
 
 from twotank_validation.core.model import load_model
+from twotank_validation.online import Alarm, MonitorConfig, WindowReport, monitor_record
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import Alarm, MonitorConfig, WindowReport, monitor_record
+from twotank_validation.ros import messages
 from twotank_validation.ros.validator_node import ValidatorNode
 
 FAST = {"ts_s": 0.8, "period_samples": 256}
@@ -52,11 +53,11 @@ def report(judged: bool) -> WindowReport:
 
 
 def test_report_message_arrays_equal_the_element_by_element_fill() -> None:
-    _, cls = itf.message_classes()
+    _, cls = messages.message_classes()
     for judged in (True, False):
         rep = report(judged)
-        fast = itf.report_message(rep, cls)
-        slow = itf.report_message(rep, cls)
+        fast = messages.report_message(rep, cls)
+        slow = messages.report_message(rep, cls)
         slow.frequencies_hz = [float(x) for x in rep.freqs_hz]  # the fill it replaced
         slow.w_min = [float(x) for x in rep.w_min]
         for name in ("frequencies_hz", "w_min"):
@@ -88,7 +89,7 @@ def test_node_history_is_bounded_and_listeners_get_every_report() -> None:
         )
         every: list[WindowReport] = []
         node.report_listeners.append(every.append)
-        flow_cls, _ = itf.message_classes()
+        flow_cls, _ = messages.message_classes()
         units = itf.RigUnits()
         for k in range(len(stamps)):
             f, h, t = flow_cls(), FluidPressure(), Temperature()

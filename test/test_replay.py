@@ -15,7 +15,7 @@ from report_checks import assert_same_reports
 from twotank_validation import cli, replay
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.core.model import load_model
-from twotank_validation.online.monitor import Alarm, MonitorConfig, monitor_record
+from twotank_validation.online import Alarm, MonitorConfig, monitor_record
 from twotank_validation.sim import scenario as sc
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
@@ -153,7 +153,7 @@ def test_gap_in_the_data_is_flagged_not_bridged(tmp_path) -> None:
     stamps, u, y = sc.simulate_scenario(s)
     keep = np.ones(len(stamps), bool)
     keep[700:720] = False  # 16 s without any message
-    from twotank_validation.online.monitor import OnlineValidator  # noqa: PLC0415
+    from twotank_validation.online import OnlineValidator, input_fault_text  # noqa: PLC0415
 
     core = OnlineValidator(FAST, models())
     reports = []
@@ -161,13 +161,17 @@ def test_gap_in_the_data_is_flagged_not_bridged(tmp_path) -> None:
         reports += core.feed("flow_cmd", int(stamps[k]), tuple(u[k]))
         reports += core.feed("height", int(stamps[k]), float(y[k, 0]))
         reports += core.feed("temperature", int(stamps[k]), float(y[k, 1]))
-    assert core.aligner.counters.missing == 20
+    assert core.counters().missing == 20
     touching = [r for r in reports if r.start_ns <= stamps[710] <= r.end_ns]
     assert touching
     assert all(
         not r.judged and "gap" in r.data_quality and r.alarm is Alarm.STALE for r in touching
     )
     assert reports[-1].judged
+    # the input fault (the node's STALE text) was cleared by the judged windows after it; the
+    # run's summary names it in the same words, as the replay of such a bag does
+    assert core.input_fault is None
+    assert core.input_problems() == [input_fault_text({"gaps"})]
 
 
 def test_recorded_live_run_replays_to_the_same_reports_bit_for_bit(tmp_path) -> None:
@@ -176,8 +180,9 @@ def test_recorded_live_run_replays_to_the_same_reports_bit_for_bit(tmp_path) -> 
     from rclpy.parameter import Parameter  # noqa: PLC0415
 
     from twotank_validation.bags.writer import BagWriter  # noqa: PLC0415
+    from twotank_validation.online.streams import STREAM_TYPES  # noqa: PLC0415
     from twotank_validation.ros.live import LiveConfig, run_live  # noqa: PLC0415
-    from twotank_validation.ros.record import DEFAULT_TYPES, RecorderNode  # noqa: PLC0415
+    from twotank_validation.ros.record import RecorderNode  # noqa: PLC0415
 
     out = tmp_path / "live_bag"
     writer = BagWriter(out, storage="mcap")
@@ -185,7 +190,7 @@ def test_recorded_live_run_replays_to_the_same_reports_bit_for_bit(tmp_path) -> 
     def attach(ctx):
         rec = RecorderNode(
             writer,
-            dict(DEFAULT_TYPES),
+            dict(STREAM_TYPES),
             context=ctx,
             parameter_overrides=[Parameter("use_sim_time", value=True)],
         )

@@ -26,8 +26,9 @@ from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import Bool, Float64
 
 from twotank_validation.core.model import load_model
+from twotank_validation.online import Alarm, WindowMonitor
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import Alarm, WindowMonitor
+from twotank_validation.ros import messages
 from twotank_validation.ros.live import LiveConfig, run_live
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.validator_node import ValidatorNode
@@ -102,7 +103,7 @@ class Harness:
         ]
         self.val = ValidatorNode(context=self.ctx, parameter_overrides=overrides)
         self.src = Node("test_source", context=self.ctx)
-        flow_cls, _ = itf.message_classes()
+        flow_cls, _ = messages.message_classes()
         self.flow_cls = flow_cls
         self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
         self.pub_flow = self.src.create_publisher(flow_cls, "flow_cmd", 1000)
@@ -205,7 +206,7 @@ def test_hostile_input_fault_state_and_recovery() -> None:
         nan_windows = [r for r in reps if r.start_ns <= stamps[600] <= r.end_ns]
         assert nan_windows
         assert all(not r.judged and r.alarm is Alarm.STALE for r in nan_windows)
-        c = h.val.aligner.counters  # repeats of finalised samples count as out of order
+        c = h.val.core.counters()  # repeats of finalised samples count as out of order
         assert c.duplicates >= 1
         assert c.duplicates + c.out_of_order >= 6
         # the level stream stops: status goes STALE and says which stream, node keeps running
@@ -298,7 +299,7 @@ def test_latched_alarm_clears_only_through_reset_service() -> None:
         assert h.spin_until(future.done)
         assert future.result().success
         assert h.spin_until(lambda: h.invalid[-1] is False)
-        assert h.val.monitor.alarms["A"].level is not Alarm.ERROR
+        assert h.val.core.alarm_levels()["A"] is not Alarm.ERROR
     finally:
         h.close()
 

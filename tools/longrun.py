@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
-from twotank_validation.online.monitor import Alarm, WindowReport
+from twotank_validation.online import Alarm, WindowReport
 from twotank_validation.sim.faults import parse_fault
 
 HOUR_S = 3600.0
@@ -594,7 +594,7 @@ def run_long_run(
     from rclpy.context import Context  # noqa: PLC0415 (ROS-free import of the checks)
     from rclpy.node import Node  # noqa: PLC0415
 
-    from twotank_validation.online import streams as itf  # noqa: PLC0415
+    from twotank_validation.ros import messages  # noqa: PLC0415
     from twotank_validation.ros.live import LiveConfig, run_live  # noqa: PLC0415
 
     live = LiveConfig(
@@ -620,7 +620,7 @@ def run_long_run(
 
     def attach(ctx: Context) -> tuple[list[Node], Callable[[int], bool]]:
         node = Node("twotank_longrun_listener", context=ctx)
-        _, report_cls = itf.message_classes()
+        _, report_cls = messages.message_classes()
         for m in cfg.models:
             node.create_subscription(
                 report_cls,

@@ -51,8 +51,9 @@ from std_msgs.msg import Bool, Float64, String
 from tools import streamfuzz
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.defaults import NS_PER_S
+from twotank_validation.online import Alarm
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import Alarm
+from twotank_validation.ros import messages
 from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -303,7 +304,7 @@ class _Driver:
             publish(msg)
 
         self.val._pub_diag.publish = counted  # type: ignore[method-assign]
-        self.flow_cls, report_cls = itf.message_classes()
+        self.flow_cls, report_cls = messages.message_classes()
         self.src = Node("nodefuzz_driver", context=self.ctx, **_LEAN)
         self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
         self.pubs = {

@@ -2,7 +2,7 @@
 
 Used by ``test/test_hostile_streams.py`` (a short, bounded, property-based run) and
 ``bench/fuzz_streams.py`` (long runs). A run is: clean rig data through
-:class:`~twotank_validation.online.monitor.OnlineValidator` for a while, then a hostile stretch
+:class:`~twotank_validation.online.validator.OnlineValidator` for a while, then a hostile stretch
 (random stamps, NaN and inf, huge values, bursts far above the sample rate, long silences,
 clock jumps backwards, malformed values), then clean data again. The invariants:
 
@@ -29,7 +29,7 @@ import numpy as np
 from twotank_validation import experiment
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.errors import DatumError
-from twotank_validation.online.monitor import Alarm, MonitorConfig, OnlineValidator, WindowReport
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.sim import excitation, rig
 
 CONFIG = MonitorConfig(ts_s=0.8, period_samples=256)

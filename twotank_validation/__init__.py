@@ -38,10 +38,10 @@ _PUBLIC: dict[str, str] = {
     "load_model": "twotank_validation.core.model",
     "ValidationResult": "twotank_validation.core.validate",
     "validate": "twotank_validation.core.validate",
-    "MonitorConfig": "twotank_validation.online.monitor",
-    "WindowReport": "twotank_validation.online.monitor",
-    "Alarm": "twotank_validation.online.monitor",
-    "OnlineValidator": "twotank_validation.online.monitor",
+    "MonitorConfig": "twotank_validation.online.window",
+    "WindowReport": "twotank_validation.online.window",
+    "Alarm": "twotank_validation.online.alarm",
+    "OnlineValidator": "twotank_validation.online.validator",
     "open_bag": "twotank_validation.bags.reader",
     "Diagnosis": "twotank_validation.diagnose",
     "ReplayConfig": "twotank_validation.replay",
@@ -78,12 +78,9 @@ if TYPE_CHECKING:
     from twotank_validation.defaults import Method
     from twotank_validation.diagnose import Diagnosis
     from twotank_validation.errors import TwotankError
-    from twotank_validation.online.monitor import (
-        Alarm,
-        MonitorConfig,
-        OnlineValidator,
-        WindowReport,
-    )
+    from twotank_validation.online.alarm import Alarm
+    from twotank_validation.online.validator import OnlineValidator
+    from twotank_validation.online.window import MonitorConfig, WindowReport
     from twotank_validation.replay import ReplayConfig, ReplayResult, replay_bag
 
 

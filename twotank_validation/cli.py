@@ -15,7 +15,7 @@ from tqdm import tqdm
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
-from twotank_validation.online.monitor import WindowReport
+from twotank_validation.online import WindowReport
 
 
 def _progress_factory(enabled: bool) -> Callable[[str, int], Callable[[int], None]] | None:
@@ -136,7 +136,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
-    from twotank_validation.online.monitor import STREAMS  # noqa: PLC0415
+    from twotank_validation.online.streams import STREAMS  # noqa: PLC0415
 
     topics = {s: s for s in STREAMS}
     for pair in pairs or ():
@@ -152,7 +152,7 @@ def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
 def _replay_config(args: argparse.Namespace) -> object:
     """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
     from twotank_validation import replay  # noqa: PLC0415
-    from twotank_validation.online.monitor import AlarmConfig, MonitorConfig  # noqa: PLC0415
+    from twotank_validation.online import AlarmConfig, MonitorConfig  # noqa: PLC0415
     from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
 
     try:

@@ -2,7 +2,8 @@
 
 Messages stream from :mod:`twotank_validation.bags.reader`, go through the same extractors as
 the ROS node (:mod:`twotank_validation.online.streams`, ROS-free) and the same
-:class:`~twotank_validation.online.monitor.OnlineValidator` (alignment, windows, gates, alarm).
+:class:`~twotank_validation.online.validator.OnlineValidator` (alignment, windows, gates, alarm,
+input faults).
 Memory stays bounded: only the window buffer and per-window summaries are kept, plus the samples
 of a few windows of interest (largest beta, first alarm) for the figures.
 
@@ -10,7 +11,7 @@ Speed: messages go a few thousand at a time. The reader decodes the three fixed-
 types in bulk (:meth:`~twotank_validation.bags.reader.BagReader.field_batches`, the generic
 deserialiser for anything else), the extractors' unit conversions run on arrays
 (:func:`~twotank_validation.online.streams.stream_values`, the same float operations), and
-:meth:`~twotank_validation.online.monitor.OnlineValidator.feed_many` aligns regular stretches at
+:meth:`~twotank_validation.online.validator.OnlineValidator.feed_many` aligns regular stretches at
 once (the same samples and reports as feeding the messages one by one, which is what it does
 with anything irregular). A one-hour 10 Hz bag replays for two models in well under 2 s
 (``bench/bench_replay.py``).
@@ -18,6 +19,7 @@ with anything irregular). A one-hour 10 Hz bag replays for two models in well un
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -31,15 +33,9 @@ import twotank_validation.bags as bag_reader
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.diagnose import Window
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import (
-    STREAM_KINDS,
-    STREAMS,
-    Alarm,
-    MonitorConfig,
-    OnlineValidator,
-    WindowReport,
-)
+from twotank_validation.online.streams import STREAM_KINDS, STREAMS
 
 
 @dataclass(frozen=True)
@@ -77,7 +73,8 @@ class ReplayResult:
         path: the bag.
         reports: window reports in order (all models).
         complete: the whole bag was read and every expected topic was present.
-        problems: what made the run incomplete or what was refused, in words.
+        problems: what made the run incomplete or what was refused, in words (the input
+            faults in the live node's words).
         counters: aligner counters (duplicates, out of order, gaps, ...).
         messages: messages read.
         decode_s: wall time spent reading and decoding.
@@ -103,9 +100,9 @@ _BATCH = 4096  # messages decoded and validated at a time
 
 def extractor(stream: str, units: itf.RigUnits) -> Callable[[Any], Any]:
     """Message -> value for one stream (same functions as the live node)."""
-    if stream == "flow_cmd":
+    if stream == itf.FLOW_CMD:
         return itf.flow_values
-    if stream == "height":
+    if stream == itf.HEIGHT:
         return lambda msg: itf.height_value(msg, units)
     return lambda msg: itf.temperature_value(msg, units)
 
@@ -159,7 +156,7 @@ def replay_bag(
             result.reports.append(rep)
             _keep_if_interesting(result, core, rep)
             if on_window is not None and rep.judged:
-                stamps, u, y = core.monitor.last_window()
+                stamps, u, y = core.last_window()
                 on_window(rep, WindowSnapshot(rep, stamps, u, y))
 
         t_dec = t_val = 0.0
@@ -188,17 +185,8 @@ def replay_bag(
             result.complete = False
             result.problems.append(str(err))
         result.decode_s, result.validate_s = t_dec, t_val
-    result.counters = dict(vars(core.aligner.counters))
-    gaps = result.counters.get("missing", 0)
-    if gaps:
-        result.problems.append(
-            f"{gaps} sample(s) missing (gaps in the recording); windows touching them not judged"
-        )
-    disorder = result.counters.get("out_of_order", 0) + result.counters.get("duplicates", 0)
-    if disorder:
-        result.problems.append(
-            f"{disorder} message(s) with repeated or out-of-order stamps were dropped"
-        )
+    result.counters = dataclasses.asdict(core.counters())
+    result.problems.extend(core.input_problems())
     if progress is not None:
         progress(result.messages, max(result.messages, 1))
     return result
@@ -229,7 +217,7 @@ def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: Windo
     if rep.alarm is Alarm.ERROR and "first_alarm" not in kept:
         reasons.append("first_alarm")
     if reasons:
-        stamps, u, y = core.monitor.last_window()
+        stamps, u, y = core.last_window()
         snap = WindowSnapshot(rep, stamps, u, y)
         for r in reasons:
             kept[r] = snap

@@ -1,13 +1,13 @@
-"""Message interfaces, unit conversions and extractors shared by the nodes and bag replay.
+"""The input streams: names, message types, unit conversions and extractors (ROS-free).
 
-The extractors read only field names common to rclpy messages and rosbags' decoded
-messages (``header.stamp.sec/nanosec``, ``fluid_pressure``, ``temperature``, ``hot``,
-``cold``), so live and replay go through the same code.
+Shared by the nodes and bag replay. The extractors read only field names common to rclpy
+messages and rosbags' decoded messages (``header.stamp.sec/nanosec``, ``fluid_pressure``,
+``temperature``, ``hot``, ``cold``), so live and replay go through the same code. Nothing here
+imports a ROS message package (that is :mod:`twotank_validation.ros.messages`).
 """
 
 from __future__ import annotations
 
-import array
 import math
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.online.monitor import WindowReport
+from twotank_validation.online.aligner import COMMAND
 
 _V = TypeVar("_V", float, np.ndarray)  # one value, or many at once (same float operations)
 
@@ -23,25 +23,21 @@ FLOW_CMD_TYPE = "twotank_validation_msgs/msg/FlowCommand"
 HEIGHT_TYPE = "sensor_msgs/msg/FluidPressure"
 TEMPERATURE_TYPE = "sensor_msgs/msg/Temperature"
 
-
-def message_classes() -> tuple[Any, Any]:
-    """``(FlowCommand, ValidationReport)`` generated message classes.
-
-    Raises:
-        ImportError: with a hint when the package's messages were not built.
-    """
-    try:
-        from twotank_validation_msgs.msg import (  # noqa: PLC0415
-            FlowCommand,
-            ValidationReport,
-        )
-    except ImportError as err:  # pragma: no cover - depends on the install
-        raise ImportError(
-            "the messages twotank_validation_msgs/FlowCommand and ValidationReport are not "
-            "built: run `bash scripts/run exec true` (bootstraps the venv and builds them) "
-            "or build the package with colcon"
-        ) from err
-    return FlowCommand, ValidationReport
+FLOW_CMD = "flow_cmd"
+"""Stream of valve commands ``(hot, cold)`` (model units); also the default topic name."""
+HEIGHT = "height"
+"""Stream of level measurements; also the default topic name."""
+TEMPERATURE = "temperature"
+"""Stream of temperature measurements; also the default topic name."""
+STREAMS = (FLOW_CMD, HEIGHT, TEMPERATURE)
+"""The validator's input streams."""
+MEASUREMENTS = (HEIGHT, TEMPERATURE)
+"""The measured streams, in the order of the outputs ``y``."""
+STREAM_KINDS = {FLOW_CMD: COMMAND, **{s: channel for channel, s in enumerate(MEASUREMENTS)}}
+"""Event kind of each stream (:data:`~twotank_validation.online.aligner.COMMAND` or the output
+channel), as ``OnlineValidator.feed_many`` takes it."""
+STREAM_TYPES = {FLOW_CMD: FLOW_CMD_TYPE, HEIGHT: HEIGHT_TYPE, TEMPERATURE: TEMPERATURE_TYPE}
+"""Message type of each stream."""
 
 
 @dataclass(frozen=True)
@@ -111,9 +107,9 @@ def temperature_value(msg: Any, units: RigUnits) -> float:
 
 
 STREAM_FIELDS: dict[str, tuple[str, ...]] = {
-    "flow_cmd": ("hot", "cold"),
-    "height": ("fluid_pressure",),
-    "temperature": ("temperature",),
+    FLOW_CMD: ("hot", "cold"),
+    HEIGHT: ("fluid_pressure",),
+    TEMPERATURE: ("temperature",),
 }
 """Message fields each stream's extractor reads (besides ``header.stamp``)."""
 
@@ -132,43 +128,12 @@ def stream_values(stream: str, fields: np.ndarray, units: RigUnits) -> np.ndarra
         :func:`height_value` and :func:`temperature_value`, so the same values bit for bit.
     """
     out = np.full((len(fields), 2), np.nan)
-    if stream == "flow_cmd":
+    if stream == FLOW_CMD:
         out[:] = fields[:, :2]
-    elif stream == "height":
+    elif stream == HEIGHT:
         out[:, 0] = units.level_from_pressure(fields[:, 0])
-    elif stream == "temperature":
+    elif stream == TEMPERATURE:
         out[:, 0] = units.temperature_from_celsius(fields[:, 0])
     else:
         raise ValueError(f"unknown stream {stream!r}")
     return out
-
-
-def _doubles(values: np.ndarray) -> array.array[float]:
-    return array.array("d", np.ascontiguousarray(values, dtype=np.float64).tobytes())
-
-
-def report_message(report: WindowReport, cls: Any) -> Any:
-    """Fill a ValidationReport message from a core :class:`WindowReport`."""
-    msg = cls()
-    set_stamp(msg.header.stamp, report.end_ns)
-    msg.model = report.model
-    set_stamp(msg.window_start, report.start_ns)
-    set_stamp(msg.window_end, report.end_ns)
-    msg.n_periods = report.n_periods
-    msg.n_samples = report.n_samples
-    msg.judged = report.judged
-    msg.data_quality = report.data_quality
-    msg.beta = float(report.beta)
-    msg.beta_lower = float(report.beta_lower)
-    msg.beta_upper = float(report.beta_upper)
-    msg.margin = float(report.margin)
-    msg.invalidated = bool(report.invalidated)
-    msg.alarm_level = int(report.alarm)
-    msg.norm_convention = report.convention
-    msg.solver = report.solver
-    # array('d') is taken as is; a list would be type- and range-checked element by element
-    # (milliseconds for a 4096-sample window's 2049 bins)
-    msg.frequencies_hz = _doubles(report.freqs_hz)
-    msg.w_min = _doubles(report.w_min)
-    msg.compute_time_s = float(report.compute_time_s)
-    return msg

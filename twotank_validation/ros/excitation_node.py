@@ -15,6 +15,7 @@ from rclpy.node import Node
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
+from twotank_validation.ros import messages
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 from twotank_validation.sim import excitation, rig
 
@@ -65,7 +66,7 @@ class ExcitationNode(Node):
             raise ParameterError(f"cannot start the excitation: {err}") from err
         self.ts_ns = round(float(v["ts_s"]) * NS_PER_S)
         self.k = 0
-        flow_cls, _ = itf.message_classes()
+        flow_cls, _ = messages.message_classes()
         self._cls = flow_cls
         self.pub = self.create_publisher(flow_cls, "flow_cmd", 100)
         if v["self_timed"]:

@@ -10,6 +10,7 @@ real time and deterministically.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -26,8 +27,8 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.online import Sample, SampleBlock, WindowReport
 from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import Sample, SampleBlock, WindowReport
 from twotank_validation.ros.excitation_node import ExcitationNode
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.validator_node import ValidatorNode
@@ -128,22 +129,14 @@ class _RecordingValidator(ValidatorNode):
         self.new_reports: deque[WindowReport] = deque()
         super().__init__(**kwargs)
         self.report_listeners.append(self.new_reports.append)
-        if not record_samples:
-            return
-        push, push_block = self.monitor.push, self.monitor.push_block
+        if record_samples:
+            self.core.sample_listeners.append(self._record)
 
-        def recording_push(sample: Sample) -> list[WindowReport]:
-            self.samples.append(sample)
-            return push(sample)
-
-        def recording_push_block(
-            block: SampleBlock, on_report: Callable[[WindowReport], None] | None = None
-        ) -> list[WindowReport]:
-            self.samples.extend(block.samples())
-            return push_block(block, on_report)
-
-        self.monitor.push = recording_push  # type: ignore[method-assign]
-        self.monitor.push_block = recording_push_block  # type: ignore[method-assign]
+    def _record(self, piece: Sample | SampleBlock) -> None:
+        if isinstance(piece, SampleBlock):
+            self.samples.extend(piece.samples())
+        else:
+            self.samples.append(piece)
 
 
 def run_live(
@@ -259,14 +252,14 @@ def run_live(
         # deliver what is still in flight, then let the worker finish
         expected = config.n_steps
         spin_until(
-            executor, lambda: val.aligner.next_index >= expected - 1 and val._queue.empty(), 10.0
+            executor, lambda: val.core.next_index >= expected - 1 and val._queue.empty(), 10.0
         )
         val.wait_idle()
         deliver()
         if synced is not None and not spin_until(executor, partial(synced, expected - 1)):
             raise RuntimeError("attached nodes did not receive everything by the end of the run")
         wall = time.monotonic() - start
-        counters = dict(vars(val.aligner.counters))
+        counters = dataclasses.asdict(val.core.counters())
         return LiveResult(kept, list(val.samples), wall, counters)
     finally:
         for n in nodes:

@@ -29,6 +29,7 @@ from sensor_msgs.msg import FluidPressure, Temperature
 from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
+from twotank_validation.ros import messages
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 from twotank_validation.sim import faults, rig
 from twotank_validation.sim.faults import parse_fault
@@ -102,7 +103,7 @@ class PlantNode(Node):
         self.ts_ns = round(float(v["ts_s"]) * NS_PER_S)
         self.command = op.commands.copy()
         self.last_command_ns: int | None = None
-        flow_cls, _ = itf.message_classes()
+        flow_cls, _ = messages.message_classes()
         self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 100)
         self.pub_height = self.create_publisher(FluidPressure, "height", 100)
         self.pub_temperature = self.create_publisher(Temperature, "temperature", 100)

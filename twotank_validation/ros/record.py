@@ -23,14 +23,7 @@ from rclpy.node import Node
 
 from twotank_validation.bags.writer import BagWriter
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import STREAMS
-
-DEFAULT_TYPES = {
-    "flow_cmd": itf.FLOW_CMD_TYPE,
-    "height": itf.HEIGHT_TYPE,
-    "temperature": itf.TEMPERATURE_TYPE,
-}
+from twotank_validation.online.streams import STREAM_TYPES, STREAMS
 
 
 def message_class(msgtype: str) -> Any:
@@ -85,7 +78,7 @@ def record(
         messages written per topic.
     """
     names = dict(topics or {s: s for s in STREAMS})
-    wanted = {names[s]: DEFAULT_TYPES[s] for s in STREAMS}
+    wanted = {names[s]: STREAM_TYPES[s] for s in STREAMS}
     ctx = Context()
     rclpy.init(context=ctx)
     main_thread = threading.current_thread() is threading.main_thread()

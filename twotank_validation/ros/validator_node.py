@@ -1,8 +1,9 @@
 """The validator node: flow commands, level and temperature in; reports, margin and alarm out.
 
-Thin adapter over :mod:`twotank_validation.online.monitor`: subscription callbacks only convert a
-message to (stream, stamp, value) and queue it; a worker thread runs the aligner, the window
-monitor and the validation, and publishes. Topics (node-relative, remappable):
+Thin adapter over :class:`twotank_validation.online.validator.OnlineValidator`: subscription
+callbacks only convert a message to a typed queue item (stream, stamp, value) and queue it; a
+worker thread feeds the validator (aligner, window monitor, validation, input faults) and
+publishes. Topics (node-relative, remappable):
 
 * in: ``flow_cmd`` (twotank_validation_msgs/FlowCommand), ``height``
   (sensor_msgs/FluidPressure), ``temperature`` (sensor_msgs/Temperature);
@@ -14,17 +15,20 @@ monitor and the validation, and publishes. Topics (node-relative, remappable):
 ``/diagnostics`` is STALE (saying why) while a stream is stopped or a topic has a publisher of
 the wrong type, and from the moment input arrives that makes the coming windows unfit to judge
 (non-finite or implausible values, off-grid stamps, gaps, clock jumps, a stream stopping, a run
-of stale stamps) until a window after it is judged; otherwise it carries the last window's
-level (published once all models' reports of a window are out).
+of stale stamps) until a window after it is judged (the validator keeps that state,
+:attr:`~twotank_validation.online.validator.OnlineValidator.input_fault`); otherwise it carries
+the last window's level (published once all models' reports of a window are out).
 """
 
 from __future__ import annotations
 
+import enum
 import queue
 import sys
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from time import perf_counter
 from typing import Any
 
@@ -42,14 +46,15 @@ from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.defaults import METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
-from twotank_validation.online import streams as itf
-from twotank_validation.online.monitor import (
+from twotank_validation.online import (
     Alarm,
     AlarmConfig,
     MonitorConfig,
     OnlineValidator,
     WindowReport,
 )
+from twotank_validation.online import streams as itf
+from twotank_validation.ros import messages
 from twotank_validation.ros.params import Param, ParameterError, declare, run_node
 
 VALIDATOR_PARAMS = (
@@ -109,22 +114,40 @@ VALIDATOR_PARAMS = (
     Param("temperature_span_c", 50.0, "degC per model unit of temperature", 1e-9, 1e6),
 )
 
-_STREAMS = ("flow_cmd", "height", "temperature")
-_EXPECTED_TYPES = {
-    "flow_cmd": itf.FLOW_CMD_TYPE,
-    "height": itf.HEIGHT_TYPE,
-    "temperature": itf.TEMPERATURE_TYPE,
-}
+
+@dataclass(slots=True)
+class _Event:
+    """A received message, converted: one of the worker's queue items.
+
+    Attributes:
+        stream: stream name (:data:`~twotank_validation.online.streams.STREAMS`).
+        stamp_ns: header stamp (ns).
+        value: ``(hot, cold)`` of a command, a model-unit float of a measurement.
+        received: ``perf_counter()`` at reception (report latency).
+    """
+
+    stream: str
+    stamp_ns: int
+    value: float | tuple[float, float]
+    received: float
 
 
-# aligner counters whose rise means the coming windows are not fit to judge (flagged samples or
-# a restart); duplicates and out-of-order stragglers are dropped and harm nothing by themselves
-_FAULT_COUNTERS = {
-    "non_finite": "non-finite or implausible values",
-    "off_grid": "stamps off the sample grid",
-    "missing": "gaps",
-    "clock_resets": "clock jumps (alignment restarted)",
-}
+@dataclass(slots=True)
+class _Marker:
+    """Queue item: set ``done`` once every item queued before it is processed."""
+
+    done: threading.Event
+
+
+class _Control(enum.Enum):
+    """Queue items that carry no data."""
+
+    RESET = enum.auto()  # the clock jumped back: restart alignment and windowing
+    STOPPED = enum.auto()  # the watchdog saw a stream stop: an input fault
+    EXIT = enum.auto()  # the worker returns
+
+
+_Item = _Event | _Marker | _Control
 
 
 _BLANK_REPORT = WindowReport(
@@ -213,18 +236,13 @@ class ValidatorNode(Node):
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
-        self.monitor = self.core.monitor
-        self.aligner = self.core.aligner
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
-        flow_cls, self._report_cls = itf.message_classes()
+        flow_cls, self._report_cls = messages.message_classes()
 
-        # (stream, stamp, value, perf_counter at reception), or a control item; None stops
-        self._queue: queue.Queue[tuple[str, int, Any, float] | None] = queue.Queue()
+        self._queue: queue.Queue[_Item] = queue.Queue()
         self._lock = threading.Lock()
-        self._last_rx: dict[str, int | None] = dict.fromkeys(_STREAMS)
-        self._late_run = 0  # out-of-order messages since the core last completed a sample
-        self._late = 0
-        self.received: dict[str, int] = dict.fromkeys(_STREAMS, 0)
+        self._last_rx: dict[str, int | None] = dict.fromkeys(itf.STREAMS)
+        self.received: dict[str, int] = dict.fromkeys(itf.STREAMS, 0)
         # per model: level, text and the last report; replaced whole (never updated in place)
         # once every model's report of a window is out, so the watchdog sees one window
         self._status: dict[str, tuple[Alarm, str, WindowReport | None]] = {
@@ -234,17 +252,11 @@ class ValidatorNode(Node):
         self.report_listeners: list[Callable[[WindowReport], None]] = []
         # per window: from receiving the message that completed it to its reports published
         self.report_latency_s: deque[float] = deque(maxlen=1000)
-        # bad input seen since the last judged window: the status says so at once, not only
-        # at the next window boundary (set and cleared by the worker, read by the watchdog)
-        self._fault: str | None = None
-        self._fault_seen = 0  # core.samples_seen before the event that showed it
-        self._fault_kinds: set[str] = set()
-        self._counts = self._fault_counts()
         self._watch: tuple[Alarm, str] | None = None  # the watchdog's latest finding
 
-        self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 1000)
-        self.create_subscription(FluidPressure, "height", self._on_height, 1000)
-        self.create_subscription(Temperature, "temperature", self._on_temperature, 1000)
+        self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 1000)
+        self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 1000)
+        self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 1000)
         latched = QoSProfile(
             depth=1,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
@@ -265,7 +277,7 @@ class ValidatorNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # the first report message costs milliseconds (lazy imports): pay that now, not in
         # the first window's latency
-        itf.report_message(_BLANK_REPORT, self._report_cls)
+        messages.report_message(_BLANK_REPORT, self._report_cls)
         self.create_service(Trigger, "reset_alarm", self._on_reset)
         for m in self.models:
             self._publish_invalidated(m.name, False)
@@ -288,29 +300,31 @@ class ValidatorNode(Node):
         return int(self.get_clock().now().nanoseconds)
 
     def _on_flow(self, msg: Any) -> None:
-        self._last_rx["flow_cmd"] = self._now_ns()
-        self.received["flow_cmd"] += 1
-        self._queue.put(("flow_cmd", itf.stamp_ns(msg), itf.flow_values(msg), perf_counter()))
+        self._last_rx[itf.FLOW_CMD] = self._now_ns()
+        self.received[itf.FLOW_CMD] += 1
+        self._queue.put(
+            _Event(itf.FLOW_CMD, itf.stamp_ns(msg), itf.flow_values(msg), perf_counter())
+        )
 
     def _on_height(self, msg: FluidPressure) -> None:
-        self._last_rx["height"] = self._now_ns()
-        self.received["height"] += 1
+        self._last_rx[itf.HEIGHT] = self._now_ns()
+        self.received[itf.HEIGHT] += 1
         value = itf.height_value(msg, self.units)
-        self._queue.put(("height", itf.stamp_ns(msg), value, perf_counter()))
+        self._queue.put(_Event(itf.HEIGHT, itf.stamp_ns(msg), value, perf_counter()))
 
     def _on_temperature(self, msg: Temperature) -> None:
-        self._last_rx["temperature"] = self._now_ns()
-        self.received["temperature"] += 1
+        self._last_rx[itf.TEMPERATURE] = self._now_ns()
+        self.received[itf.TEMPERATURE] += 1
         value = itf.temperature_value(msg, self.units)
-        self._queue.put(("temperature", itf.stamp_ns(msg), value, perf_counter()))
+        self._queue.put(_Event(itf.TEMPERATURE, itf.stamp_ns(msg), value, perf_counter()))
 
     def _on_time_jump(self, jump: Any) -> None:
         if jump.delta.nanoseconds < 0:
-            self._queue.put(("__reset__", 0, None, 0.0))
+            self._queue.put(_Control.RESET)
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         with self._lock:
-            self.monitor.reset_alarms()
+            self.core.reset_alarms()
         for m in self.models:
             self._publish_invalidated(m.name, False)
         resp.success = True
@@ -320,99 +334,53 @@ class ValidatorNode(Node):
     # ---------------------------------------------------------------- worker thread
 
     def feed(self, stream: str, stamp: int, value: Any) -> list[WindowReport]:
-        """Run one event through aligner and monitor (the worker calls this; tests may too)."""
+        """Run one event through the validator (the worker calls this; tests may too)."""
         with self._lock:
             return self.core.feed(stream, stamp, value)
 
     def _work(self) -> None:
         while True:
             item = self._queue.get()
-            if item is None:
+            if item is _Control.EXIT:
                 return
-            if item[0] == "__marker__":
-                item[2].set()
+            if isinstance(item, _Marker):
+                item.done.set()
                 continue
-            seen = self.core.samples_seen
-            if item[0] == "__stopped__":
-                self._note_faults(seen, "stopped streams")
+            if item is _Control.STOPPED:
+                self.core.note_stopped_streams()
                 continue
-            if item[0] == "__reset__":
+            if item is _Control.RESET:
                 with self._lock:
-                    started = self.aligner.t0_ns is not None
                     self.core.restart()
-                if not started:  # nothing received yet (the clock's first jump): no fault
-                    self._counts = self._fault_counts()
-                self._note_faults(seen)
                 continue
-            stream, stamp, value, received = item
+            assert isinstance(item, _Event)
             try:
-                reports = self.feed(stream, stamp, value)
+                reports = self.feed(item.stream, item.stamp_ns, item.value)
             except Exception as err:  # keep the node alive; the status says what happened
-                self.get_logger().error(f"validator failed on {stream} at {stamp} ns: {err}")
+                self.get_logger().error(
+                    f"validator failed on {item.stream} at {item.stamp_ns} ns: {err}"
+                )
                 self._status = {
                     name: (Alarm.STALE, f"internal error: {err}", rep)
                     for name, (_, _, rep) in self._status.items()
                 }
                 continue
-            late = self.aligner.counters.out_of_order
-            self._note_faults(seen)
-            if self.core.samples_seen != seen:
-                self._late_run = 0
-            elif late != self._late:
-                # messages that complete no sample, stamped before the last one (a stale
-                # source): one is harmless (a repeat), a run of them means the data stopped
-                self._late_run += 1
-                if self._late_run >= 3 * len(_STREAMS):
-                    self._note_faults(seen, "stale or out-of-order stamps")
-            self._late = late
             if reports:
-                # a judged window that starts after the fault (its first sample comes after
-                # the event that showed it; bounded below from this event's count) clears it
-                if (
-                    self._fault is not None
-                    and any(r.judged for r in reports)
-                    and seen + 2 - self.config.window_samples > self._fault_seen
-                ):
-                    self._fault = None
                 status = dict(self._status)
                 for rep in reports:
                     status[rep.model] = self._publish(rep)
                 self._status = status
                 self._publish_diagnostics()  # once every model's status is new
-                self.report_latency_s.append(perf_counter() - received)
-
-    def _fault_counts(self) -> tuple[int, ...]:
-        c = self.aligner.counters
-        return tuple(getattr(c, name) for name in _FAULT_COUNTERS)
-
-    def _note_faults(self, seen: int, extra: str = "") -> None:
-        counts = self._fault_counts()
-        if counts == self._counts and not extra:
-            return
-        if self._fault is None:
-            self._fault_kinds = set()
-        if extra:
-            self._fault_kinds.add(extra)
-        self._fault_kinds.update(
-            what
-            for what, old, new in zip(_FAULT_COUNTERS.values(), self._counts, counts, strict=True)
-            if new != old
-        )
-        self._counts = counts
-        self._fault_seen = seen
-        self._fault = (
-            "input fault: " + ", ".join(sorted(self._fault_kinds)) + "; windows are not judged "
-            "until clean data have settled"
-        )
+                self.report_latency_s.append(perf_counter() - item.received)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Block until the worker has processed every queued event (tests, composition)."""
         done = threading.Event()
-        self._queue.put(("__marker__", 0, done, 0.0))
+        self._queue.put(_Marker(done))
         return done.wait(timeout_s)
 
     def _publish(self, rep: WindowReport) -> tuple[Alarm, str, WindowReport]:
-        self._pub_report[rep.model].publish(itf.report_message(rep, self._report_cls))
+        self._pub_report[rep.model].publish(messages.report_message(rep, self._report_cls))
         self._pub_margin[rep.model].publish(Float64(data=float(rep.margin)))
         self._publish_invalidated(rep.model, rep.alarm == Alarm.ERROR)
         text = (
@@ -432,7 +400,9 @@ class ValidatorNode(Node):
     def _publish_diagnostics(self, override: tuple[Alarm, str] | None = None) -> None:
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
-        fault = self._fault
+        # bad input seen since the last judged window: the status says so at once, not only at
+        # the next window boundary (set and cleared by the worker, read by the watchdog too)
+        fault = self.core.input_fault
         override = override or self._watch
         status = self._status
         for m in self.models:
@@ -460,13 +430,13 @@ class ValidatorNode(Node):
 
     def _wrong_types(self) -> list[str]:
         problems = []
-        for stream in _STREAMS:
+        for stream in itf.STREAMS:
             topic = self.resolve_topic_name(stream)
             for info in self.get_publishers_info_by_topic(topic):
-                if info.topic_type != _EXPECTED_TYPES[stream]:
+                if info.topic_type != itf.STREAM_TYPES[stream]:
                     problems.append(
                         f"{topic} has a publisher of type {info.topic_type}, "
-                        f"expected {_EXPECTED_TYPES[stream]}"
+                        f"expected {itf.STREAM_TYPES[stream]}"
                     )
         return problems
 
@@ -484,14 +454,14 @@ class ValidatorNode(Node):
         # is also an input fault (until a window after it is judged)
         self._watch = (Alarm.STALE, "; ".join(problems)) if problems else None
         if stopped:
-            self._queue.put(("__stopped__", 0, None, 0.0))
+            self._queue.put(_Control.STOPPED)
         self._publish_diagnostics()
 
     def destroy_node(self) -> None:
         """Stop the worker thread, then destroy the node."""
         worker = getattr(self, "_worker", None)
         if worker is not None:
-            self._queue.put(None)
+            self._queue.put(_Control.EXIT)
             worker.join(timeout=5.0)
         super().destroy_node()
 

@@ -1,0 +1,435 @@
+"""Whole-period windows: data-quality gates, validation against every model, the alarm.
+
+:class:`WindowMonitor` buffers aligned samples and, at every excitation-period boundary,
+validates the last ``periods_per_window`` periods against every model — but only when the
+window is fit to judge (no flagged samples, input periodic for ``settle_periods`` more periods
+before it, enough excitation). Otherwise the report says why and carries STALE.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twotank_validation.core.datum import NormConvention, make_datum
+from twotank_validation.core.fast import dispatch as fast
+from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.validate import (
+    check_compatible,
+    pulse_moment,
+    takes_fast_path,
+    validate,
+)
+from twotank_validation.defaults import METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S, Method
+from twotank_validation.errors import ModelError, TwotankError
+from twotank_validation.online.alarm import (
+    Alarm,
+    AlarmConfig,
+    AlarmState,
+    reset_alarm,
+    update_alarm,
+)
+from twotank_validation.online.aligner import Sample, SampleBlock
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Settings of the online validator (all shared by the node's ROS parameters).
+
+    Attributes:
+        ts_s: sample period (s).
+        period_samples: excitation period (samples).
+        periods_per_window: periods validated together (a window every period).
+        settle_periods: periods of periodic input required before a window is judged (the
+            plant settles after the excitation started or changed).
+        min_excitation_rms: a window is judged only if some input's RMS deviation reaches
+            this (model units).
+        input_periodic_rtol: accepted period-to-period input change, relative to its RMS.
+        convention: norm convention of ||w||.
+        method: solver choice passed to :func:`validate`.
+        alarm: debouncing.
+    """
+
+    ts_s: float = TS_S
+    period_samples: int = PERIOD_SAMPLES
+    periods_per_window: int = 2
+    settle_periods: int = 1
+    min_excitation_rms: float = 0.005
+    input_periodic_rtol: float = 1e-6
+    convention: NormConvention = NormConvention.POWER
+    method: str = "auto"
+    alarm: AlarmConfig = field(default_factory=AlarmConfig)
+
+    def __post_init__(self) -> None:
+        checks = [
+            (
+                math.isfinite(self.ts_s) and self.ts_s > 0,
+                f"ts_s must be positive, found {self.ts_s}",
+            ),
+            (self.period_samples >= 4, f"period_samples must be >= 4, found {self.period_samples}"),
+            (
+                self.periods_per_window >= 1,
+                f"periods_per_window must be >= 1, found {self.periods_per_window}",
+            ),
+            (self.settle_periods >= 0, f"settle_periods must be >= 0, found {self.settle_periods}"),
+            (
+                self.min_excitation_rms >= 0,
+                f"min_excitation_rms must be >= 0, found {self.min_excitation_rms}",
+            ),
+            (
+                self.input_periodic_rtol >= 0,
+                f"input_periodic_rtol must be >= 0, found {self.input_periodic_rtol}",
+            ),
+            (
+                self.method in METHODS,
+                f"unknown method {self.method!r}",
+            ),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(msg)
+
+    @property
+    def window_samples(self) -> int:
+        """Samples per validated window."""
+        return self.periods_per_window * self.period_samples
+
+    @property
+    def span_samples(self) -> int:
+        """Samples that must be clean and periodic before a window is judged."""
+        return (self.periods_per_window + self.settle_periods) * self.period_samples
+
+
+@dataclass(frozen=True)
+class WindowReport:
+    """One model's verdict on one window (everything the ROS ValidationReport carries).
+
+    Attributes:
+        model: model name.
+        start_ns: stamp of the first sample of the window (ns).
+        end_ns: stamp of the last sample (ns).
+        n_periods: periods in the window.
+        n_samples: samples in the window.
+        judged: the window was fit to judge.
+        data_quality: ``"ok"`` or why it was not judged.
+        beta: total min ||w|| (NaN when not judged).
+        beta_lower: general solver's certified lower bound (NaN for the closed form).
+        beta_upper: general solver's witness upper bound (NaN for the closed form).
+        margin: ``1 - beta``.
+        invalidated: raw verdict (``beta > 1``).
+        alarm: debounced alarm after this window.
+        convention: norm convention name.
+        solver: solver that ran (empty when not judged).
+        freqs_hz: (n_bins,) float.
+        w_min: (n_bins,) float.
+        compute_time_s: wall time of the validation.
+    """
+
+    model: str
+    start_ns: int
+    end_ns: int
+    n_periods: int
+    n_samples: int
+    judged: bool
+    data_quality: str
+    beta: float
+    beta_lower: float
+    beta_upper: float
+    margin: float
+    invalidated: bool
+    alarm: Alarm
+    convention: str
+    solver: str
+    freqs_hz: np.ndarray
+    w_min: np.ndarray
+    compute_time_s: float
+
+
+class WindowMonitor:
+    """Buffer aligned samples; every period, validate the last window against each model.
+
+    Args:
+        config: monitor settings.
+        models: models to validate (inputs/outputs must match the samples).
+    """
+
+    def __init__(self, config: MonitorConfig, models: Sequence[LFTModel]) -> None:
+        if not models:
+            raise ModelError("the monitor needs at least one model")
+        self.config = config
+        self.models = tuple(models)
+        nu, ny = self.models[0].nu, self.models[0].ny
+        for m in self.models:
+            if (m.nu, m.ny) != (nu, ny):
+                raise ModelError(
+                    f"models disagree on dimensions: {self.models[0].name} is {ny}x{nu}, "
+                    f"{m.name} is {m.ny}x{m.nu}"
+                )
+        self.n_inputs, self.n_outputs = nu, ny
+        cap = self._cap = config.span_samples
+        self._period = config.period_samples
+        self._window = config.window_samples
+        self._u = np.zeros((cap, nu))
+        self._y = np.zeros((cap, ny))
+        self._stamp = np.zeros(cap, dtype=np.int64)
+        self._flag: list[str | None] = [None] * cap
+        self._count = 0
+        self._last_index: int | None = None
+        n = config.window_samples
+        theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
+        # everything that depends only on the models and the settings is computed now, not in
+        # the first window (whose report would wait for it): P at the window's bins, and the
+        # leakage bound's pulse-response moment (memoised on the model)
+        self._responses: dict[str, PlantResponse] = {
+            m.name: m.response(theta, config.ts_s) for m in self.models
+        }
+        for m in self.models:
+            pulse_moment(m, config.ts_s)
+            # and the fast path's compiled kernel, where validate will use it
+            if takes_fast_path(self._responses[m.name], config.method):
+                fast.warm_up(self._responses[m.name])
+        self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
+
+    def reset_buffer(self) -> None:
+        """Forget buffered samples (after a clock reset); alarm states are kept."""
+        self._count = 0
+        self._last_index = None
+
+    def reset_alarms(self) -> None:
+        """Clear latched alarms of every model."""
+        self.alarms = {k: reset_alarm(v) for k, v in self.alarms.items()}
+
+    def push(self, sample: Sample) -> list[WindowReport]:
+        """Add one aligned sample; returns one report per model at each period boundary."""
+        index = sample.index
+        if self._last_index is not None and index != self._last_index + 1:
+            # the aligner restarted (clock reset): periods restart from here
+            self._count = 0
+        self._last_index = index
+        count = self._count
+        pos = count % self._cap
+        self._u[pos] = sample.u
+        self._y[pos] = sample.y
+        self._stamp[pos] = sample.stamp_ns
+        self._flag[pos] = sample.flag
+        self._count = count = count + 1
+        if count % self._period or count < self._window:
+            return []
+        return self._evaluate()
+
+    def push_block(
+        self, block: SampleBlock, on_report: Callable[[WindowReport], None] | None = None
+    ) -> list[WindowReport]:
+        """Add consecutive samples at once: the same reports as pushing them one by one.
+
+        ``on_report`` is called with each report as soon as its window is evaluated, while
+        :meth:`last_window` still returns that window.
+        """
+        m = len(block)
+        if m == 0:
+            return []
+        if self._last_index is not None and block.first_index != self._last_index + 1:
+            self._count = 0  # the aligner restarted (clock reset)
+        self._last_index = block.first_index + m - 1
+        out: list[WindowReport] = []
+        cap, period = self._cap, self._period
+        i = 0
+        while i < m:
+            count = self._count
+            take = min(m - i, period - count % period)
+            pos = count % cap
+            while take:  # at most two pieces: up to the end of the ring, then from its start
+                piece = min(take, cap - pos)
+                self._u[pos : pos + piece] = block.u[i : i + piece]
+                self._y[pos : pos + piece] = block.y[i : i + piece]
+                self._stamp[pos : pos + piece] = block.stamps_ns[i : i + piece]
+                self._flag[pos : pos + piece] = block.flags[i : i + piece]
+                i += piece
+                take -= piece
+                count += piece
+                pos = 0
+            self._count = count
+            if count % period == 0 and count >= self._window:
+                reports = self._evaluate()
+                out.extend(reports)
+                if on_report is not None:
+                    for rep in reports:
+                        on_report(rep)
+        return out
+
+    def last_window(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies."""
+        u, y, stamps, _ = self._ordered(min(self._count, self.config.window_samples))
+        return stamps.copy(), u.copy(), y.copy()
+
+    def _ordered(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
+        """Last ``n`` buffered samples in time order (copies)."""
+        cap = self._cap
+        start = (self._count - n) % cap
+        if start + n <= cap:  # one piece of the ring
+            sl = slice(start, start + n)
+            return self._u[sl].copy(), self._y[sl].copy(), self._stamp[sl].copy(), self._flag[sl]
+        head, tail = slice(start, cap), slice(0, start + n - cap)  # two pieces
+        return (
+            np.concatenate([self._u[head], self._u[tail]]),
+            np.concatenate([self._y[head], self._y[tail]]),
+            np.concatenate([self._stamp[head], self._stamp[tail]]),
+            self._flag[head] + self._flag[tail],
+        )
+
+    def _quality(self) -> str:
+        cfg = self.config
+        L = cfg.period_samples
+        span = min(self._count, cfg.span_samples)
+        u, _, _, flags = self._ordered(span)
+        bad = [f for f in flags if f is not None]
+        if bad:
+            return (
+                f"{len(bad)} unusable sample(s) in the window or its settling periods; "
+                f"first: {bad[0]}"
+            )
+        if self._count < cfg.span_samples:
+            return (
+                f"settling: {cfg.settle_periods} period(s) of periodic input are needed before "
+                f"the window ({self._count // L - cfg.periods_per_window} so far)"
+            )
+        rms = np.sqrt(np.mean((u - u.mean(axis=0)) ** 2, axis=0))
+        change = np.max(np.abs(u[L:] - u[:-L]), axis=0) if span > L else np.zeros(self.n_inputs)
+        if np.any(change > cfg.input_periodic_rtol * np.maximum(rms, 1e-12)):
+            j = int(np.argmax(change / np.maximum(rms, 1e-12)))
+            return (
+                f"input not periodic: input {j} changes by {change[j]:.3g} from one period to "
+                "the next (excitation started or changed; waiting for the plant to settle)"
+            )
+        win_u = u[-cfg.window_samples :]
+        win_rms = np.sqrt(np.mean((win_u - win_u.mean(axis=0)) ** 2, axis=0))
+        if float(np.max(win_rms)) < cfg.min_excitation_rms:
+            return (
+                f"too little excitation: input RMS {np.array2string(win_rms, precision=4)} below "
+                f"min_excitation_rms = {cfg.min_excitation_rms}"
+            )
+        return "ok"
+
+    def _evaluate(self) -> list[WindowReport]:
+        cfg = self.config
+        n = cfg.window_samples
+        u, y, stamps, _ = self._ordered(n)
+        start_ns, end_ns = int(stamps[0]), int(stamps[-1])
+        quality = self._quality()
+        datum = None
+        if quality == "ok":
+            try:
+                datum = make_datum(
+                    u,
+                    y,
+                    ts_s=cfg.ts_s,
+                    period_samples=cfg.period_samples,
+                    convention=cfg.convention,
+                )
+            except TwotankError as err:
+                quality = f"datum rejected: {err}"
+        reports = []
+        for model in self.models:
+            if datum is None:
+                reports.append(self._unjudged(model.name, start_ns, end_ns, quality))
+                continue
+            check_compatible(datum, model)
+            t0 = time.perf_counter()
+            res = validate(datum, model, method=cfg.method, response=self._responses[model.name])
+            elapsed = time.perf_counter() - t0
+            state = update_alarm(
+                self.alarms[model.name],
+                cfg.alarm,
+                judged=True,
+                invalidated=res.invalidated,
+                beta=res.beta,
+            )
+            self.alarms[model.name] = state
+            general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
+            reports.append(
+                WindowReport(
+                    model=model.name,
+                    start_ns=start_ns,
+                    end_ns=end_ns,
+                    n_periods=cfg.periods_per_window,
+                    n_samples=n,
+                    judged=True,
+                    data_quality="ok",
+                    beta=res.beta,
+                    beta_lower=res.beta if general else math.nan,
+                    beta_upper=res.beta_upper if general else math.nan,
+                    margin=res.margin,
+                    invalidated=res.invalidated,
+                    alarm=state.level,
+                    convention=cfg.convention.value,
+                    solver=res.method,
+                    freqs_hz=res.freqs_hz,
+                    w_min=res.w_min,
+                    compute_time_s=elapsed,
+                )
+            )
+        return reports
+
+    def _unjudged(self, name: str, start_ns: int, end_ns: int, reason: str) -> WindowReport:
+        state = update_alarm(
+            self.alarms[name], self.config.alarm, judged=False, invalidated=False, beta=math.nan
+        )
+        self.alarms[name] = state
+        return WindowReport(
+            model=name,
+            start_ns=start_ns,
+            end_ns=end_ns,
+            n_periods=self.config.periods_per_window,
+            n_samples=self.config.window_samples,
+            judged=False,
+            data_quality=reason,
+            beta=math.nan,
+            beta_lower=math.nan,
+            beta_upper=math.nan,
+            margin=math.nan,
+            invalidated=False,
+            alarm=state.level,
+            convention=self.config.convention.value,
+            solver="",
+            freqs_hz=np.zeros(0),
+            w_min=np.zeros(0),
+            compute_time_s=0.0,
+        )
+
+
+def monitor_record(
+    stamps_ns: np.ndarray,
+    u: np.ndarray,
+    y: np.ndarray,
+    config: MonitorConfig,
+    models: Sequence[LFTModel],
+) -> list[WindowReport]:
+    """Offline: feed an already aligned record through the same monitor as the live node.
+
+    Args:
+        stamps_ns: (n,) int, sample stamps (ns), on the grid.
+        u: (n, n_inputs) float.
+        y: (n, n_outputs) float.
+        config: monitor settings.
+        models: models.
+    """
+    mon = WindowMonitor(config, models)
+    t0 = int(stamps_ns[0])
+    ts_ns = round(config.ts_s * NS_PER_S)
+    out: list[WindowReport] = []
+    for k in range(len(stamps_ns)):
+        idx = (int(stamps_ns[k]) - t0 + ts_ns // 2) // ts_ns
+        plausible = np.all(np.abs(u[k]) <= 1e6) and np.all(np.abs(y[k]) <= 1e6)  # NaN: False
+        flag = None if plausible else "non-finite or implausible value"
+        out.extend(
+            mon.push(
+                Sample(
+                    idx, int(stamps_ns[k]), np.asarray(u[k], float), np.asarray(y[k], float), flag
+                )
+            )
+        )
+    return out
