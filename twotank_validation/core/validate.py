@@ -9,10 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation.core import lti, solvers
+from twotank_validation.core import fast, lti, solvers
 from twotank_validation.core.datum import Datum, NormConvention, leakage_bound
 from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
-from twotank_validation.core.fast import dispatch as fast
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.defaults import METHODS, Method
 from twotank_validation.errors import DimensionError, ModelError
