@@ -39,8 +39,8 @@ import time
 import numpy as np
 
 from twotank_validation import experiment
+from twotank_validation.core import fast
 from twotank_validation.core.datum import make_datum
-from twotank_validation.core.fast import dispatch as fast
 from twotank_validation.core.fast import kernel as fastkernel
 from twotank_validation.core.model import load_model
 from twotank_validation.core.validate import validate

@@ -14,9 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from twotank_validation import experiment
-from twotank_validation.core import solvers
+from twotank_validation.core import fast, solvers
 from twotank_validation.core.datum import Datum, make_datum
-from twotank_validation.core.fast import dispatch as fast
 from twotank_validation.core.model import BlockStructure, PlantResponse, load_model
 
 RTOL = 1e-6  # agreement asked of the fast path with the cvxpy reference
@@ -330,7 +329,7 @@ def test_validating_does_not_load_numba_until_the_kernel_runs() -> None:
     code = (
         "import sys\n"
         "from twotank_validation.core import validate\n"
-        "from twotank_validation.core.fast import dispatch\n"
+        "from twotank_validation.core import fast\n"
         "from twotank_validation.online import validator\n"
         "from twotank_validation.ros import validator_node\n"
         "print('numba' in sys.modules)\n"

@@ -9,10 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation.core import lti, solvers
+from twotank_validation.core import fast, lti, solvers
 from twotank_validation.core.datum import Datum, NormConvention, leakage_bound
 from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
-from twotank_validation.core.fast import dispatch as fast
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.defaults import METHODS, Method
 from twotank_validation.errors import DimensionError, ModelError
@@ -192,36 +191,18 @@ def validate(
     start = time.perf_counter()
     fallback_bins = 0
     error: np.ndarray | None = None
-    if method == Method.SDP:
+    route = _route(resp, method)
+    if route.refused:
+        raise ModelError(f"{route.refused} model {model.name!r}: {route.reason}; use method='sdp'")
+    reason = route.reason
+    if route.method == Method.SDP:
         sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
-        reason = "SDP relaxation (requested)"
-    elif method == Method.FAST:
-        covered, cover = fast.coverage(resp.blocks, resp.nw)
-        if not covered:
-            raise ModelError(
-                f"fast path does not cover model {model.name!r}: {cover}; use method='sdp'"
-            )
+    elif route.method == Method.FAST:
         sol, fallback_bins, done, error = _solve_fast(resp, datum, progress)
-        reason = f"fast batched dual (requested): {cover}; {done}"
+        reason = f"{reason}; {done}"
     else:
-        structure, why = solvers.decoupled_structure(resp)
-        if method == Method.CLOSED_FORM and structure is None:
-            raise ModelError(
-                f"closed form does not apply to model {model.name!r}: {why}; use method='sdp'"
-            )
-        covered, cover = fast.coverage(resp.blocks, resp.nw)
-        if structure is not None:
-            sol = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, structure)
-            reason = f"closed form: {why}"
-        elif covered:
-            sol, fallback_bins, done, error = _solve_fast(resp, datum, progress)
-            reason = f"fast batched dual: closed form not applicable ({why}); {cover}; {done}"
-        else:
-            sol = solvers.solve_sdp(resp, datum.u_bins, datum.y_bins, progress=progress)
-            reason = (
-                f"SDP relaxation: closed form not applicable ({why}); "
-                f"fast path not applicable ({cover})"
-            )
+        assert route.structure is not None
+        sol = solvers.solve_closed_form(resp, datum.u_bins, datum.y_bins, route.structure)
     elapsed = time.perf_counter() - start
     if error is None:
         error = datum.y_bins - np.einsum("kij,kj->ki", resp.p23, datum.u_bins)
@@ -254,14 +235,59 @@ def takes_fast_path(resp: PlantResponse, method: str) -> bool:
     """Whether :func:`validate` with this ``method`` takes the fast path for ``resp``.
 
     ``"fast"`` always; ``"auto"`` where the closed form does not apply and the fast path
-    covers the structure (as :func:`validate` chooses).
+    covers the structure (both ask :func:`_route`, so as :func:`validate` chooses).
     """
+    return method in METHODS and _route(resp, method).method == Method.FAST
+
+
+@dataclass(frozen=True)
+class _Route:
+    """The solver :func:`validate` runs, and why.
+
+    Attributes:
+        method: the solver: ``Method.CLOSED_FORM``, ``Method.FAST`` or ``Method.SDP`` (where
+            the request is refused, the one asked for).
+        reason: why (the start of ``ValidationResult.method_reason``); where the request is
+            refused, why it does not apply.
+        refused: empty, or what does not apply (``validate`` raises ``ModelError``).
+        structure: the decoupled structure, where the closed form runs.
+    """
+
+    method: Method
+    reason: str
+    refused: str = ""
+    structure: solvers.DecoupledStructure | None = None
+
+
+def _route(resp: PlantResponse, method: str) -> _Route:  # noqa: PLR0911 - one return per route
+    """The solver route, written once: which solver ``method`` (one of METHODS) runs on ``resp``.
+
+    ``"sdp"`` and ``"fast"`` as asked (``"fast"`` refused where it does not cover the
+    structure); ``"closed_form"`` where the structure decouples per output (else refused);
+    ``"auto"``: the closed form where it applies, else the fast path where it covers the
+    structure, else the SDP.
+    """
+    if method == Method.SDP:
+        return _Route(Method.SDP, "SDP relaxation (requested)")
     if method == Method.FAST:
-        return True
-    if method != "auto":
-        return False
-    structure, _ = solvers.decoupled_structure(resp)
-    return structure is None and fast.coverage(resp.blocks, resp.nw)[0]
+        covered, cover = fast.coverage(resp.blocks, resp.nw)
+        if not covered:
+            return _Route(Method.FAST, cover, refused="fast path does not cover")
+        return _Route(Method.FAST, f"fast batched dual (requested): {cover}")
+    structure, why = solvers.decoupled_structure(resp)
+    if method == Method.CLOSED_FORM and structure is None:
+        return _Route(Method.CLOSED_FORM, why, refused="closed form does not apply to")
+    covered, cover = fast.coverage(resp.blocks, resp.nw)
+    if structure is not None:
+        return _Route(Method.CLOSED_FORM, f"closed form: {why}", structure=structure)
+    if covered:
+        return _Route(
+            Method.FAST, f"fast batched dual: closed form not applicable ({why}); {cover}"
+        )
+    return _Route(
+        Method.SDP,
+        f"SDP relaxation: closed form not applicable ({why}); fast path not applicable ({cover})",
+    )
 
 
 def _solve_fast(

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from twotank_validation.core import fast
 from twotank_validation.core.datum import NormConvention, make_datum
-from twotank_validation.core.fast import dispatch as fast
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.validate import (
     check_compatible,

@@ -13,13 +13,13 @@ bins (the same rules and tolerances, see :mod:`twotank_validation.core.fast.disp
    forced has ``w = P22^-1 r`` (exact);
 3. otherwise ``w = w0 - P v`` (``P = P22^-1 P21``, ``w0 = P22^-1 r``) and the bin is
    ``min ||w0 - P v||^2`` s.t. ``||v_i||^2 <= ||z_i||^2``; its Lagrangian dual (at most
-   three multipliers) is maximised by the same ascent as :func:`fast._dual_ascent` (secular
+   three multipliers) is maximised by the same ascent as :func:`dual._dual_ascent` (secular
    Newton step, then the best of secular, projected Newton, Cauchy and a floored step, then
    Bertsekas' reduced step and halvings), and the rank-one witness ``Delta_i = v_i z_i^H /
    ||z_i||^2`` (clipped to norm 1) with ``w = w0 - P Delta z`` is exactly feasible.
 
 The dual value is a lower bound for any multipliers and the witness an upper bound, so a
-bin is answered here only where the two meet (:func:`fast._tight`'s test) at a well
+bin is answered here only where the two meet (:func:`dispatch._tight`'s test) at a well
 conditioned Lagrangian minimiser. Every other bin -- ``P22`` ill conditioned, a large
 ``P22^-1 P21``, an ill-conditioned output Gram matrix, no positive definite start, no
 convergence, bounds that do not meet, non-finite data -- comes back with status
@@ -119,7 +119,7 @@ def _cholesky(h: Any, scale: Any, low: Any, diag: Any) -> bool:
     """``h = L L^H`` (lower triangle of ``h`` read); False where a pivot is round-off.
 
     ``low`` gets the strictly lower factor, ``diag`` the positive diagonal; a pivot below
-    ``PIVOT_RTOL * scale[j]`` counts as singular (as ``fast._cholesky``).
+    ``PIVOT_RTOL * scale[j]`` counts as singular (as ``linalg._cholesky``).
     """
     k = h.shape[0]
     for j in range(k):
@@ -286,7 +286,7 @@ def _evaluate(
     """The dual at ``d``: Lagrangian minimiser ``t``, ``||t_i||^2`` and the dual value.
 
     ``H = P^H P + sum_i d_i E_i^T E_i``, ``t = H^-1 P^H w0``, value ``||w0 - P t||^2 + sum_i
-    d_i (||t_i||^2 - c_i)`` (the Lagrangian at its minimiser, as ``fast._VKernel``).
+    d_i (||t_i||^2 - c_i)`` (the Lagrangian at its minimiser, as ``dual._VKernel``).
     Returns ``(ok, phi)``; ``ok`` is False where ``H`` is not numerically positive definite.
     """
     k = gram.shape[0]
@@ -422,7 +422,7 @@ def _dim_compiled(x: Any) -> Callable[[Any], int]:
     return length
 
 
-# The dual ascent of one bin (the rules of fast._dual_ascent) is written out inside
+# The dual ascent of one bin (the rules of dual._dual_ascent) is written out inside
 # solve_bins' loop: a call passing its ~40 work buffers cost more than the ascent itself.
 
 
@@ -674,7 +674,7 @@ def solve_bins(
         for blk in range(m):
             dscale[blk] = mean_g if active[blk] else 0.0
         unit = max(wn2, TINY)
-        # ---- dual ascent (as fast._dual_ascent): on exit d, t, nv2, low, diag hold the
+        # ---- dual ascent (as dual._dual_ascent): on exit d, t, nv2, low, diag hold the
         # final point, ok_a says whether it is usable, its the Newton iterations
         ok_a = False
         phi = 0.0
@@ -685,7 +685,7 @@ def solve_bins(
                 d[i] = 0.0
             ok, phi = _evaluate(d, gram, gdiag, b, pm, w0, c, vst, vsp, h, sc, low, diag, t, nv2)
             found = ok
-            if not found:  # starts, as fast._starts: uniform, one block, all but one; then scaled
+            if not found:  # starts, as dual._starts: uniform, one block, all but one; then scaled
                 n_sub = 1 + (m if m > 1 else 0) + (m if m > 2 else 0)
                 for sub in range(n_sub + 1):
                     lo_s, hi_s = (0, _N_NATURAL) if sub < n_sub else (_N_NATURAL, _STARTS.size)
@@ -997,7 +997,7 @@ def solve_window(
 
     Args:
         p: (n, nz + ny, nv + nw + nu) complex, P at the bins
-            (:func:`fastrules.kernel_applies` holds).
+            (:func:`~twotank_validation.core.fast.rules.kernel_applies` holds).
         u: (n, nu) complex.
         y: (n, ny) complex.
         u_scale: largest ``||U(n)||`` of the window.

@@ -1,8 +1,9 @@
 """The rules the fast path's two implementations share.
 
 No numba here: importing the batched numpy path, or anything that validates, must not load
-the compiler. Used by :mod:`twotank_validation.core.fast.dispatch` (batched numpy) and
-:mod:`twotank_validation.core.fast.kernel` (compiled per-bin kernel); see docs/theory.md, Sec. 6.
+the compiler. Used by the batched numpy path (``linalg``, ``forms``, ``dual``, ``witness``,
+``dispatch`` of :mod:`twotank_validation.core.fast`) and :mod:`twotank_validation.core.fast.kernel`
+(compiled per-bin kernel); see docs/theory.md, Sec. 6.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ BACKTRACKS = 16
 STARTS_NATURAL = (1.0, 1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e2)
 """Starting multipliers (objective's units) tried until ``H_tt`` is positive definite."""
 STARTS_SCALED = (1.0, 0.1, 10.0, 0.01, 100.0, 1e-3)
-"""... then these, uniform in the normalised units (see ``fast._starts``)."""
+"""... then these, uniform in the normalised units (see ``dual._starts``)."""
 
 
 def kernel_applies(blocks: BlockStructure, nw: int, ny: int, *, coupled: bool) -> bool:
