@@ -224,7 +224,7 @@ class TimelineRule:
 
     Attributes:
         detect_windows: ERROR must be reached on one of the first ``detect_windows`` windows
-            that contain faulty samples (README "Stated limits": within 3 windows).
+            that contain faulty samples (docs/detection.md, "Stated limits": within 3 windows).
         settle_s: after a fault ends, windows starting before ``end + settle_s`` may still
             see it (transients of the level, time constant about 122 s; the fault's end is
             a step of its own). Windows overlapping ``[onset, end + settle_s)`` belong to
@@ -714,7 +714,7 @@ def fault_schedule(
     Each lasts ``on_h`` hours, with ``off_h`` nominal hours before the next, the first from
     ``first_onset_h``; only faults followed by ``off_h`` nominal hours before the run ends
     are kept. Onsets and ends are put half a period off the window boundaries (a sensor bias
-    starting at a boundary is invisible, README "Stated limits").
+    starting at a boundary is invisible, docs/detection.md, "Stated limits").
     """
 
     def mid_period(t_s: float) -> float:

@@ -6,7 +6,7 @@ validated and, side by side, the probabilistic residual tests of the paper's Sec
 on the same data.
 
 Defaults (chosen so that the rig stays plausible and the paper's qualitative result shows;
-see README "The paper's experiment"): the rig's unmodeled mixing is a 15 s transport delay on
+see docs/demo.md): the rig's unmodeled mixing is a 15 s transport delay on
 the measured temperature at h1 = 0.47, growing with level; sensor noise 0.003 (level) and
 0.01 (temperature) RMS, below the noise weights 0.01 and 0.03; the excitation is periodic
 low-pass (0.006 Hz) filtered noise of 0.05 RMS on the hot valve and 0.2 RMS on the cold valve

@@ -224,7 +224,7 @@ def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: Windo
 
 
 def summary_json(result: ReplayResult) -> dict[str, Any]:
-    """The documented JSON (README "Replaying bags"): times in seconds of bag time."""
+    """The documented JSON (docs/cli.md, "validate JSON"): times in seconds of bag time."""
     t0 = result.bag_start_ns
 
     def sec(ns: int) -> float:

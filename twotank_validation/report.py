@@ -280,7 +280,7 @@ def _diagnosis_markdown(diag: Diagnosis, model_file: str | None) -> str:
         f"Fit on the windows starting at {', '.join(f'{t:.0f}' for t in diag.fit_windows)} s, "
         "judged on the held-out windows at "
         f"{', '.join(f'{t:.0f}' for t in diag.heldout_windows)} s "
-        '(`twotank-validation diagnose`, README "Diagnosis").',
+        "(`twotank-validation diagnose`, docs/diagnosis.md).",
         "",
         "```",
         diagnosis_text(diag, model_file),

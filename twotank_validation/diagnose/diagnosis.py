@@ -116,7 +116,7 @@ class Diagnosis:
     nominal_after: Nominal | None = field(default=None, repr=False)
 
     def to_json(self, model_file: str | None = None) -> dict[str, Any]:
-        """The documented JSON (README "Diagnosis")."""
+        """The documented JSON (docs/cli.md, "diagnose JSON")."""
 
         def side(a: Assessment) -> dict[str, Any]:
             return a.to_dict()
