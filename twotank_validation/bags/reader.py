@@ -94,17 +94,9 @@ _REPAIR_HINT: Final = (
 
 def expected_types() -> dict[str, tuple[str, ...]]:
     """Accepted message types of the validator's default topics (names may be remapped)."""
-    from twotank_validation.online.streams import (  # noqa: PLC0415 - keeps the reader light
-        FLOW_CMD_TYPE,
-        HEIGHT_TYPE,
-        TEMPERATURE_TYPE,
-    )
+    from twotank_validation.online.streams import STREAM_TYPES  # noqa: PLC0415 - keeps the reader light
 
-    return {
-        "flow_cmd": (FLOW_CMD_TYPE,),
-        "height": (HEIGHT_TYPE,),
-        "temperature": (TEMPERATURE_TYPE,),
-    }
+    return {stream: (msgtype,) for stream, msgtype in STREAM_TYPES.items()}
 
 
 def open_bag(path: str | Path) -> BagReader:

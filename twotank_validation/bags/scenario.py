@@ -25,11 +25,7 @@ from twotank_validation.bags.writer import (
     fluid_pressure,
     temperature_msg,
 )
-from twotank_validation.online.streams import (
-    FLOW_CMD_TYPE,
-    HEIGHT_TYPE,
-    TEMPERATURE_TYPE,
-)
+from twotank_validation.online.streams import FLOW_CMD, HEIGHT, STREAM_TYPES, TEMPERATURE
 from twotank_validation.sim.scenario import Scenario, ScenarioError, iter_scenario, load_scenario
 
 __all__ = [
@@ -40,11 +36,7 @@ __all__ = [
     "write_scenario_bag",
 ]
 
-TOPICS: Final = {
-    "flow_cmd": FLOW_CMD_TYPE,
-    "height": HEIGHT_TYPE,
-    "temperature": TEMPERATURE_TYPE,
-}
+TOPICS: Final = dict(STREAM_TYPES)
 """Topics of a scenario bag and their message types (the validator's subscriptions)."""
 
 PROGRESS_MIN_SAMPLES: Final = 20_000
@@ -107,9 +99,9 @@ def write_scenario_bag(
                 for k, (stamp, hot, cold, height, temperature) in enumerate(
                     iter_scenario(scenario)
                 ):
-                    bag.write("flow_cmd", stamp, flow_command(stamp, hot, cold))
-                    bag.write("height", stamp, fluid_pressure(stamp, height, units))
-                    bag.write("temperature", stamp, temperature_msg(stamp, temperature, units))
+                    bag.write(FLOW_CMD, stamp, flow_command(stamp, hot, cold))
+                    bag.write(HEIGHT, stamp, fluid_pressure(stamp, height, units))
+                    bag.write(TEMPERATURE, stamp, temperature_msg(stamp, temperature, units))
                     if k % 1000 == 999:
                         bar.update(1000)
                 bar.update(n - bar.n)

@@ -68,7 +68,7 @@ class ExcitationNode(Node):
         self.k = 0
         flow_cls, _ = messages.message_classes()
         self._cls = flow_cls
-        self.pub = self.create_publisher(flow_cls, "flow_cmd", 100)
+        self.pub = self.create_publisher(flow_cls, itf.FLOW_CMD, 100)
         if v["self_timed"]:
             self.create_timer(float(v["ts_s"]), self.tick)
 

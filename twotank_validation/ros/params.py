@@ -13,6 +13,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from twotank_validation.errors import TwotankError
+from twotank_validation.online.streams import RigUnits
 
 
 class ParameterError(TwotankError, ValueError):
@@ -29,6 +30,35 @@ class Param:
     low: float | None = None
     high: float | None = None
     choices: tuple[str, ...] = ()
+
+
+_UNITS = RigUnits()
+
+UNIT_PARAMS: tuple[Param, ...] = (
+    Param(
+        "pascal_per_unit",
+        _UNITS.pascal_per_unit,
+        "gauge pressure (Pa) per model unit of level",
+        1e-9,
+        1e12,
+    ),
+    Param(
+        "temperature_offset_c",
+        _UNITS.temperature_offset_c,
+        "temperature (degC) of model unit 0",
+        -273.15,
+        1e4,
+    ),
+    Param(
+        "temperature_span_c",
+        _UNITS.temperature_span_c,
+        "degC per model unit of temperature",
+        1e-9,
+        1e6,
+    ),
+)
+"""The unit conversions of the interface (:class:`RigUnits`), as parameters of the nodes that
+convert: the defaults are RigUnits' own."""
 
 
 def declare(node: Node, params: Sequence[Param]) -> dict[str, Any]:

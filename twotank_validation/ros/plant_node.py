@@ -30,7 +30,7 @@ from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
 from twotank_validation.sim import faults, rig
 from twotank_validation.sim.faults import parse_fault
 
@@ -61,9 +61,7 @@ PLANT_PARAMS = (
         1e-3,
         1e6,
     ),
-    Param("pascal_per_unit", 9806.65, "gauge pressure (Pa) per model unit of level", 1e-9, 1e12),
-    Param("temperature_offset_c", 15.0, "temperature (degC) of model unit 0", -273.15, 1e4),
-    Param("temperature_span_c", 50.0, "degC per model unit of temperature", 1e-9, 1e6),
+    *UNIT_PARAMS,
 )
 
 
@@ -104,9 +102,9 @@ class PlantNode(Node):
         self.command = op.commands.copy()
         self.last_command_ns: int | None = None
         flow_cls, _ = messages.message_classes()
-        self.create_subscription(flow_cls, "flow_cmd", self._on_flow, 100)
-        self.pub_height = self.create_publisher(FluidPressure, "height", 100)
-        self.pub_temperature = self.create_publisher(Temperature, "temperature", 100)
+        self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 100)
+        self.pub_height = self.create_publisher(FluidPressure, itf.HEIGHT, 100)
+        self.pub_temperature = self.create_publisher(Temperature, itf.TEMPERATURE, 100)
         self.add_on_set_parameters_callback(self._on_params)
         self._clock_pub = None
         if v["publish_clock"]:

@@ -55,7 +55,7 @@ from twotank_validation.online import (
 )
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
 
 VALIDATOR_PARAMS = (
     Param("models", ["A", "B"], "models to validate: built-in names (A, B) or YAML file paths"),
@@ -109,9 +109,7 @@ VALIDATOR_PARAMS = (
         0.0,
         0.49,
     ),
-    Param("pascal_per_unit", 9806.65, "gauge pressure (Pa) per model unit of level", 1e-9, 1e12),
-    Param("temperature_offset_c", 15.0, "temperature (degC) of model unit 0", -273.15, 1e4),
-    Param("temperature_span_c", 50.0, "degC per model unit of temperature", 1e-9, 1e6),
+    *UNIT_PARAMS,
 )
 
 
