@@ -167,3 +167,38 @@ def test_the_package_root_imports_nothing_eagerly() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def _levels() -> str:
+    """The import graph by levels: layers and what each imports, then modules by depth."""
+    graph = {k: {d for d, _ in v} for k, v in _graph().items() if _layer(k) is not None}
+    lines = ["layers (top first) and the layers they import:"]
+    for i in range(len(LAYERS) - 1, -1, -1):
+        below = {
+            _layer(d)
+            for n, deps in graph.items()
+            if _layer(n) == i
+            for d in deps
+            if _layer(d) not in (None, i)
+        }
+        names = ", ".join(n for j in sorted(below, reverse=True) for n in LAYERS[j])
+        lines.append(f"  {' + '.join(LAYERS[i]):18s} -> {names or '(nothing in the package)'}")
+    level: dict[str, int] = {}
+
+    def depth(node: str) -> int:
+        if node not in level:
+            level[node] = 0  # a cycle would recurse forever; test_no_import_cycle forbids one
+            level[node] = 1 + max((depth(d) for d in graph[node] if d in graph), default=0)
+        return level[node]
+
+    for node in graph:
+        depth(node)
+    lines.append("modules by level (1 + the level of the deepest module each imports):")
+    for lvl in range(max(level.values()), 0, -1):
+        names = sorted(n.removeprefix(f"{PACKAGE}.") for n, v in level.items() if v == lvl)
+        lines.append(f"  level {lvl:2d}: " + ", ".join(names))
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(_levels())
