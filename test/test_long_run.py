@@ -81,6 +81,16 @@ def test_dds_records_must_equal_the_nodes_report_for_report() -> None:
     assert not lr.same_recs([*recs[:-1], recs[-1]._replace(alarm=Alarm.ERROR)], recs)
 
 
+def test_dds_records_may_interleave_models_but_keep_each_models_order() -> None:
+    # the node publishes A then B for each window; DDS orders within a topic only
+    produced = [rec(j, model=m) for j in range(1, 4) for m in ("A", "B")]
+    received = [produced[1], produced[0], *produced[2:]]  # window 1: B's report first
+    assert lr.same_recs(received, produced)
+    swapped = [produced[2], produced[1], produced[0], *produced[3:]]  # A's windows 2, 1
+    assert not lr.same_recs(swapped, produced)
+    assert not lr.same_recs([produced[0]._replace(model="B"), *produced[1:]], produced)
+
+
 def test_timeline_detects_clears_and_flags_an_alarm_that_stays() -> None:
     onset, end = 5.5 * P, 9.5 * P  # window 1 with faulty samples: j = 4 (ends at 6 P)
     spec = f"valve_weak:cold=0.6@{onset}-{end}"

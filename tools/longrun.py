@@ -102,10 +102,19 @@ def rec_of_message(msg: Any) -> Rec:
 
 
 def same_recs(a: Sequence[Rec], b: Sequence[Rec]) -> bool:
-    """Equal record lists (NaN betas compare equal)."""
+    """Equal record lists, each model's reports in the same order (NaN betas compare equal).
+
+    Each model's reports travel on a topic of their own, and DDS keeps the order within a
+    topic, not across topics: a subscriber may get window k's report of model B before that
+    of model A although the node published A first. So the lists are compared model by
+    model, in order, record for record.
+    """
     if len(a) != len(b):
         return False
-    for x, y in zip(a, b, strict=True):
+    key = [r.model for r in a]
+    order_a = sorted(range(len(a)), key=lambda i: key[i])  # stable: order within a model kept
+    order_b = sorted(range(len(b)), key=lambda i: b[i].model)
+    for x, y in zip([a[i] for i in order_a], [b[i] for i in order_b], strict=True):
         bx, by = x.beta, y.beta
         if x._replace(beta=0.0) != y._replace(beta=0.0):
             return False
