@@ -352,8 +352,10 @@ def test_diagnose_command_reports_problems(tmp_path: Path, capsys):
     scen = sc.Scenario(name="short", duration_s=204.8 * 2, mixing_delay_s=0.0)
     bag = tmp_path / "short"
     write_scenario_bag(scen, bag)
-    assert cli.main(["diagnose", str(bag), "--model", "B"]) == 2
-    assert "no judged window" in capsys.readouterr().err
+    assert cli.main(["diagnose", str(bag), "--model", "B"]) == cli.EXIT_NOT_JUDGED
+    err = capsys.readouterr().err
+    assert "no window of model B could be judged" in err
+    assert "record longer" in err  # two periods: no window plus its settling period
 
 
 def test_demo_finds_the_rigs_mixing_delay_in_model_b():

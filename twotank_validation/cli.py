@@ -17,6 +17,34 @@ from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import WindowReport
 
+EXIT_OK = 0
+"""The command ran and judged what it was asked to judge."""
+EXIT_ERROR = 2
+"""Bad arguments or a file that cannot be used (the message says what to change)."""
+EXIT_INCOMPLETE = 3
+"""The recording could not be read completely (a topic missing or of the wrong type, damage)."""
+EXIT_NOT_JUDGED = 4
+"""No window of a model could be judged: nothing was validated (the message says why)."""
+
+EXIT_CODES = f"""exit codes: {EXIT_OK} done; {EXIT_ERROR} bad arguments or unusable input \
+(ERROR: says what to change); {EXIT_INCOMPLETE} the recording was not read completely \
+(WARNING: says what was missing); {EXIT_NOT_JUDGED} no window of a model could be judged \
+(ERROR: says why and the likely fix)."""
+
+
+def _out(*parts: object) -> None:
+    """Print to stdout; a reader that went away (``| head``) ends the printing quietly.
+
+    The command goes on (its JSON and report files are still written); only what would have
+    been printed is dropped.
+    """
+    try:
+        print(*parts, flush=True)
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # later prints and the exit flush go nowhere
+        os.close(devnull)
+
 
 def _progress_factory(enabled: bool) -> Callable[[str, int], Callable[[int], None]] | None:
     if not enabled:
@@ -124,9 +152,6 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
     }
 
 
-EXIT_INCOMPLETE = 3
-
-
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from twotank_validation.bags.scenario import simulate_command  # noqa: PLC0415
 
@@ -149,7 +174,7 @@ def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
     return topics
 
 
-def _replay_config(args: argparse.Namespace) -> object:
+def _replay_config(args: argparse.Namespace, ts_s: float, period_samples: int) -> object:
     """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
     from twotank_validation import replay  # noqa: PLC0415
     from twotank_validation.online import AlarmConfig, MonitorConfig  # noqa: PLC0415
@@ -158,8 +183,8 @@ def _replay_config(args: argparse.Namespace) -> object:
     try:
         return replay.ReplayConfig(
             monitor=MonitorConfig(
-                ts_s=args.ts,
-                period_samples=args.period,
+                ts_s=ts_s,
+                period_samples=period_samples,
                 periods_per_window=args.periods_per_window,
                 settle_periods=args.settle_periods,
                 convention=NormConvention(args.norm),
@@ -174,13 +199,32 @@ def _replay_config(args: argparse.Namespace) -> object:
         raise UsageError(str(err)) from err
 
 
+def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
+    """The replay config with the sample and excitation periods resolved, and the timing.
+
+    ``--ts``/``--period`` win; else the bag's metadata, else what the data show
+    (``replay.resolve_timing``). What was taken is said on stderr, contradictions as warnings.
+    """
+    from twotank_validation import replay  # noqa: PLC0415
+
+    base = _replay_config(args, args.ts or TS_S, args.period or PERIOD_SAMPLES)
+    assert isinstance(base, replay.ReplayConfig)
+    timing = replay.resolve_timing(args.bag, base, ts_s=args.ts, period_samples=args.period)
+    for note in timing.notes:
+        print(f"note: {note}", file=sys.stderr)
+    for conflict in timing.conflicts:
+        print(f"WARNING: {conflict}", file=sys.stderr)
+    return _replay_config(args, timing.ts_s, timing.period_samples), timing
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     from twotank_validation import replay, report  # noqa: PLC0415
     from twotank_validation.core.model import load_model  # noqa: PLC0415
 
     models = [load_model(m) for m in (args.model or ["A", "B"])]
-    cfg = _replay_config(args)
+    cfg, timing = _timed_config(args)
     assert isinstance(cfg, replay.ReplayConfig)
+    assert isinstance(timing, replay.Timing)
     bar = None
     if not args.quiet:
         bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5, disable=None)
@@ -195,7 +239,20 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     if bar is not None:
         bar.close()
     summary = replay.summary_json(result)
-    print(f"{'window (s)':>21}  {'model':<6} {'beta':>7}  {'verdict':<12} alarm")
+    summary["timing"] = timing.to_json()
+    for name in (m.name for m in models):  # a model with no window at all is listed too
+        summary["models"].setdefault(
+            name,
+            {
+                "windows": [],
+                "beta_max": None,
+                "first_alarm": None,
+                "judged": 0,
+                "not_judged": 0,
+                "not_judged_reasons": {},
+            },
+        )
+    _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7}  {'verdict':<12} alarm")
     for name, entry in summary["models"].items():
         for w in entry["windows"]:
             verdict = (
@@ -205,14 +262,17 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             )
             beta = f"{w['beta']:7.3f}" if w["beta"] is not None else "      -"
             extra = f"  ({w['reason']})" if w["reason"] else ""
-            print(
+            _out(
                 f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<12} "
                 f"{w['alarm']}{extra}"
             )
     for name, entry in summary["models"].items():
         bmax = "-" if entry["beta_max"] is None else f"{entry['beta_max']:.3f}"
         first = "none" if entry["first_alarm"] is None else f"{entry['first_alarm']:.1f} s"
-        print(f"model {name}: beta_max {bmax}, first alarm {first}")
+        _out(
+            f"model {name}: {entry['judged']} of {entry['judged'] + entry['not_judged']} "
+            f"window(s) judged, beta_max {bmax}, first alarm {first}"
+        )
     for problem in result.problems:
         print(f"WARNING: {problem}", file=sys.stderr)
     if args.json:
@@ -225,7 +285,24 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         + ("complete" if result.complete else "INCOMPLETE"),
         file=sys.stderr,
     )
-    return 0 if result.complete else EXIT_INCOMPLETE
+    return _exit_code(result.complete, replay.unjudged_models(summary, timing, cfg), timing)
+
+
+def _exit_code(complete: bool, unjudged: Sequence[str], timing: object) -> int:
+    """EXIT_NOT_JUDGED (with the reasons) if a model had no judged window, else 0 or 3."""
+    from twotank_validation import replay  # noqa: PLC0415
+
+    for line in unjudged:
+        print(f"ERROR: {line}", file=sys.stderr)
+    if unjudged:
+        assert isinstance(timing, replay.Timing)
+        print(
+            f"ERROR: judged with ts {timing.ts_s:.9g} s ({timing.ts_from}) and period "
+            f"{timing.period_samples} samples ({timing.period_from})",
+            file=sys.stderr,
+        )
+        return EXIT_NOT_JUDGED
+    return EXIT_OK if complete else EXIT_INCOMPLETE
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
@@ -237,12 +314,19 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
     doc, source = load_model_document(args.model)
     model = model_from_dict(doc, source)
-    cfg = _replay_config(args)
+    cfg, timing = _timed_config(args)
     assert isinstance(cfg, replay.ReplayConfig)
+    assert isinstance(timing, replay.Timing)
     windows, replayed = replay.windows_from_bag(args.bag, model, cfg)
     for problem in replayed.problems:
         print(f"WARNING: {problem}", file=sys.stderr)
-    print(f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}")
+    summary = replay.summary_json(replayed)
+    summary["models"].setdefault(
+        model.name, {"judged": 0, "not_judged": 0, "not_judged_reasons": {}}
+    )
+    if unjudged := replay.unjudged_models(summary, timing, cfg):
+        return _exit_code(replayed.complete, unjudged, timing)
+    _out(f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}")
     diag = dg.diagnose(
         windows,
         doc,
@@ -258,13 +342,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         )
         model_file = str(args.out_model)
     out = diag.to_json(model_file)
-    print(report.diagnosis_text(diag, model_file))
+    out["timing"] = timing.to_json()
+    _out(report.diagnosis_text(diag, model_file))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2))
     if args.report:
         report.write_diagnosis_report(diag, Path(args.report))
-        print(f"figures in {args.report}")
-    return 0 if replayed.complete else EXIT_INCOMPLETE
+        _out(f"figures in {args.report}")
+    return EXIT_OK if replayed.complete else EXIT_INCOMPLETE
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -287,26 +372,36 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="twotank-validation",
         description="Frequency-domain validation of robust-control models (Smith 1995).",
+        epilog=EXIT_CODES,
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    fmt = argparse.ArgumentDefaultsHelpFormatter  # every option's help shows its default
     demo = sub.add_parser(
-        "demo", help="reproduce the paper's Model A / Model B experiment in simulation"
+        "demo",
+        help="reproduce the paper's Model A / Model B experiment in simulation",
+        formatter_class=fmt,
+        epilog=EXIT_CODES,
     )
-    demo.add_argument("--out", default="report", help="report folder (default: ./report)")
-    demo.add_argument("--norm", choices=[c.value for c in NormConvention], default="power")
-    demo.add_argument("--seed", type=int, default=None, help="excitation and noise seed")
+    demo.add_argument("--out", default="report", help="report folder")
+    demo.add_argument(
+        "--norm", choices=[c.value for c in NormConvention], default="power", help="norm of w"
+    )
+    demo.add_argument(
+        "--seed", type=int, default=None, help="excitation and noise seed (default: the paper's)"
+    )
     demo.add_argument("--no-sdp", action="store_true", help="skip the general SDP cross-check")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
     demo.set_defaults(func=_cmd_demo)
     live = sub.add_parser(
-        "live", help="plant, excitation and validator nodes in one process on a simulated clock"
+        "live",
+        help="plant, excitation and validator nodes in one process on a simulated clock",
+        formatter_class=fmt,
+        epilog=EXIT_CODES,
     )
+    live.add_argument("--duration", type=float, default=3000.0, help="simulated seconds")
+    live.add_argument("--ts", type=float, default=TS_S, help="sample period (s)")
     live.add_argument(
-        "--duration", type=float, default=3000.0, help="simulated seconds (default 3000)"
-    )
-    live.add_argument("--ts", type=float, default=TS_S, help=f"sample period in s (default {TS_S})")
-    live.add_argument(
-        "--period", type=int, default=PERIOD_SAMPLES, help="excitation period in samples"
+        "--period", type=int, default=PERIOD_SAMPLES, help="excitation period (samples)"
     )
     live.add_argument(
         "--model", action="append", help="model name or YAML path (repeat; default A and B)"
@@ -316,27 +411,40 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--json", action="store_true", help="one JSON object per report")
     live.set_defaults(func=_cmd_live)
 
-    sim = sub.add_parser("simulate", help="simulate a scenario of the rig into a rosbag2 bag")
+    sim = sub.add_parser(
+        "simulate",
+        help="simulate a scenario of the rig into a rosbag2 bag",
+        formatter_class=fmt,
+        epilog=EXIT_CODES,
+    )
     sim.add_argument(
         "--scenario", required=True, help="scenario YAML file or shipped name (e.g. nominal, leak)"
     )
     sim.add_argument("--out", required=True, help="bag to write (must not exist)")
-    sim.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    sim.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage")
     sim.set_defaults(func=_cmd_simulate)
 
-    rec = sub.add_parser("record", help="record the interface topics of a live system into a bag")
+    rec = sub.add_parser(
+        "record",
+        help="record the interface topics of a live system into a bag",
+        formatter_class=fmt,
+        epilog=EXIT_CODES,
+    )
     rec.add_argument("--out", required=True, help="bag to write (must not exist)")
     rec.add_argument(
-        "--duration", type=float, default=None, help="seconds (ROS time); default: until Ctrl-C"
+        "--duration", type=float, default=None, help="seconds (ROS time); None: until Ctrl-C"
     )
-    rec.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    rec.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage")
     rec.add_argument(
         "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
     )
     rec.set_defaults(func=_cmd_record)
 
     val = sub.add_parser(
-        "validate", help="validate recorded bags through the live validator's code"
+        "validate",
+        help="validate recorded bags through the live validator's code",
+        formatter_class=fmt,
+        epilog=EXIT_CODES,
     )
     val.add_argument("bag", help="rosbag2 directory (MCAP or SQLite3) or a plain .mcap file")
     val.add_argument(
@@ -350,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     dia = sub.add_parser(
         "diagnose",
         help="trace a model's residual on a bag to the effect it lacks, add it, compare",
+        formatter_class=fmt,
+        epilog=EXIT_CODES,
     )
     dia.add_argument("bag", help="rosbag2 directory (MCAP or SQLite3) or a plain .mcap file")
     dia.add_argument("--model", required=True, help="model name (A, B) or YAML path")
@@ -357,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--report", help="write the evidence figures to this folder")
     dia.add_argument("--out-model", help="write the changed model (YAML) to this file")
     dia.add_argument(
-        "--max-effects", type=int, choices=[0, 1, 2], default=2, help="effects combined (<= 2)"
+        "--max-effects", type=int, choices=[0, 1, 2], default=2, help="effects combined"
     )
     _add_bag_options(dia)
     dia.set_defaults(func=_cmd_diagnose)
@@ -366,23 +476,50 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_bag_options(val: argparse.ArgumentParser) -> None:
     """Topic, unit and window options shared by ``validate`` and ``diagnose``."""
+    from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
+
+    units = RigUnits()
     val.add_argument(
         "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
     )
-    val.add_argument("--ts", type=float, default=TS_S, help="sample period of the recording (s)")
     val.add_argument(
-        "--period", type=int, default=PERIOD_SAMPLES, help="excitation period (samples)"
-    )
-    val.add_argument("--periods-per-window", type=int, default=2)
-    val.add_argument("--settle-periods", type=int, default=1)
-    val.add_argument("--norm", choices=[c.value for c in NormConvention], default="power")
-    val.add_argument(
-        "--pascal-per-unit", type=float, default=9806.65, help="level: Pa per model unit"
+        "--ts",
+        type=float,
+        default=None,
+        help="sample period of the recording (s); None: from the bag's metadata, else "
+        "inferred from the command stamps (said on stderr)",
     )
     val.add_argument(
-        "--temperature-offset-c", type=float, default=15.0, help="degC of model unit 0"
+        "--period",
+        type=int,
+        default=None,
+        help="excitation period (samples); None: from the bag's metadata, else inferred "
+        "from the commands' repetition (said on stderr)",
     )
-    val.add_argument("--temperature-span-c", type=float, default=50.0, help="degC per model unit")
+    val.add_argument(
+        "--periods-per-window", type=int, default=2, help="excitation periods per window"
+    )
+    val.add_argument(
+        "--settle-periods", type=int, default=1, help="periods of settled input before a window"
+    )
+    val.add_argument(
+        "--norm", choices=[c.value for c in NormConvention], default="power", help="norm of w"
+    )
+    val.add_argument(
+        "--pascal-per-unit", type=float, default=units.pascal_per_unit, help="Pa per level unit"
+    )
+    val.add_argument(
+        "--temperature-offset-c",
+        type=float,
+        default=units.temperature_offset_c,
+        help="degC of model unit 0",
+    )
+    val.add_argument(
+        "--temperature-span-c",
+        type=float,
+        default=units.temperature_span_c,
+        help="degC per model unit",
+    )
     val.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -393,7 +530,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except TwotankError as err:
         print(f"ERROR: {err}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
 
 
 if __name__ == "__main__":

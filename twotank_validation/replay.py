@@ -19,7 +19,9 @@ with anything irregular). A one-hour 10 Hz bag replays for two models in well un
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import json
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -31,10 +33,17 @@ import numpy as np
 
 import twotank_validation.bags as bag_reader
 from twotank_validation.core.model import LFTModel
-from twotank_validation.defaults import NS_PER_S
+from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.diagnose import Window
+from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
+from twotank_validation.online.infer import (
+    MIN_PERIOD_SAMPLES,
+    grid_samples,
+    infer_excitation_period,
+    infer_sample_period,
+)
 from twotank_validation.online.streams import STREAM_KINDS, STREAMS
 
 
@@ -53,6 +62,25 @@ class ReplayConfig:
     topics: Mapping[str, str] = field(default_factory=lambda: {s: s for s in STREAMS})
     units: itf.RigUnits = field(default_factory=itf.RigUnits)
     jitter_fraction: float = 0.25
+
+    def __post_init__(self) -> None:
+        if set(self.topics) != set(STREAMS):
+            raise ReplayConfigError(
+                f"topics must name a topic for each of the streams {list(STREAMS)}, "
+                f"found {sorted(self.topics)}"
+            )
+        shared = {t for t in self.topics.values() if list(self.topics.values()).count(t) > 1}
+        if shared:
+            streams = [s for s in STREAMS if self.topics[s] in shared]
+            raise ReplayConfigError(
+                f"the streams {streams} are all mapped to the topic(s) {sorted(shared)}; each "
+                "stream is read from a topic of its own type: map each to its own topic "
+                "(--topic STREAM=TOPIC)"
+            )
+
+
+class ReplayConfigError(TwotankError, ValueError):
+    """A replay setting cannot be used as given (the message says what to change)."""
 
 
 @dataclass(frozen=True)
@@ -232,7 +260,23 @@ def summary_json(result: ReplayResult) -> dict[str, Any]:
 
     models: dict[str, Any] = {}
     for rep in result.reports:
-        entry = models.setdefault(rep.model, {"windows": [], "beta_max": None, "first_alarm": None})
+        entry = models.setdefault(
+            rep.model,
+            {
+                "windows": [],
+                "beta_max": None,
+                "first_alarm": None,
+                "judged": 0,
+                "not_judged": 0,
+                "not_judged_reasons": {},
+            },
+        )
+        if rep.judged:
+            entry["judged"] += 1
+        else:
+            entry["not_judged"] += 1
+            why = reason_category(rep.data_quality)
+            entry["not_judged_reasons"][why] = entry["not_judged_reasons"].get(why, 0) + 1
         entry["windows"].append(
             {
                 "start": sec(rep.start_ns),
@@ -260,6 +304,287 @@ def summary_json(result: ReplayResult) -> dict[str, Any]:
         "counters": dict(result.counters),
         "models": models,
     }
+
+
+def reason_category(quality: str) -> str:
+    """The kind of reason a window was not judged, for counting (its text up to the details).
+
+    ``"3 unusable sample(s) in the window ...; first: gap: no height sample at t = ..."`` is
+    ``"unusable samples (gap)"``; ``"settling: 1 period(s) ..."`` is ``"settling"``.
+    """
+    if "unusable sample" in quality:
+        first = quality.partition("first: ")[2]
+        kind = next((k for key, k in _FLAG_KINDS if key in first), "flagged")
+        return f"unusable samples ({kind})"
+    return quality.partition(":")[0].strip()
+
+
+_FLAG_KINDS = (
+    ("gap", "gap"),
+    ("off the sample grid", "off grid"),
+    ("non-finite valve", "no command"),
+    ("no valid valve command", "no command"),
+    ("non-finite", "non-finite"),
+    ("implausible", "non-finite"),
+)
+"""Words of the aligner's sample flags -> the kind counted in ``not_judged_reasons``."""
+
+
+@dataclass(frozen=True)
+class Timing:
+    """The sample and excitation periods a replay uses, where they came from, and doubts.
+
+    Attributes:
+        ts_s: sample period (s).
+        period_samples: excitation period (samples).
+        ts_from: ``"option"``, ``"bag metadata"``, ``"command stamps"`` or ``"default"``.
+        period_from: ``"option"``, ``"bag metadata"``, ``"commands"`` or ``"default"``.
+        data_ts_s: the grid the command stamps lie on (s), None if not inferred.
+        data_period_samples: the shift under which the commands repeat, None if they do not
+            repeat in the record (or were not read).
+        notes: what was taken or inferred, and why, in words.
+        conflicts: options or metadata that the data contradict, with the value the data
+            suggest (``"stamps lie on a 0.5 s grid: pass --ts 0.5"``).
+    """
+
+    ts_s: float
+    period_samples: int
+    ts_from: str
+    period_from: str
+    data_ts_s: float | None = None
+    data_period_samples: int | None = None
+    notes: tuple[str, ...] = ()
+    conflicts: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON form (``timing`` in the validate and diagnose JSON)."""
+        return dataclasses.asdict(self) | {
+            "notes": list(self.notes),
+            "conflicts": list(self.conflicts),
+        }
+
+
+def _metadata_timing(custom: Mapping[str, str]) -> tuple[float | None, int | None]:
+    """ts_s and period_samples from a bag's custom_data (a scenario's, or plain keys)."""
+    from twotank_validation.bags.scenario import CUSTOM_DATA_KEY  # noqa: PLC0415
+
+    doc: dict[str, Any] = {}
+    if CUSTOM_DATA_KEY in custom:
+        try:
+            loaded = json.loads(custom[CUSTOM_DATA_KEY])
+        except ValueError:
+            loaded = None
+        doc = loaded if isinstance(loaded, dict) else {}
+    doc = {k: custom[k] for k in ("ts_s", "period_samples") if k in custom} | doc
+    ts = period = None
+    with contextlib.suppress(TypeError, ValueError):
+        ts = float(doc["ts_s"]) if "ts_s" in doc else None
+    with contextlib.suppress(TypeError, ValueError):
+        period = int(doc["period_samples"]) if "period_samples" in doc else None
+    ts = ts if ts is not None and math.isfinite(ts) and ts > 0 else None
+    period = period if period is not None and period >= MIN_PERIOD_SAMPLES else None
+    return ts, period
+
+
+def _command_record(bag: bag_reader.BagReader, topic: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """Stamps (n,) ns and values (n, 2) of the command topic, None if it cannot be read."""
+    if not _usable(bag, topic, bag_reader.expected_types()[itf.FLOW_CMD]):
+        return None
+    stamps, values = [], []
+    fields = {topic: itf.STREAM_FIELDS[itf.FLOW_CMD]}
+    with contextlib.suppress(bag_reader.BagCorruptError):  # what was read still counts
+        for batch in bag.field_batches([topic], fields, size=_BATCH):
+            stamps.append(batch.stamp_ns)
+            values.append(batch.values[:, :2])
+    if not stamps:
+        return None
+    return np.concatenate(stamps), np.concatenate(values)
+
+
+def _fmt_s(x: float) -> str:
+    return f"{x:.9g}"
+
+
+def resolve_timing(
+    path: str | Path,
+    config: ReplayConfig | None = None,
+    *,
+    ts_s: float | None = None,
+    period_samples: int | None = None,
+) -> Timing:
+    """Choose the sample and excitation periods of a bag: option, else metadata, else data.
+
+    An explicit value (``ts_s``, ``period_samples``) always wins; where the bag's metadata
+    or the command stream contradicts it, :attr:`Timing.conflicts` says so with the value
+    the data suggest. Without one, the bag's metadata (a scenario bag's, or ``ts_s`` and
+    ``period_samples`` in its custom_data) are used, else the grid of the command stamps
+    (:func:`~twotank_validation.online.infer.infer_sample_period`) and the shift under
+    which the commands repeat (:func:`~twotank_validation.online.infer.
+    infer_excitation_period`), else the defaults.
+
+    Args:
+        path: the bag.
+        config: topics (the command topic is read) and the window gate's tolerance.
+        ts_s: sample period given by the user (s), or None.
+        period_samples: excitation period given by the user (samples), or None.
+
+    Raises:
+        BagError subclasses: the path is not a readable bag.
+    """
+    cfg = config or ReplayConfig()
+    with bag_reader.open_bag(path) as bag:
+        meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
+        record = _command_record(bag, cfg.topics[itf.FLOW_CMD])
+    notes: list[str] = []
+    conflicts: list[str] = []
+    grid = infer_sample_period(record[0]) if record is not None else None
+    data_ts = grid.ts_s if grid is not None and grid.on_grid >= 0.5 else None
+
+    def differs(a: float, b: float) -> bool:
+        return abs(a - b) > 0.01 * b
+
+    if ts_s is not None:
+        ts, ts_from = ts_s, "option"
+        if data_ts is not None and differs(ts_s, data_ts):
+            conflicts.append(
+                f"--ts {_fmt_s(ts_s)} does not fit the data: the command stamps lie on a "
+                f"{_fmt_s(data_ts)} s grid: pass --ts {_fmt_s(data_ts)}"
+            )
+    elif meta_ts is not None:
+        ts, ts_from = meta_ts, "bag metadata"
+        notes.append(f"sample period {_fmt_s(ts)} s from the bag's metadata")
+        if data_ts is not None and differs(meta_ts, data_ts):
+            conflicts.append(
+                f"the bag's metadata say ts {_fmt_s(meta_ts)} s but the command stamps lie on "
+                f"a {_fmt_s(data_ts)} s grid: pass --ts {_fmt_s(data_ts)} if the stamps are right"
+            )
+    elif data_ts is not None and grid is not None:
+        ts, ts_from = data_ts, "command stamps"
+        notes.append(
+            f"sample period {_fmt_s(ts)} s inferred from the command stamps "
+            f"({grid.n_stamps} stamps, {100 * grid.on_grid:.1f} % one step apart, "
+            f"{grid.steps_missing} step(s) without a message); --ts overrides"
+        )
+    else:
+        ts, ts_from = TS_S, "default"
+        notes.append(
+            f"sample period {_fmt_s(ts)} s (the default): no --ts, no metadata, and the "
+            "command stamps show no grid; pass --ts"
+        )
+    # the commands' repetition on their own grid, in samples of that grid and in seconds
+    data_period = None
+    grid_ts = data_ts if data_ts is not None else ts
+    if record is not None:
+        u = grid_samples(record[0], record[1], grid_ts)
+        data_period = infer_excitation_period(u, cfg.monitor.input_periodic_rtol)
+
+    def period_doubt(given: int, what: str) -> str | None:
+        if data_period is None or abs(given * ts - data_period * grid_ts) <= 0.5 * grid_ts:
+            return None
+        seen = f"the commands repeat every {_fmt_s(data_period * grid_ts)} s"
+        if grid_ts != ts:
+            seen += f" ({data_period} samples of {_fmt_s(grid_ts)} s)"
+        return (
+            f"{what} {given} ({_fmt_s(given * ts)} s at ts {_fmt_s(ts)} s) does not fit the "
+            f"data: {seen}: pass --period {data_period}"
+            + (f" with --ts {_fmt_s(grid_ts)}" if grid_ts != ts else "")
+        )
+
+    if period_samples is not None:
+        period, period_from = period_samples, "option"
+        if doubt := period_doubt(period_samples, "--period"):
+            conflicts.append(doubt)
+    elif meta_period is not None:
+        period, period_from = meta_period, "bag metadata"
+        notes.append(f"excitation period {period} samples from the bag's metadata")
+        if doubt := period_doubt(meta_period, "the bag's metadata period"):
+            conflicts.append(doubt)
+    elif data_period is not None and grid_ts == ts:
+        period, period_from = data_period, "commands"
+        notes.append(
+            f"excitation period {period} samples ({_fmt_s(period * ts)} s) inferred from the "
+            "commands (the smallest shift under which they repeat); --period overrides"
+        )
+    else:
+        period, period_from = PERIOD_SAMPLES, "default"
+        notes.append(
+            f"excitation period {period} samples (the default): no --period, no metadata, and "
+            "the commands do not repeat within the recording; pass --period"
+        )
+    return Timing(
+        ts_s=ts,
+        period_samples=period,
+        ts_from=ts_from,
+        period_from=period_from,
+        data_ts_s=data_ts,
+        data_period_samples=data_period,
+        notes=tuple(notes),
+        conflicts=tuple(conflicts),
+    )
+
+
+_FIXES: dict[str, str] = {
+    "settling": (
+        "the recording holds too few whole periods for the settling and window periods: "
+        "record longer, or check --period"
+    ),
+    "input not periodic": (
+        "the commands do not repeat every --period samples: pass the excitation period (--period)"
+    ),
+    "too little excitation": (
+        "the inputs hardly move: check the command topic (--topic flow_cmd=...) and that the "
+        "excitation was on"
+    ),
+    "unusable samples (gap)": (
+        "samples are missing on the sample grid: check --ts and that every topic was recorded"
+    ),
+    "unusable samples (non-finite)": (
+        "the data hold non-finite or implausible values: check the topics and their units"
+    ),
+    "unusable samples (off grid)": (
+        "stamps fall between the samples of the grid: check --ts (the command stamps' grid)"
+    ),
+    "unusable samples (no command)": "no valid valve command: check the command topic",
+}
+
+
+def unjudged_models(
+    summary: Mapping[str, Any],
+    timing: Timing | None = None,
+    config: ReplayConfig | None = None,
+) -> list[str]:
+    """One line per model of which no window could be judged: the main reason and the fix.
+
+    Args:
+        summary: :func:`summary_json` of the replay (models without any window listed too).
+        timing: the timing used (adds what the data suggest to the fix), or None.
+        config: the replay settings (to say how long a recording one window needs).
+    """
+    out = []
+    hints = list(timing.conflicts) if timing is not None else []
+    for name, entry in summary["models"].items():
+        if entry["judged"]:
+            continue
+        reasons = entry["not_judged_reasons"]
+        if reasons:
+            main = max(reasons, key=reasons.get)
+            why = f"{main} ({reasons[main]} of {entry['not_judged']} window(s))"
+            fix = _FIXES.get(main, "see each window's reason in the JSON")
+        elif summary["problems"]:
+            why, fix = "no window was formed", summary["problems"][0]
+        else:
+            why = "the recording holds no whole window"
+            fix = "record longer"
+            if config is not None:
+                mon = config.monitor
+                need = (mon.settle_periods + mon.periods_per_window) * mon.period_samples
+                fix = (
+                    f"one window needs {need} samples ({_fmt_s(need * mon.ts_s)} s: "
+                    f"{mon.settle_periods} settling + {mon.periods_per_window} window periods "
+                    f"of {mon.period_samples}): record longer or check --period"
+                )
+        out.append(f"no window of model {name} could be judged: {why}; " + "; ".join([fix, *hints]))
+    return out
 
 
 def windows_from_bag(

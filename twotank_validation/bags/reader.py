@@ -150,6 +150,21 @@ def _load_metadata(bagdir: Path) -> dict[str, Any]:
     return info
 
 
+def _custom_data(shown: Path) -> dict[str, str]:
+    """The ``custom_data`` strings of the metadata.yaml beside or in ``shown`` ({} if none)."""
+    bagdir = shown if shown.is_dir() else shown.parent
+    if not (bagdir / "metadata.yaml").is_file():
+        return {}
+    try:
+        info = _load_metadata(bagdir)
+    except BagFormatError:
+        return {}  # a broken metadata.yaml: the bag is read without it (see info.damage)
+    data = info.get("custom_data")
+    if not isinstance(data, Mapping):
+        return {}
+    return {str(k): v for k, v in data.items() if isinstance(v, str)}
+
+
 def _bag_files(bagdir: Path, info: Mapping[str, Any]) -> list[Path]:
     return [bagdir / PurePath(x).name for x in info["relative_file_paths"]]
 
@@ -334,6 +349,7 @@ class BagReader:
             start_ns=b.start_ns,
             end_ns=b.end_ns,
             damage=b.damage,
+            custom_data=_custom_data(Path(b.shown)),
         )
 
     # -- context manager

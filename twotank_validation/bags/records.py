@@ -8,7 +8,7 @@ reduced to their stamps and float fields); ``_norm_type`` (ROS 1 style type name
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
@@ -92,6 +92,8 @@ class BagInfo:
         end_ns: log time of the last message (ns), None if there is none.
         damage: None for a healthy bag; else what was found at open (the index could not be
             read, the file is truncated at byte N, ...) and how the bag is read instead.
+        custom_data: the ``custom_data`` strings of a rosbag2 bag's metadata.yaml (empty for
+            a plain MCAP file or an unreadable metadata.yaml).
     """
 
     path: Path
@@ -101,6 +103,7 @@ class BagInfo:
     start_ns: int | None
     end_ns: int | None
     damage: str | None = None
+    custom_data: dict[str, str] = field(default_factory=dict)
 
 
 def _norm_type(name: str) -> str:

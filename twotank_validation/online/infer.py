@@ -1,0 +1,163 @@
+"""Timing of a recording inferred from its data: the sample period and the excitation period.
+
+A user who replays a recording without ``--ts``/``--period`` gets the values the data show,
+said out loud; one who passes them gets a warning where the data contradict them. Both
+functions are pure and take plain arrays:
+
+* :func:`infer_sample_period`: the command stamps' grid. The spacing of most consecutive
+  stamps (their median) gives the grid roughly and so the number of steps in each gap; the
+  whole span divided by the number of steps gives it to the nanosecond, whatever messages
+  were lost on the way.
+* :func:`infer_excitation_period`: the smallest shift under which the commands repeat, from
+  the excitation's first sample on. Every shift's mean squared difference is computed at once
+  with FFT correlations (masked for lost samples); the few shifts that come out near zero are
+  then checked sample by sample to the window gate's own tolerance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twotank_validation.defaults import NS_PER_S
+
+MIN_PERIOD_SAMPLES = 4
+"""Shortest excitation period considered (samples); the monitor needs at least 4."""
+
+_ON_GRID = 0.25
+"""A stamp spacing within this fraction of the grid step counts as one step."""
+
+_CANDIDATE_RTOL = 1e-8
+"""Shifts whose mean squared difference is below this fraction of the variance are checked."""
+
+
+@dataclass(frozen=True)
+class SamplePeriod:
+    """The sample grid the stamps lie on.
+
+    Attributes:
+        ts_s: grid step (s), to the nanosecond.
+        on_grid: fraction of consecutive stamp spacings that are one step (within 25 %).
+        steps_missing: grid steps in the span with no stamp (lost messages).
+        n_stamps: distinct stamps used.
+    """
+
+    ts_s: float
+    on_grid: float
+    steps_missing: int
+    n_stamps: int
+
+
+def infer_sample_period(stamps_ns: np.ndarray) -> SamplePeriod | None:
+    """Infer the sample period from message stamps.
+
+    Args:
+        stamps_ns: (n,) int, stamps in nanoseconds (any order; repeats are dropped).
+
+    Returns:
+        The grid, or None when fewer than 3 distinct stamps are given.
+    """
+    t = np.unique(np.asarray(stamps_ns, dtype=np.int64))
+    if len(t) < 3:
+        return None
+    d = np.diff(t)
+    step0 = float(np.median(d))
+    span = int(t[-1] - t[0])
+    # each gap counted in whole steps on its own, so that a rough step0 cannot miscount a
+    # long span (an error of 0.1 % would lose 5 steps in 5000)
+    steps = max(1, int(np.sum(np.maximum(np.rint(d / step0), 1))))
+    ts_ns = round(span / steps)
+    on_grid = float(np.mean(np.abs(d - ts_ns) <= _ON_GRID * ts_ns))
+    return SamplePeriod(
+        ts_s=ts_ns / NS_PER_S,
+        on_grid=on_grid,
+        steps_missing=max(0, steps + 1 - len(t)),
+        n_stamps=len(t),
+    )
+
+
+def grid_samples(stamps_ns: np.ndarray, values: np.ndarray, ts_s: float) -> np.ndarray:
+    """Put stamped values on the sample grid of step ``ts_s``, NaN where none arrived.
+
+    Args:
+        stamps_ns: (n,) int, stamps in nanoseconds.
+        values: (n, m) float, the values at those stamps.
+        ts_s: grid step (s).
+
+    Returns:
+        (k, m) float, one row per grid step from the first stamp to the last (a repeated
+        step keeps its last value).
+    """
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    vals = np.asarray(values, dtype=float).reshape(len(stamps), -1)
+    if len(stamps) == 0:
+        return np.empty((0, vals.shape[1]))
+    ts_ns = round(ts_s * NS_PER_S)
+    idx = np.rint((stamps - stamps.min()) / ts_ns).astype(np.int64)
+    out = np.full((int(idx.max()) + 1, vals.shape[1]), np.nan)
+    out[idx] = vals
+    return out
+
+
+def _correlate(a: np.ndarray, b: np.ndarray, n_fft: int) -> np.ndarray:
+    """``c[p] = sum_k a[k] b[k + p]`` for every shift ``p >= 0`` (columns summed)."""
+    fa = np.fft.rfft(a, n_fft, axis=0)
+    fb = np.fft.rfft(b, n_fft, axis=0)
+    return np.fft.irfft(np.conj(fa) * fb, n_fft, axis=0)[: len(a)].sum(axis=1)
+
+
+def infer_excitation_period(u: np.ndarray, rtol: float = 1e-6) -> int | None:
+    """The smallest shift (samples) under which the commands repeat.
+
+    Only the part from the excitation's start on is used: the first sample that differs from
+    the first row (a record that starts with the inputs held still), or the whole record. A
+    shift counts when, over every pair of samples it lines up (both present), no input
+    changes by more than ``rtol`` times its RMS, and at least one whole period is compared.
+
+    Args:
+        u: (n, m) float, commands on the sample grid (NaN: not received).
+        rtol: tolerance relative to each input's RMS (the window gate's
+            ``input_periodic_rtol``).
+
+    Returns:
+        The period in samples, or None when the commands do not repeat within the record.
+    """
+    x = np.asarray(u, dtype=float)
+    x = x.reshape(len(x), -1)
+    ok_rows = np.all(np.isfinite(x), axis=1)
+    if not np.any(ok_rows):
+        return None
+    first = x[np.argmax(ok_rows)]
+    moved = ok_rows & np.any(np.abs(x - first) > 0.0, axis=1)
+    if not np.any(moved):
+        return None  # the inputs never move: nothing repeats
+    start = int(np.argmax(moved))
+    z = x[start:]
+    n = len(z)
+    mask = np.isfinite(z).astype(float)
+    mean = np.nanmean(z, axis=0)
+    zc = np.where(mask > 0, z - mean, 0.0)
+    rms = np.sqrt(np.nansum(zc**2, axis=0) / np.maximum(mask.sum(axis=0), 1.0))
+    scale = np.where(rms > 0, rms, 1.0)
+    zs = zc / scale
+    # sum over aligned valid pairs of (z[k] - z[k+p])^2, by FFT correlations
+    n_fft = 1 << (2 * n - 1).bit_length()
+    sq = zs**2
+    diff2 = (
+        _correlate(sq, mask, n_fft) + _correlate(mask, sq, n_fft) - 2 * _correlate(zs, zs, n_fft)
+    )
+    pairs = _correlate(mask, mask, n_fft)
+    shifts = np.arange(n)
+    usable = (shifts >= MIN_PERIOD_SAMPLES) & (shifts <= n // 2) & (pairs >= 0.5 * shifts)
+    msd = np.full(n, np.inf)
+    msd[usable] = diff2[usable] / np.maximum(pairs[usable], 1.0) / x.shape[1]
+    for p in np.flatnonzero(msd < _CANDIDATE_RTOL):
+        a, b = z[:-p], z[p:]
+        both = np.all(np.isfinite(a) & np.isfinite(b), axis=1)
+        if np.count_nonzero(both) < p:
+            continue
+        change = np.max(np.abs(a[both] - b[both]), axis=0)
+        if np.all(change <= rtol * np.maximum(rms, 1e-12)):
+            return int(p)
+    return None
