@@ -1,0 +1,827 @@
+"""The interface map: which topic, message type and field feeds each model input and output.
+
+A real rig publishes its own topics and types. An :class:`InterfaceMap` binds each model input
+(in the order of ``u``) and output (order of ``y``) to a :class:`Source`: a topic, its message
+type (``pkg/msg/Type``), a field path into the message (``data[1]``, ``position[0]``,
+``a.b[2].c``), where the time stamp comes from (``header.stamp`` or the receive/log time) and
+the conversion to model units, ``model = (raw - offset) / scale``.
+
+Maps come from YAML (:func:`load_interface_map`, :meth:`InterfaceMap.from_dict`), from the
+text form of CLI options and node parameters (:func:`source_from_text`,
+:func:`interface_map_from_text`), or :func:`default_interface_map` (today's fixed interface of
+:mod:`~twotank_validation.online.streams`, with the same floats bit for bit).
+
+Extraction (:func:`raw_value`, :func:`extract`, :func:`check_message`) reads attributes by
+field name and indexes arrays (numpy arrays, lists, tuples, ``array.array``), so it works on
+rosbags' decoded dataclasses, rclpy messages and mcap_ros2's decoded objects alike. Nothing
+here imports ROS.
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import math
+import numbers
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Final, NamedTuple
+
+import numpy as np
+import yaml
+
+from twotank_validation.errors import TwotankError
+from twotank_validation.online.streams import (
+    FLOW_CMD,
+    FLOW_CMD_TYPE,
+    HEIGHT,
+    HEIGHT_TYPE,
+    TEMPERATURE,
+    TEMPERATURE_TYPE,
+    RigUnits,
+    stamp_ns,
+)
+
+__all__ = [
+    "INPUT",
+    "OUTPUT",
+    "STAMPS",
+    "STAMP_HEADER",
+    "STAMP_RECEIVE",
+    "TEXT_FORM",
+    "Binding",
+    "FieldPath",
+    "InterfaceMap",
+    "InterfaceMapError",
+    "Source",
+    "TopicSources",
+    "check_message",
+    "convert",
+    "default_interface_map",
+    "extract",
+    "format_field_path",
+    "interface_map_from_text",
+    "load_interface_map",
+    "message_fields",
+    "message_type_name",
+    "parse_field_path",
+    "raw_value",
+    "source_from_text",
+    "source_stamp_ns",
+    "source_to_text",
+]
+
+
+class InterfaceMapError(TwotankError, ValueError):
+    """An interface map is malformed, or a message does not fit it.
+
+    The message names the key or topic, what was found and the fix.
+    """
+
+
+FieldPath = tuple[str | int, ...]
+"""A parsed field path: attribute names (str) and array indices (int), outermost first."""
+
+STAMP_HEADER: Final = "header"
+"""Stamp from the message's ``header.stamp``."""
+STAMP_RECEIVE: Final = "receive"
+"""Stamp from the receive time (live) or the log time (bags), for headerless types."""
+STAMPS: Final = (STAMP_HEADER, STAMP_RECEIVE)
+
+INPUT: Final = "input"
+"""Role of a source that feeds a model input."""
+OUTPUT: Final = "output"
+"""Role of a source that feeds a model output."""
+
+TEXT_FORM: Final = "NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=header|receive]"
+"""The grammar of :func:`source_from_text`, as shown in error messages."""
+
+_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+_TOPIC = re.compile(r"[~/A-Za-z0-9_{}]+")
+_MSGTYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
+_SHORT_MSGTYPE = re.compile(r"([A-Za-z][A-Za-z0-9_]*)/([A-Za-z][A-Za-z0-9_]*)")
+_PATH_STEP = re.compile(r"\.?([A-Za-z][A-Za-z0-9_]*)|\[([0-9]+)\]")
+_KEYS: Final = ("name", "topic", "type", "field", "stamp", "offset", "scale")
+_REQUIRED: Final = ("name", "topic", "type", "field")
+_ATTR = {"type": "msgtype"}  # YAML/text key -> Source attribute, where they differ
+
+
+# --------------------------------------------------------------------------- field paths
+
+
+def parse_field_path(text: str) -> FieldPath:
+    """Parse a field path: a field name, then ``.name`` and ``[index]`` steps.
+
+    Grammar: ``NAME ( "." NAME | "[" DIGITS "]" )*`` with ``NAME = [A-Za-z][A-Za-z0-9_]*``;
+    no spaces. Examples: ``hot``, ``data[1]``, ``position[0]``, ``a.b[2].c``.
+
+    Returns:
+        The steps, e.g. ``("a", "b", 2, "c")``.
+
+    Raises:
+        InterfaceMapError: If the text does not follow the grammar (the message shows where).
+    """
+    if not isinstance(text, str) or not text:
+        raise InterfaceMapError(
+            f"field path {text!r} is not a non-empty string; write e.g. 'data' or 'data[1]'"
+        )
+    steps: list[str | int] = []
+    pos = 0
+    while pos < len(text):
+        m = _PATH_STEP.match(text, pos)
+        if m is not None:
+            named, dotted = m.group(1) is not None, m.group(0).startswith(".")
+            # the first step is a bare name; later ones are .name or [index]
+            fits = (named and not dotted) if pos == 0 else (dotted or not named)
+        if m is None or not fits:
+            raise InterfaceMapError(
+                f"field path {text!r}: cannot read {text[pos:]!r} at character {pos}; a path is "
+                "a field name followed by .name and [index] steps, e.g. 'data[1]', "
+                "'position[0]', 'a.b[2].c'"
+            )
+        steps.append(m.group(1) if m.group(1) is not None else int(m.group(2)))
+        pos = m.end()
+    return tuple(steps)
+
+
+def format_field_path(path: FieldPath) -> str:
+    """Text of a parsed field path (inverse of :func:`parse_field_path`, canonical form)."""
+    out = ""
+    for step in path:
+        out += f"[{step}]" if isinstance(step, int) else (f".{step}" if out else step)
+    return out
+
+
+# --------------------------------------------------------------------------- sources
+
+
+class _BadKeyError(Exception):
+    """One invalid key of a source (internal: turned into InterfaceMapError by the callers)."""
+
+    def __init__(self, key: str, detail: str) -> None:
+        super().__init__(f"{key}: {detail}")
+        self.key = key
+        self.detail = detail
+
+
+def _number(key: str, value: Any) -> float:
+    if isinstance(value, str):  # YAML 1.1 reads 1e3 (no dot) as text
+        try:
+            value = float(value)
+        except ValueError:
+            raise _BadKeyError(key, f"expected a number, found {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise _BadKeyError(key, f"expected a number, found {value!r} ({type(value).__name__})")
+    out = float(value)
+    if not math.isfinite(out):
+        raise _BadKeyError(key, f"{out!r} is not finite; give a finite number")
+    return out
+
+
+def _checked_values(
+    values: Mapping[str, Any],
+) -> tuple[str, str, str, str, str, float, float, FieldPath]:
+    """Validate one source's values; the canonical values and the parsed path.
+
+    Args:
+        values: Value of each of the seven keys (YAML/text names: ``type``, not ``msgtype``).
+
+    Raises:
+        _BadKeyError: naming the key and what is wrong with it.
+    """
+    name, topic, msgtype, field, stamp = (
+        values[k] for k in ("name", "topic", "type", "field", "stamp")
+    )
+    for key, value in (("name", name), ("topic", topic), ("type", msgtype), ("field", field)):
+        if not isinstance(value, str) or not value:
+            raise _BadKeyError(key, f"expected a non-empty string, found {value!r}")
+    if not _NAME.fullmatch(name):
+        raise _BadKeyError(
+            "name",
+            f"{name!r} is not a signal name: use letters, digits and '_', starting with a "
+            "letter (e.g. hot, level)",
+        )
+    if not _TOPIC.fullmatch(topic):
+        raise _BadKeyError(
+            "topic",
+            f"{topic!r} is not a ROS 2 topic name: use letters, digits, '_', '/', '~' and {{}} "
+            "(e.g. /tank/pressure)",
+        )
+    if not _MSGTYPE.fullmatch(msgtype):
+        short = _SHORT_MSGTYPE.fullmatch(msgtype)
+        hint = f"{short[1]}/msg/{short[2]}" if short else "std_msgs/msg/Float64"
+        raise _BadKeyError(
+            "type", f"{msgtype!r} is not a ROS 2 message type 'pkg/msg/Type'; e.g. {hint}"
+        )
+    try:
+        path = parse_field_path(field)
+    except InterfaceMapError as err:
+        raise _BadKeyError("field", str(err)) from None
+    if stamp not in STAMPS:
+        raise _BadKeyError(
+            "stamp",
+            f"{stamp!r} is not a stamp source; use 'header' (header.stamp) or 'receive' "
+            "(receive/log time, for types without a header)",
+        )
+    off = _number("offset", values["offset"])
+    sc = _number("scale", values["scale"])
+    if sc == 0.0:
+        raise _BadKeyError(
+            "scale",
+            "0 is not a scale (model = (raw - offset) / scale); give raw units "
+            "per model unit, e.g. 9806.65 Pa per m of water",
+        )
+    return name, topic, msgtype, format_field_path(path), stamp, off, sc, path
+
+
+@dataclasses.dataclass(frozen=True)
+class Source:
+    """Where one model input or output comes from, and its conversion to model units.
+
+    ``model = (raw - offset) / scale`` with ``raw`` the field's value as a float.
+
+    Attributes:
+        name: Signal name, e.g. ``hot`` (letters, digits, ``_``; unique within a map).
+        topic: ROS 2 topic, e.g. ``/valves/hot``.
+        msgtype: ROS 2 message type name ``pkg/msg/Type`` (key ``type`` in YAML and text).
+        field: Field path, e.g. ``data``, ``data[1]``, ``position[0]``, ``a.b[2].c``; stored
+            in canonical form (``data[01]`` becomes ``data[1]``).
+        stamp: ``"header"`` (the message's ``header.stamp``) or ``"receive"`` (receive time
+            live, log time in a bag; for types without a header).
+        offset: Raw value at model 0 (raw units).
+        scale: Raw units per model unit; non-zero (negative flips the sign).
+        path: The parsed field path (derived from ``field``).
+
+    Raises:
+        InterfaceMapError: If a value is invalid (the message names the attribute and the fix).
+    """
+
+    name: str
+    topic: str
+    msgtype: str
+    field: str
+    stamp: str = STAMP_HEADER
+    offset: float = 0.0
+    scale: float = 1.0
+    path: FieldPath = dataclasses.field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        try:
+            values = _checked_values(
+                {
+                    "name": self.name,
+                    "topic": self.topic,
+                    "type": self.msgtype,
+                    "field": self.field,
+                    "stamp": self.stamp,
+                    "offset": self.offset,
+                    "scale": self.scale,
+                }
+            )
+        except _BadKeyError as bad:
+            raise InterfaceMapError(
+                f"source {self.name!r}: {_ATTR.get(bad.key, bad.key)}: {bad.detail}"
+            ) from None
+        for attr, value in zip(
+            ("name", "topic", "msgtype", "field", "stamp", "offset", "scale", "path"),
+            values,
+            strict=True,
+        ):
+            object.__setattr__(self, attr, value)
+
+    def to_model(self, raw: float) -> float:
+        """Model-unit value of one raw field value: ``(raw - offset) / scale``."""
+        return (float(raw) - self.offset) / self.scale
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML mapping of this source (every key, in schema order)."""
+        return {
+            "name": self.name,
+            "topic": self.topic,
+            "type": self.msgtype,
+            "field": self.field,
+            "stamp": self.stamp,
+            "offset": self.offset,
+            "scale": self.scale,
+        }
+
+
+def convert(raw: np.ndarray, source: Source) -> np.ndarray:
+    """Model-unit values of many raw values at once: ``(raw - offset) / scale`` in float64.
+
+    The same float operations as :meth:`Source.to_model` (and :func:`extract`), so the same
+    values bit for bit.
+
+    Args:
+        raw: Raw field values, any shape (converted to float64).
+        source: The source they were read through.
+
+    Returns:
+        float64 array of the shape of ``raw``.
+    """
+    return (np.asarray(raw, dtype=np.float64) - source.offset) / source.scale
+
+
+# --------------------------------------------------------------------------- the map
+
+
+class Binding(NamedTuple):
+    """One source of a topic: its role, its index in ``u`` or ``y``, and the source."""
+
+    role: str
+    """:data:`INPUT` or :data:`OUTPUT`."""
+    position: int
+    """Index in the model's inputs (``u``) or outputs (``y``)."""
+    source: Source
+
+
+class TopicSources(NamedTuple):
+    """What one topic carries: its message type and the sources read from it."""
+
+    msgtype: str
+    bindings: tuple[Binding, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class InterfaceMap:
+    """The sources of a model's inputs and outputs.
+
+    Attributes:
+        inputs: One source per model input, in the order of ``u``.
+        outputs: One source per model output, in the order of ``y``.
+
+    Raises:
+        InterfaceMapError: If either is empty or not made of :class:`Source`, a name is used
+            twice, a topic is given two message types, or one topic's sources disagree on the
+            stamp (one message has one stamp).
+    """
+
+    inputs: tuple[Source, ...]
+    outputs: tuple[Source, ...]
+
+    def __post_init__(self) -> None:
+        for role in ("inputs", "outputs"):
+            value = getattr(self, role)
+            if isinstance(value, Source | str) or not isinstance(value, Sequence):
+                raise InterfaceMapError(f"{role}: expected a sequence of Source, found {value!r}")
+            object.__setattr__(self, role, tuple(value))
+        _check_sources(self.inputs, self.outputs)
+
+    # --- construction ---------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, doc: Any, source: str = "<dict>") -> InterfaceMap:
+        """Build a map from its YAML document (see ``docs/interface.md`` for the schema).
+
+        Args:
+            doc: ``{"inputs": [...], "outputs": [...]}``, each entry a mapping with keys
+                ``name``, ``topic``, ``type``, ``field`` (required), ``stamp``, ``offset``,
+                ``scale`` (optional: ``header``, 0, 1).
+            source: Label of the document in error messages (the file name).
+
+        Raises:
+            InterfaceMapError: Unknown or missing keys, wrong types, invalid values, duplicate
+                names, a topic with two types; the message starts with ``source`` and the key
+                (e.g. ``rig.yaml: outputs[1].scale: ...``).
+        """
+        if not isinstance(doc, Mapping):
+            raise InterfaceMapError(
+                f"{source}: expected a mapping with keys 'inputs' and 'outputs', found "
+                f"{type(doc).__name__}"
+            )
+        unknown = sorted(str(k) for k in set(doc) - {"inputs", "outputs"})
+        if unknown:
+            raise InterfaceMapError(
+                f"{source}: unknown keys {unknown}; allowed: ['inputs', 'outputs']"
+            )
+        lists: dict[str, tuple[Source, ...]] = {}
+        for role in ("inputs", "outputs"):
+            if role not in doc:
+                raise InterfaceMapError(f"{source}: missing key '{role}' (a list of sources)")
+            entries = doc[role]
+            if not isinstance(entries, list) or not entries:
+                raise InterfaceMapError(
+                    f"{source}: {role}: expected a non-empty list of sources, found {entries!r}"
+                )
+            lists[role] = tuple(
+                _source_from_mapping(e, source, f"{role}[{i}]") for i, e in enumerate(entries)
+            )
+        try:
+            return cls(lists["inputs"], lists["outputs"])
+        except InterfaceMapError as err:
+            raise InterfaceMapError(f"{source}: {err}") from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML document of the map (:meth:`from_dict` of it gives an equal map)."""
+        return {
+            "inputs": [s.to_dict() for s in self.inputs],
+            "outputs": [s.to_dict() for s in self.outputs],
+        }
+
+    # --- views ----------------------------------------------------------------------------
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Names of the inputs, in the order of ``u``."""
+        return tuple(s.name for s in self.inputs)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Names of the outputs, in the order of ``y``."""
+        return tuple(s.name for s in self.outputs)
+
+    def topics(self) -> dict[str, TopicSources]:
+        """Topic -> its message type and the sources read from it (role, index, source).
+
+        Topics in order of first appearance (inputs first); a topic's bindings in map order.
+        """
+        out: dict[str, tuple[str, list[Binding]]] = {}
+        for role, sources in ((INPUT, self.inputs), (OUTPUT, self.outputs)):
+            for index, src in enumerate(sources):
+                out.setdefault(src.topic, (src.msgtype, []))[1].append(Binding(role, index, src))
+        return {t: TopicSources(mt, tuple(b)) for t, (mt, b) in out.items()}
+
+
+def _check_sources(inputs: tuple[Source, ...], outputs: tuple[Source, ...]) -> None:
+    names: dict[str, str] = {}
+    topics: dict[str, tuple[str, Source]] = {}
+    for role, sources in (("inputs", inputs), ("outputs", outputs)):
+        if not sources:
+            raise InterfaceMapError(f"{role}: no sources; give one per model {role[:-1]}")
+        for i, src in enumerate(sources):
+            where = f"{role}[{i}]"
+            if not isinstance(src, Source):
+                raise InterfaceMapError(f"{where}: expected a Source, found {src!r}")
+            if src.name in names:
+                raise InterfaceMapError(
+                    f"{where}.name: {src.name!r} is used already by {names[src.name]}; "
+                    "names must be unique"
+                )
+            names[src.name] = where
+            if src.topic in topics:
+                first, other = topics[src.topic]
+                if other.msgtype != src.msgtype:
+                    raise InterfaceMapError(
+                        f"{where}.type: topic {src.topic!r} is {src.msgtype} here but "
+                        f"{other.msgtype} at {first}; a topic carries one message type"
+                    )
+                if other.stamp != src.stamp:
+                    raise InterfaceMapError(
+                        f"{where}.stamp: topic {src.topic!r} is stamped {src.stamp!r} here but "
+                        f"{other.stamp!r} at {first}; one topic's sources share one stamp"
+                    )
+            else:
+                topics[src.topic] = (where, src)
+
+
+def _source_from_mapping(node: Any, source: str, where: str) -> Source:
+    if not isinstance(node, Mapping):
+        raise InterfaceMapError(
+            f"{source}: {where}: expected a mapping with keys {list(_REQUIRED)}, found {node!r}"
+        )
+    unknown = sorted(str(k) for k in set(node) - set(_KEYS))
+    if unknown:
+        raise InterfaceMapError(
+            f"{source}: {where}: unknown keys {unknown}; allowed: {list(_KEYS)}"
+        )
+    missing = [k for k in _REQUIRED if k not in node]
+    if missing:
+        raise InterfaceMapError(f"{source}: {where}: missing keys {missing}")
+    return _make_source(
+        {k: node[k] for k in _KEYS if k in node}, lambda key: f"{source}: {where}.{key}"
+    )
+
+
+def _make_source(values: Mapping[str, Any], where: Any) -> Source:
+    """Source from key -> value (YAML/text keys); errors prefixed by ``where(key)``."""
+    try:
+        name, topic, msgtype, field, stamp, offset, scale, _ = _checked_values(
+            {"stamp": STAMP_HEADER, "offset": 0.0, "scale": 1.0, **values}
+        )
+    except _BadKeyError as bad:
+        raise InterfaceMapError(f"{where(bad.key)}: {bad.detail}") from None
+    return Source(name, topic, msgtype, field, stamp, offset, scale)
+
+
+def load_interface_map(path: str | Path) -> InterfaceMap:
+    """Load an interface map from a YAML file.
+
+    Raises:
+        InterfaceMapError: Missing file, YAML syntax error or schema violation (the message
+            names the file and the key).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise InterfaceMapError(
+            f"cannot read the interface map {path}: {err.strerror or err}; give a YAML file "
+            "with 'inputs' and 'outputs' (docs/interface.md)"
+        ) from err
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise InterfaceMapError(f"{path}: not valid YAML: {err}") from err
+    return InterfaceMap.from_dict(doc, str(path))
+
+
+_RIG_UNITS: Final = RigUnits()
+
+
+def default_interface_map(units: RigUnits = _RIG_UNITS) -> InterfaceMap:
+    """Today's fixed interface (:mod:`~twotank_validation.online.streams`) as a map.
+
+    Inputs ``hot`` and ``cold`` from the ``flow_cmd`` FlowCommand; outputs ``height`` (the
+    ``height`` FluidPressure's ``fluid_pressure`` over ``units.pascal_per_unit``) and
+    ``temperature`` (the ``temperature`` Temperature, ``(°C - offset) / span``); stamps from
+    the headers. Gives the values of :func:`~twotank_validation.online.streams.stream_values`
+    bit for bit.
+    """
+    return InterfaceMap(
+        inputs=(
+            Source("hot", FLOW_CMD, FLOW_CMD_TYPE, "hot"),
+            Source("cold", FLOW_CMD, FLOW_CMD_TYPE, "cold"),
+        ),
+        outputs=(
+            Source(HEIGHT, HEIGHT, HEIGHT_TYPE, "fluid_pressure", scale=units.pascal_per_unit),
+            Source(
+                TEMPERATURE,
+                TEMPERATURE,
+                TEMPERATURE_TYPE,
+                "temperature",
+                offset=units.temperature_offset_c,
+                scale=units.temperature_span_c,
+            ),
+        ),
+    )
+
+
+# --------------------------------------------------------------------------- text form
+
+_TEXT_OPTIONS: Final = ("scale", "offset", "stamp")
+
+
+def source_from_text(text: str) -> Source:
+    """Parse one source from its text form (CLI options, node parameters).
+
+    Grammar (:data:`TEXT_FORM`)::
+
+        NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=header|receive]
+
+    e.g. ``hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive``. Options in any order,
+    each at most once; spaces around the parts are ignored. Numbers as Python's ``float()``
+    reads them.
+
+    Raises:
+        InterfaceMapError: If the text does not follow the grammar or a value is invalid (the
+            message quotes the text and shows the expected form).
+    """
+    if not isinstance(text, str):
+        raise InterfaceMapError(f"source text {text!r} is not a string; expected {TEXT_FORM}")
+    name, eq, rest = text.strip().partition("=")
+    head, *options = rest.split(",")
+    parts = head.split(":")
+    if not eq or len(parts) != 3:
+        raise InterfaceMapError(
+            f"source {text!r} is not {TEXT_FORM}, e.g. "
+            "'hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive'"
+        )
+    values: dict[str, Any] = dict(
+        zip(("name", "topic", "type", "field"), [name, *parts], strict=True)
+    )
+    for option in options:
+        key, eq, value = option.partition("=")
+        key = key.strip()
+        if not eq or key not in _TEXT_OPTIONS:
+            raise InterfaceMapError(
+                f"source {text!r}: option {option.strip()!r} is not scale=S, offset=O or "
+                f"stamp=header|receive; expected {TEXT_FORM}"
+            )
+        if key in values:
+            raise InterfaceMapError(f"source {text!r}: option {key!r} is given twice")
+        values[key] = value
+    values = {k: v.strip() for k, v in values.items()}
+    return _make_source(values, lambda key: f"source {text!r}: {key}")
+
+
+def source_to_text(source: Source) -> str:
+    """Text form of a source: the inverse of :func:`source_from_text`.
+
+    Options at their defaults are left out; numbers are written exactly (``repr``).
+    """
+    text = f"{source.name}={source.topic}:{source.msgtype}:{source.field}"
+    if source.scale != 1.0:
+        text += f",scale={source.scale!r}"
+    if source.offset != 0.0:
+        text += f",offset={source.offset!r}"
+    if source.stamp != STAMP_HEADER:
+        text += f",stamp={source.stamp}"
+    return text
+
+
+def interface_map_from_text(inputs: Sequence[str], outputs: Sequence[str]) -> InterfaceMap:
+    """A map from the text forms of its inputs and outputs (e.g. two string-array parameters).
+
+    Raises:
+        InterfaceMapError: As :func:`source_from_text` (prefixed ``inputs[i]``/``outputs[i]``)
+            and :class:`InterfaceMap`.
+    """
+    lists: dict[str, list[Source]] = {"inputs": [], "outputs": []}
+    for role, texts in (("inputs", inputs), ("outputs", outputs)):
+        if isinstance(texts, str):
+            raise InterfaceMapError(f"{role}: expected a list of {TEXT_FORM}, found one string")
+        for i, text in enumerate(texts):
+            try:
+                lists[role].append(source_from_text(text))
+            except InterfaceMapError as err:
+                raise InterfaceMapError(f"{role}[{i}]: {err}") from None
+    return InterfaceMap(tuple(lists["inputs"]), tuple(lists["outputs"]))
+
+
+# --------------------------------------------------------------------------- extraction
+
+_ARRAYS = (list, tuple, array.array, np.ndarray)
+
+
+_FIELDS_OF_TYPE: dict[type, tuple[str, ...] | None] = {}
+
+
+def _type_fields(cls: type) -> tuple[str, ...] | None:
+    """Field names of a message class (cached per class), None if it is not one."""
+    if cls not in _FIELDS_OF_TYPE:
+        _FIELDS_OF_TYPE[cls] = _declared_fields(cls)
+    return _FIELDS_OF_TYPE[cls]
+
+
+def _declared_fields(cls: type) -> tuple[str, ...] | None:
+    if dataclasses.is_dataclass(cls):  # rosbags (its __msgtype__ is a field too)
+        return tuple(f.name for f in dataclasses.fields(cls) if not f.name.startswith("_"))
+    getter = getattr(cls, "get_fields_and_field_types", None)
+    if callable(getter):  # rclpy
+        return tuple(getter())
+    slots = getattr(cls, "__slots__", None)  # mcap_ros2 and other plain classes
+    if isinstance(slots, str):
+        slots = (slots,)
+    if slots and not issubclass(cls, _ARRAYS):
+        return tuple(s for s in slots if not s.startswith("_"))
+    return None
+
+
+def message_fields(obj: Any) -> tuple[str, ...] | None:
+    """Field names of a message object, or None if it is not a message.
+
+    rosbags dataclasses: :func:`dataclasses.fields`; rclpy messages:
+    ``get_fields_and_field_types()``; otherwise ``__slots__``, then the instance's attributes.
+    Names starting with ``_`` are left out.
+    """
+    fields = _type_fields(type(obj))
+    if fields is None and hasattr(obj, "__dict__") and not isinstance(obj, type):
+        fields = tuple(k for k in vars(obj) if not k.startswith("_")) or None
+    return fields
+
+
+def message_type_name(msg: Any) -> str:
+    """ROS 2 type name ``pkg/msg/Type`` of a message object (else its Python class name)."""
+    name = getattr(msg, "__msgtype__", None)  # rosbags
+    if isinstance(name, str):
+        return name
+    cls = type(msg)
+    module = cls.__module__.split(".")
+    if len(module) >= 2 and module[1] == "msg":  # rclpy: pkg.msg._module.Type
+        return f"{module[0]}/msg/{cls.__name__}"
+    return cls.__qualname__
+
+
+def _kind(obj: Any) -> str:
+    if isinstance(obj, _ARRAYS):
+        return f"an array ({type(obj).__name__}) of length {len(obj)}"
+    if message_fields(obj) is not None:
+        return f"a {message_type_name(obj)} message"
+    text = repr(obj)
+    return f"a {type(obj).__name__} ({text if len(text) <= 40 else text[:37] + '...'})"
+
+
+def _path_error(
+    path: FieldPath, msg: Any, topic: str | None, msgtype: str | None, detail: str
+) -> InterfaceMapError:
+    where = f"topic {topic!r}" if topic is not None else "message"
+    found = msgtype if msgtype is not None else message_type_name(msg)
+    return InterfaceMapError(
+        f"{where} ({found}): field path {format_field_path(path)!r} does not fit the "
+        f"message: {detail}"
+    )
+
+
+def raw_value(
+    msg: Any, path: FieldPath | str, *, topic: str | None = None, msgtype: str | None = None
+) -> float:
+    """The raw number a field path reaches in a decoded message, as a float.
+
+    Args:
+        msg: rosbags decoded message, rclpy message, or any object with the fields as
+            attributes (arrays: numpy arrays, lists, tuples, ``array.array``).
+        path: Parsed (:data:`FieldPath`) or text field path.
+        topic: Topic, named in errors.
+        msgtype: Message type, named in errors (default: found from ``msg``).
+
+    Raises:
+        InterfaceMapError: If the path does not fit: a field that is not there (the message
+            lists the fields present at that level), an index past the end (names the length),
+            an index into a non-array, or a leaf that is not a number.
+    """
+    steps = parse_field_path(path) if isinstance(path, str) else path
+    obj = msg
+    for depth, step in enumerate(steps):
+        here = format_field_path(steps[:depth]) or "the message"
+        if isinstance(step, int):
+            if not isinstance(obj, _ARRAYS) or (isinstance(obj, np.ndarray) and obj.ndim != 1):
+                raise _path_error(
+                    steps,
+                    msg,
+                    topic,
+                    msgtype,
+                    f"{here} is {_kind(obj)}, not an array: [{step}] cannot index it",
+                )
+            if step >= len(obj):
+                raise _path_error(
+                    steps,
+                    msg,
+                    topic,
+                    msgtype,
+                    f"index {step} is out of range: {here} has length {len(obj)}",
+                )
+            obj = obj[step]
+        else:
+            fields = message_fields(obj)
+            if fields is None or step not in fields:
+                if fields is None:
+                    detail = f"{here} is {_kind(obj)}, which has no fields; no field {step!r}"
+                else:
+                    detail = (
+                        f"{here} ({message_type_name(obj)}) has no field {step!r}; its fields: "
+                        f"{', '.join(fields) or '(none)'}"
+                    )
+                raise _path_error(steps, msg, topic, msgtype, detail)
+            obj = getattr(obj, step)
+    if isinstance(obj, bool | numbers.Real):
+        return float(obj)
+    text = format_field_path(steps)
+    if isinstance(obj, _ARRAYS):
+        hint = f"; add an index, e.g. {text}[0]" if len(obj) else ""
+    elif (fields := message_fields(obj)) is not None:
+        hint = f"; its fields: {', '.join(fields)}; continue the path, e.g. {text}.{fields[0]}"
+    else:
+        hint = ""
+    raise _path_error(steps, msg, topic, msgtype, f"{text} is {_kind(obj)}, not a number{hint}")
+
+
+def extract(msg: Any, source: Source) -> float:
+    """Model-unit value of a source in a decoded message: ``(raw - offset) / scale``.
+
+    Raises:
+        InterfaceMapError: As :func:`raw_value` (naming the source's topic).
+    """
+    return source.to_model(raw_value(msg, source.path, topic=source.topic))
+
+
+def check_message(source: Source, msg: Any, msgtype_found: str) -> None:
+    """Check that a topic's message fits a source: its type, field path and stamp.
+
+    For the first message of each topic (replay, live): type equality, then the path as
+    :func:`raw_value` walks it, then ``header.stamp`` if the source's stamp is ``header``.
+
+    Args:
+        source: The source read from the message.
+        msg: A decoded message of ``source.topic``.
+        msgtype_found: The topic's message type as the bag or the graph reports it.
+
+    Raises:
+        InterfaceMapError: Naming the topic, the type found and what the map asks for.
+    """
+    if msgtype_found != source.msgtype:
+        raise InterfaceMapError(
+            f"topic {source.topic!r} carries {msgtype_found}, but the interface map asks for "
+            f"{source.msgtype} (source {source.name!r}); set 'type: {msgtype_found}' for it in "
+            "the map, with a field path that fits that type"
+        )
+    raw_value(msg, source.path, topic=source.topic, msgtype=msgtype_found)
+    if source.stamp == STAMP_HEADER:
+        header = getattr(msg, "header", None) if "header" in (message_fields(msg) or ()) else None
+        st = getattr(header, "stamp", None)
+        if st is None or not (hasattr(st, "sec") and hasattr(st, "nanosec")):
+            raise InterfaceMapError(
+                f"topic {source.topic!r} ({msgtype_found}) has no header.stamp to stamp source "
+                f"{source.name!r}; set 'stamp: receive' for it (the receive or log time is used)"
+            )
+
+
+def source_stamp_ns(msg: Any, source: Source, receive_ns: int) -> int:
+    """Stamp of a source's sample (integer ns): ``header.stamp`` or ``receive_ns``.
+
+    Args:
+        msg: The decoded message.
+        source: Its source (``stamp`` chooses).
+        receive_ns: Receive time (live) or log time (bag), integer nanoseconds.
+    """
+    return stamp_ns(msg) if source.stamp == STAMP_HEADER else int(receive_ns)
