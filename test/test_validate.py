@@ -144,3 +144,84 @@ def test_siso_input_multiplicative_matches_scalar_formula() -> None:
     np.testing.assert_allclose(sdp.w_min, expected, rtol=1e-6, atol=floor)
     np.testing.assert_allclose(sdp.w_upper, expected, rtol=1e-6, atol=floor)
     assert res.beta == pytest.approx(np.sqrt(np.sum(datum.bin_weights * expected**2)), rel=1e-6)
+
+
+# --------------------------------------------------------------- warnings on the verdict
+
+
+@pytest.fixture(scope="module")
+def rig_record():
+    """Seven periods of the nominal simulated rig (Ts 0.1 s, period 2048): u, y."""
+    import dataclasses  # noqa: PLC0415
+
+    from twotank_validation.sim.scenario import load_scenario, simulate_scenario  # noqa: PLC0415
+
+    s = dataclasses.replace(load_scenario("nominal"), duration_s=7 * 204.8)
+    _, u, y = simulate_scenario(s)
+    return u, y
+
+
+def _model_b_without(noise_names: set[str]):
+    import copy  # noqa: PLC0415
+
+    from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
+
+    doc, _ = load_model_document("B")
+    doc = copy.deepcopy(doc)
+    doc["noise"] = [ch for ch in doc["noise"] if ch["name"] not in noise_names]
+    if not doc["noise"]:
+        del doc["noise"]
+    return model_from_dict(doc, "test")
+
+
+def test_a_settled_record_has_no_warnings(rig_record) -> None:
+    from twotank_validation import load_model, make_datum, validate  # noqa: PLC0415
+
+    u, y = rig_record
+    d = make_datum(u[-4096:], y[-4096:], ts_s=0.1, period_samples=2048)  # 5 periods settled
+    assert validate(d, load_model("B")).warnings == ()
+
+
+def test_a_start_up_transient_is_flagged(rig_record) -> None:
+    from twotank_validation import load_model, make_datum, validate  # noqa: PLC0415
+
+    u, y = rig_record
+    d = make_datum(u[:4096], y[:4096], ts_s=0.1, period_samples=2048)  # from the excitation's start
+    assert d.periodicity.transient_suspected  # the datum's own finding, independent of validate
+    res = validate(d, load_model("B"))
+    assert any("transient" in w for w in res.warnings)
+
+
+def test_inputs_that_do_not_move_are_flagged() -> None:
+    from twotank_validation import load_model, make_datum, validate  # noqa: PLC0415
+
+    u = np.tile([0.4, 0.5], (4096, 1))
+    noise = np.random.default_rng(0).normal(0.0, 0.003, (4096, 2))
+    d = make_datum(u, 0.47 + noise, ts_s=0.1, period_samples=2048)
+    res = validate(d, load_model("B"))
+    assert any("inputs do not move" in w for w in res.warnings)
+    moving = make_datum(
+        u + np.tile(np.r_[np.ones(1024), -np.ones(1024)][:, None] * 0.01, (2, 1)),
+        0.47 + noise,
+        ts_s=0.1,
+        period_samples=2048,
+    )
+    assert not any("do not move" in w for w in validate(moving, load_model("B")).warnings)
+
+
+def test_a_model_without_noise_is_flagged_and_refused_by_the_monitor(rig_record) -> None:
+    from twotank_validation import MonitorConfig, OnlineValidator, make_datum, validate  # noqa: PLC0415
+    from twotank_validation.errors import ModelError  # noqa: PLC0415
+
+    u, y = rig_record
+    d = make_datum(u[-4096:], y[-4096:], ts_s=0.1, period_samples=2048)
+    bare = _model_b_without({"height_noise", "temperature_noise"})
+    res = validate(d, bare)
+    assert not np.isfinite(res.beta)  # noisy data: no ||w|| explains them (independent fact)
+    assert any("no noise channels" in w for w in res.warnings)
+    with pytest.raises(ModelError, match="no noise channels"):
+        OnlineValidator(MonitorConfig(), [bare])
+    half = _model_b_without({"temperature_noise"})
+    res = validate(d, half)
+    assert not np.isfinite(res.beta)
+    assert any("beta is infinite" in w for w in res.warnings)

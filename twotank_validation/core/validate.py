@@ -44,6 +44,9 @@ class ValidationResult:
         ts_s: sample period (s).
         compute_time_s: wall time of the per-bin solve.
         fallback_bins: bins the fast path handed to the per-bin SDP (0 for other methods).
+        warnings: what makes the verdict weaker than it looks, in words (a transient in the
+            record, inputs that do not move, a model without noise channels or with an
+            infinite β); empty when there is nothing to say.
     """
 
     model_name: str
@@ -64,6 +67,7 @@ class ValidationResult:
     ts_s: float
     compute_time_s: float
     fallback_bins: int = 0
+    warnings: tuple[str, ...] = ()
 
     @property
     def invalidated(self) -> bool:
@@ -209,6 +213,7 @@ def validate(
     leak = leakage_bound(
         pulse_moment(model, datum.ts_s), datum.u_max, datum.n_samples, datum.convention
     )
+    beta = total_beta(sol.lower, datum.bin_weights)
     return ValidationResult(
         model_name=model.name,
         convention=datum.convention,
@@ -219,7 +224,7 @@ def validate(
         bin_weights=datum.bin_weights,
         w_min=sol.lower,
         w_upper=sol.upper,
-        beta=total_beta(sol.lower, datum.bin_weights),
+        beta=beta,
         beta_upper=total_beta(sol.upper, datum.bin_weights),
         solution=sol,
         error=error,
@@ -228,7 +233,46 @@ def validate(
         ts_s=datum.ts_s,
         compute_time_s=elapsed,
         fallback_bins=fallback_bins,
+        warnings=result_warnings(datum, model, beta),
     )
+
+
+_STILL = 1e-9
+"""Inputs whose largest deviation from their mean is below this (relative to max(1, |mean|))
+do not move."""
+
+
+def result_warnings(datum: Datum, model: LFTModel, beta: float) -> tuple[str, ...]:
+    """What makes a verdict on this datum weaker than it looks, in words.
+
+    Args:
+        datum: the datum (its periodicity findings are repeated here).
+        model: the model.
+        beta: the result's β.
+
+    Returns:
+        One sentence per finding, each saying what to do; empty if there is none.
+    """
+    out = list(datum.periodicity.messages)
+    still = datum.u_max <= _STILL * np.maximum(1.0, np.abs(datum.u_bias))
+    if np.all(still):
+        out.append(
+            "the inputs do not move (largest deviation from their mean "
+            f"{float(np.max(datum.u_max)):.3g}): nothing excites the plant, so the datum tests "
+            "only the noise model; record with the excitation on"
+        )
+    if model.nw == 0:
+        out.append(
+            f"model {model.name} has no noise channels: measured data, which always hold noise, "
+            "invalidate it whatever its plant; add a noise section with the sensors' noise"
+        )
+    elif not np.isfinite(beta):
+        out.append(
+            "beta is infinite: at some bins no noise of the model can reach the output error "
+            "(an output without a noise weight, or a weight that vanishes there); give every "
+            "measured output a noise weight"
+        )
+    return tuple(out)
 
 
 def takes_fast_path(resp: PlantResponse, method: str) -> bool:

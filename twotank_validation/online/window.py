@@ -169,6 +169,12 @@ class WindowMonitor:
                     f"models disagree on dimensions: {self.models[0].name} is {ny}x{nu}, "
                     f"{m.name} is {m.ny}x{m.nu}"
                 )
+            if m.nw == 0:
+                raise ModelError(
+                    f"model {m.name} has no noise channels: measured data, which always hold "
+                    "noise, would invalidate it in every window whatever its plant; add a "
+                    "noise section with the sensors' noise to its file"
+                )
         self.n_inputs, self.n_outputs = nu, ny
         cap = self._cap = config.span_samples
         self._period = config.period_samples
