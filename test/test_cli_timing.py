@@ -105,7 +105,7 @@ def test_two_streams_on_one_topic_is_a_usage_error(slow_bag: Path, remap: str, c
 def test_a_topic_of_the_wrong_type_judges_nothing_and_says_why(slow_bag: Path, capsys) -> None:
     args = ["--topic", "height=temperature", "--topic", "temperature=height"]
     code, _, err = run(["validate", str(slow_bag), "--quiet", *args], capsys)
-    assert code == cli.EXIT_NOT_JUDGED
+    assert code == cli.EXIT_INCOMPLETE  # the recording does not fit: that is the cause
     assert "topic 'temperature' carries sensor_msgs/msg/Temperature" in err
     assert "no window of model A could be judged: no window was formed" in err
 
@@ -120,7 +120,9 @@ def test_help_lists_exit_codes_and_defaults(capsys) -> None:
     with pytest.raises(SystemExit):
         cli.main(["validate", "--help"])
     out = capsys.readouterr().out
-    assert f"{cli.EXIT_NOT_JUDGED} no window of a model could be judged" in " ".join(out.split())
+    assert f"{cli.EXIT_NOT_JUDGED} read completely, but no window of a model could be judged" in (
+        " ".join(out.split())
+    )
     assert "(default: 2)" in out  # --periods-per-window
     assert "(default: 9806.65)" in out
 

@@ -139,7 +139,7 @@ def test_not_a_bag_and_empty_input_fail_clearly(tmp_path, capsys) -> None:
 def test_missing_topic_and_remapping(workdir, tmp_path, capsys) -> None:
     bag = nominal_bag(workdir)
     code = cli.main(["validate", str(bag), "--topic", "height=/rig/level", *FAST_ARGS])
-    assert code == cli.EXIT_NOT_JUDGED  # nothing judged outranks "incomplete" (exit 3)
+    assert code == cli.EXIT_INCOMPLETE  # the missing topic is the cause of nothing judged
     err = capsys.readouterr().err
     assert "/rig/level" in err
     assert "ERROR: no window of model A could be judged" in err

@@ -24,12 +24,14 @@ EXIT_ERROR = 2
 EXIT_INCOMPLETE = 3
 """The recording could not be read completely (a topic missing or of the wrong type, damage)."""
 EXIT_NOT_JUDGED = 4
-"""No window of a model could be judged: nothing was validated (the message says why)."""
+"""The recording was read completely, but no window of a model could be judged (the message
+says why)."""
 
 EXIT_CODES = f"""exit codes: {EXIT_OK} done; {EXIT_ERROR} bad arguments or unusable input \
 (ERROR: says what to change); {EXIT_INCOMPLETE} the recording was not read completely \
-(WARNING: says what was missing); {EXIT_NOT_JUDGED} no window of a model could be judged \
-(ERROR: says why and the likely fix)."""
+(WARNING: says what was missing; windows judged before it are kept); {EXIT_NOT_JUDGED} \
+read completely, but no window of a model could be judged (ERROR: says why and the likely \
+fix)."""
 
 
 def _out(*parts: object) -> None:
@@ -289,7 +291,16 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _exit_code(complete: bool, unjudged: Sequence[str], timing: object) -> int:
-    """EXIT_NOT_JUDGED (with the reasons) if a model had no judged window, else 0 or 3."""
+    """The exit code of a replay, with the reasons of models without a judged window.
+
+    3 if the recording was not read completely (the cause of anything missing), else 4 if a
+    model had no judged window, else 0.
+
+    Args:
+        complete: the whole recording was read.
+        unjudged: one line per model without a judged window (``replay.unjudged_models``).
+        timing: the ``replay.Timing`` used.
+    """
     from twotank_validation import replay  # noqa: PLC0415
 
     for line in unjudged:
@@ -301,8 +312,9 @@ def _exit_code(complete: bool, unjudged: Sequence[str], timing: object) -> int:
             f"{timing.period_samples} samples ({timing.period_from})",
             file=sys.stderr,
         )
-        return EXIT_NOT_JUDGED
-    return EXIT_OK if complete else EXIT_INCOMPLETE
+    if not complete:
+        return EXIT_INCOMPLETE
+    return EXIT_NOT_JUDGED if unjudged else EXIT_OK
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
