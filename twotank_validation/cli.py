@@ -9,6 +9,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -16,6 +17,9 @@ from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import WindowReport
+
+if TYPE_CHECKING:
+    from twotank_validation.online.interface import InterfaceMap
 
 EXIT_OK = 0
 """The command ran and judged what it was asked to judge."""
@@ -196,9 +200,31 @@ def _replay_config(args: argparse.Namespace, ts_s: float, period_samples: int) -
             units=RigUnits(
                 args.pascal_per_unit, args.temperature_offset_c, args.temperature_span_c
             ),
+            interface=_interface_map(args),
         )
     except ValueError as err:
         raise UsageError(str(err)) from err
+
+
+def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
+    """The interface map of ``--map`` or ``--input``/``--output``, or None (the two-tank one)."""
+    from twotank_validation.online import interface  # noqa: PLC0415
+
+    texts = bool(args.input or args.output)
+    if not (args.map or texts):
+        return None
+    if args.topic:
+        raise UsageError(
+            "--topic remaps the two-tank interface; with --map/--input/--output give the "
+            "topics in the map instead"
+        )
+    if args.map and texts:
+        raise UsageError("give the interface either as --map FILE or as --input/--output")
+    if args.map:
+        return interface.load_interface_map(args.map)
+    if not (args.input and args.output):
+        raise UsageError("--input and --output go together: give every input and every output")
+    return interface.interface_map_from_text(args.input, args.output)
 
 
 def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
@@ -493,6 +519,22 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
     units = RigUnits()
     val.add_argument(
         "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"
+    )
+    val.add_argument(
+        "--map",
+        help="interface map (YAML): each model input and output from its own topic, message "
+        "type, field, stamp and unit conversion (docs/interface.md); None: the two-tank topics",
+    )
+    val.add_argument(
+        "--input",
+        action="append",
+        help="one input source instead of --map, in model input order (repeat): "
+        "NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive]",
+    )
+    val.add_argument(
+        "--output",
+        action="append",
+        help="one output source instead of --map, in model output order (repeat), as --input",
     )
     val.add_argument(
         "--ts",

@@ -38,13 +38,23 @@ from twotank_validation.diagnose import Window
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
+from twotank_validation.online.assembler import CommandAssembler
 from twotank_validation.online.infer import (
     MIN_PERIOD_SAMPLES,
     grid_samples,
     infer_excitation_period,
     infer_sample_period,
 )
-from twotank_validation.online.streams import STREAM_KINDS, STREAMS
+from twotank_validation.online.interface import (
+    OUTPUT,
+    InterfaceMap,
+    InterfaceMapError,
+    Source,
+    check_message,
+    extract,
+    source_stamp_ns,
+)
+from twotank_validation.online.streams import MEASUREMENTS, STREAM_KINDS, STREAMS
 
 
 @dataclass(frozen=True)
@@ -56,14 +66,28 @@ class ReplayConfig:
         topics: stream name (``flow_cmd``, ``height``, ``temperature``) -> topic in the bag.
         units: per-rig unit conversion of the measurements.
         jitter_fraction: accepted stamp distance from the sample grid (fraction of ts).
+        interface: an interface map (:mod:`twotank_validation.online.interface`): each model
+            input and output read from its own topic, type, field and stamp, with its unit
+            conversion; messages are decoded from the definitions stored in the bag. None:
+            the two-tank interface of ``topics`` and ``units`` (read in bulk).
     """
 
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
     topics: Mapping[str, str] = field(default_factory=lambda: {s: s for s in STREAMS})
     units: itf.RigUnits = field(default_factory=itf.RigUnits)
     jitter_fraction: float = 0.25
+    interface: InterfaceMap | None = None
 
     def __post_init__(self) -> None:
+        if self.interface is not None and (
+            len(self.interface.inputs),
+            len(self.interface.outputs),
+        ) != (2, len(MEASUREMENTS)):
+            raise ReplayConfigError(
+                f"the interface map has {len(self.interface.inputs)} input(s) and "
+                f"{len(self.interface.outputs)} output(s); the online validator takes the "
+                f"two-tank interface's 2 inputs and {len(MEASUREMENTS)} outputs"
+            )
         if set(self.topics) != set(STREAMS):
             raise ReplayConfigError(
                 f"topics must name a topic for each of the streams {list(STREAMS)}, "
@@ -159,65 +183,168 @@ def replay_bag(
     cfg = config or ReplayConfig()
     core = OnlineValidator(cfg.monitor, models, jitter_fraction=cfg.jitter_fraction)
     result = ReplayResult(Path(path))
+
+    def on_report(rep: WindowReport) -> None:
+        result.reports.append(rep)
+        _keep_if_interesting(result, core, rep)
+        if on_window is not None and rep.judged:
+            stamps, u, y = core.last_window()
+            on_window(rep, WindowSnapshot(rep, stamps, u, y))
+
     with bag_reader.open_bag(path) as bag:
         result.bag_start_ns = bag.info.start_ns or 0
-        expected = bag_reader.expected_types()
-        wanted = {cfg.topics[s]: expected[s] for s in STREAMS}
-        try:
-            bag.check_topics(wanted)
-        except (bag_reader.TopicMissingError, bag_reader.TopicTypeError) as err:
-            result.complete = False
-            result.problems.append(str(err))
-            present = {t for t in wanted if _usable(bag, t, expected[_stream_of(cfg, t)])}
-            if not present:
-                return result
-            wanted = {t: v for t, v in wanted.items() if t in present}
-        except bag_reader.BagEmptyError as err:
-            result.complete = False
-            result.problems.append(str(err))
-            return result
-        stream_of = {cfg.topics[s]: s for s in STREAMS}
-        fields = {t: itf.STREAM_FIELDS[stream_of[t]] for t in wanted}
-        total = sum(bag.info.message_counts.get(bag.resolve_topic(t) or t, 0) for t in wanted)
-
-        def on_report(rep: WindowReport) -> None:
-            result.reports.append(rep)
-            _keep_if_interesting(result, core, rep)
-            if on_window is not None and rep.judged:
-                stamps, u, y = core.last_window()
-                on_window(rep, WindowSnapshot(rep, stamps, u, y))
-
-        t_dec = t_val = 0.0
-        tick = time.perf_counter()
-        try:
-            for batch in bag.field_batches(list(wanted), fields, size=_BATCH):
-                now = time.perf_counter()
-                t_dec += now - tick
-                # the node's extractors, on arrays; then the node's validator, many at a time
-                kinds = np.empty(len(batch), dtype=np.int8)
-                values = np.empty((len(batch), 2))
-                for j, topic in enumerate(batch.topics):
-                    rows = batch.topic == j
-                    stream = stream_of[topic]
-                    kinds[rows] = STREAM_KINDS[stream]
-                    values[rows] = itf.stream_values(stream, batch.values[rows], cfg.units)
-                before = result.messages
-                result.messages += len(batch)
-                core.feed_many(kinds, batch.stamp_ns, values, on_report)
-                tick = time.perf_counter()
-                t_val += tick - now
-                if progress is not None:
-                    for m in range((before // 5000 + 1) * 5000, result.messages + 1, 5000):
-                        progress(m, total)
-        except bag_reader.BagCorruptError as err:
-            result.complete = False
-            result.problems.append(str(err))
-        result.decode_s, result.validate_s = t_dec, t_val
+        if cfg.interface is not None:
+            _feed_mapped(bag, core, cfg, result, on_report)
+        else:
+            _feed_streams(bag, core, cfg, result, on_report, progress=progress)
     result.counters = dataclasses.asdict(core.counters())
     result.problems.extend(core.input_problems())
     if progress is not None:
         progress(result.messages, max(result.messages, 1))
     return result
+
+
+def _feed_streams(
+    bag: bag_reader.BagReader,
+    core: OnlineValidator,
+    cfg: ReplayConfig,
+    result: ReplayResult,
+    on_report: Callable[[WindowReport], None],
+    *,
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """The two-tank interface, read in bulk (fixed layouts decoded as arrays)."""
+    expected = bag_reader.expected_types()
+    wanted = {cfg.topics[s]: expected[s] for s in STREAMS}
+    try:
+        bag.check_topics(wanted)
+    except (bag_reader.TopicMissingError, bag_reader.TopicTypeError) as err:
+        result.complete = False
+        result.problems.append(str(err))
+        present = {t for t in wanted if _usable(bag, t, expected[_stream_of(cfg, t)])}
+        if not present:
+            return
+        wanted = {t: v for t, v in wanted.items() if t in present}
+    except bag_reader.BagEmptyError as err:
+        result.complete = False
+        result.problems.append(str(err))
+        return
+    stream_of = {cfg.topics[s]: s for s in STREAMS}
+    fields = {t: itf.STREAM_FIELDS[stream_of[t]] for t in wanted}
+    total = sum(bag.info.message_counts.get(bag.resolve_topic(t) or t, 0) for t in wanted)
+    t_dec = t_val = 0.0
+    tick = time.perf_counter()
+    try:
+        for batch in bag.field_batches(list(wanted), fields, size=_BATCH):
+            now = time.perf_counter()
+            t_dec += now - tick
+            # the node's extractors, on arrays; then the node's validator, many at a time
+            kinds = np.empty(len(batch), dtype=np.int8)
+            values = np.empty((len(batch), 2))
+            for j, topic in enumerate(batch.topics):
+                rows = batch.topic == j
+                stream = stream_of[topic]
+                kinds[rows] = STREAM_KINDS[stream]
+                values[rows] = itf.stream_values(stream, batch.values[rows], cfg.units)
+            before = result.messages
+            result.messages += len(batch)
+            core.feed_many(kinds, batch.stamp_ns, values, on_report)
+            tick = time.perf_counter()
+            t_val += tick - now
+            if progress is not None:
+                for m in range((before // 5000 + 1) * 5000, result.messages + 1, 5000):
+                    progress(m, total)
+    except bag_reader.BagCorruptError as err:
+        result.complete = False
+        result.problems.append(str(err))
+    result.decode_s, result.validate_s = t_dec, t_val
+
+
+def _feed_mapped(
+    bag: bag_reader.BagReader,
+    core: OnlineValidator,
+    cfg: ReplayConfig,
+    result: ReplayResult,
+    on_report: Callable[[WindowReport], None],
+) -> None:
+    """An interface map's sources, message by message, decoded from the bag's definitions.
+
+    A topic the map names that is not in the bag, of another type, or whose first message
+    does not fit the map (field path, header stamp) is a problem naming the topic, the type
+    found and the fields it has; the other topics are read. Inputs on separate topics are
+    assembled into commands (:class:`~twotank_validation.online.assembler.CommandAssembler`).
+    """
+    imap = cfg.interface
+    assert imap is not None
+    topics = imap.topics()
+    usable: list[str] = []
+    for topic, sources in topics.items():
+        name = bag.resolve_topic(topic)
+        found = bag.info.topics.get(name, "") if name is not None else ""
+        if name is None:
+            listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(bag.info.topics.items()))
+            problem = (
+                f"topic {topic!r} of the interface map is not in the bag {bag.info.path}; it "
+                f"holds: {listing or 'no topics'}"
+            )
+        elif found != sources.msgtype:
+            problem = (
+                f"topic {topic!r} carries {found}, but the interface map asks for "
+                f"{sources.msgtype}; set 'type: {found}' in the map with field paths of that type"
+            )
+        else:
+            usable.append(topic)
+            continue
+        result.complete = False
+        result.problems.append(problem)
+    if not usable:
+        return
+    assembler = CommandAssembler(len(imap.inputs), cfg.monitor.ts_s)
+    checked: set[str] = set()
+    refused: set[str] = set()
+    bad_values = 0
+
+    def deliver(reports: list[WindowReport]) -> None:
+        for rep in reports:
+            on_report(rep)
+
+    t_start = time.perf_counter()
+    try:
+        for m in bag.messages(usable):
+            if m.topic not in checked:
+                checked.add(m.topic)
+                try:
+                    for b in topics[m.topic].bindings:
+                        check_message(b.source, m.msg, m.msgtype)
+                except InterfaceMapError as err:
+                    refused.add(m.topic)
+                    result.complete = False
+                    result.problems.append(str(err))
+            if m.topic in refused:
+                continue
+            result.messages += 1
+            for b in topics[m.topic].bindings:
+                try:
+                    value = extract(m.msg, b.source)
+                except InterfaceMapError:
+                    value, bad_values = math.nan, bad_values + 1  # flagged as non-finite
+                stamp = source_stamp_ns(m.msg, b.source, m.log_time_ns)
+                if b.role == OUTPUT:
+                    deliver(core.feed(MEASUREMENTS[b.position], stamp, value))
+                else:
+                    for s, u in assembler.push(b.position, stamp, value):
+                        deliver(core.feed(itf.FLOW_CMD, s, tuple(u)))
+        for s, u in assembler.flush():
+            deliver(core.feed(itf.FLOW_CMD, s, tuple(u)))
+    except bag_reader.BagCorruptError as err:
+        result.complete = False
+        result.problems.append(str(err))
+    if bad_values:
+        result.problems.append(
+            f"{bad_values} value(s) could not be read through the map's field paths (e.g. an "
+            "array shorter than the index); they count as non-finite samples"
+        )
+    result.decode_s = time.perf_counter() - t_start  # decoding and validating interleave here
 
 
 def _usable(bag: bag_reader.BagReader, topic: str, types: tuple[str, ...]) -> bool:
@@ -386,8 +513,17 @@ def _metadata_timing(custom: Mapping[str, str]) -> tuple[float | None, int | Non
     return ts, period
 
 
-def _command_record(bag: bag_reader.BagReader, topic: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """Stamps (n,) ns and values (n, 2) of the command topic, None if it cannot be read."""
+def _command_record(
+    bag: bag_reader.BagReader, cfg: ReplayConfig
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Stamps (n,) ns and values (n, m) of the commands, None if they cannot be read.
+
+    The two-tank interface: the command topic's (hot, cold). An interface map: the first
+    input's source, stamped as the map says (m = 1).
+    """
+    if cfg.interface is not None:
+        return _source_record(bag, cfg.interface.inputs[0])
+    topic = cfg.topics[itf.FLOW_CMD]
     if not _usable(bag, topic, bag_reader.expected_types()[itf.FLOW_CMD]):
         return None
     stamps, values = [], []
@@ -399,6 +535,23 @@ def _command_record(bag: bag_reader.BagReader, topic: str) -> tuple[np.ndarray, 
     if not stamps:
         return None
     return np.concatenate(stamps), np.concatenate(values)
+
+
+def _source_record(
+    bag: bag_reader.BagReader, source: Source
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Stamps (n,) ns and model-unit values (n, 1) of one map source, None if unreadable."""
+    name = bag.resolve_topic(source.topic)
+    if name is None or bag.info.topics.get(name) != source.msgtype:
+        return None
+    stamps, values = [], []
+    with contextlib.suppress(bag_reader.BagCorruptError, InterfaceMapError):
+        for m in bag.messages([source.topic]):
+            values.append(extract(m.msg, source))
+            stamps.append(source_stamp_ns(m.msg, source, m.log_time_ns))
+    if not stamps:
+        return None
+    return np.asarray(stamps, dtype=np.int64), np.asarray(values, dtype=float)[:, None]
 
 
 def _fmt_s(x: float) -> str:
@@ -434,7 +587,7 @@ def resolve_timing(
     cfg = config or ReplayConfig()
     with bag_reader.open_bag(path) as bag:
         meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
-        record = _command_record(bag, cfg.topics[itf.FLOW_CMD])
+        record = _command_record(bag, cfg)
     notes: list[str] = []
     conflicts: list[str] = []
     grid = infer_sample_period(record[0]) if record is not None else None
