@@ -7,6 +7,7 @@ extractors), since these import the generated message packages.
 from __future__ import annotations
 
 import array
+import importlib
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,23 @@ def message_classes() -> tuple[Any, Any]:
             "or build the package with colcon"
         ) from err
     return FlowCommand, ValidationReport
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Name``.
+
+    Raises:
+        ImportError: the type's package is not installed, or has no such message (the
+            message names the type and what to install).
+    """
+    pkg, _, name = msgtype.partition("/msg/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+    except (ImportError, AttributeError) as err:
+        raise ImportError(
+            f"cannot import the message type {msgtype}: install (or source) the ROS package "
+            f"{pkg!r} that defines it, or fix the type's name"
+        ) from err
 
 
 def _doubles(values: np.ndarray) -> array.array[float]:

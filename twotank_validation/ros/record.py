@@ -8,7 +8,6 @@ included), so everything received before the stop is in the bag.
 
 from __future__ import annotations
 
-import importlib
 import signal
 import threading
 from collections.abc import Mapping
@@ -24,12 +23,7 @@ from rclpy.node import Node
 from twotank_validation.bags.writer import BagWriter
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online.streams import STREAM_TYPES, STREAMS
-
-
-def message_class(msgtype: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Name``."""
-    pkg, _, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+from twotank_validation.ros import messages
 
 
 class RecorderNode(Node):
@@ -48,7 +42,7 @@ class RecorderNode(Node):
         for topic, msgtype in topics.items():
             writer.add_topic(topic, msgtype)
             self.create_subscription(
-                message_class(msgtype), topic, self._callback(topic), 1000, raw=True
+                messages.message_class(msgtype), topic, self._callback(topic), 1000, raw=True
             )
 
     def _callback(self, topic: str) -> Any:

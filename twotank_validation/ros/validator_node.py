@@ -12,6 +12,13 @@ publishes. Topics (node-relative, remappable):
   transient-local, the debounced alarm == ERROR); ``/diagnostics`` (one status per model);
 * service ``reset_alarm`` (std_srvs/Trigger) clears latched alarms.
 
+With an interface map (parameter ``interface_map``, a YAML file, or ``inputs``/``outputs`` as
+text; :mod:`twotank_validation.online.interface`) the inputs are each map topic instead, of
+the type the map names (imported by name), each source's value read through its field path
+and converted; inputs on separate topics are assembled into commands
+(:class:`~twotank_validation.online.assembler.CommandAssembler`). A topic whose first message
+does not fit the map is refused with the reason in ``/diagnostics`` (STALE) and the log.
+
 ``/diagnostics`` is STALE (saying why) while a stream is stopped or a topic has a publisher of
 the wrong type, and from the moment input arrives that makes the coming windows unfit to judge
 (non-finite or implausible values, off-grid stamps, gaps, clock jumps, a stream stopping, a run
@@ -23,12 +30,14 @@ the last window's level (published once all models' reports of a window are out)
 from __future__ import annotations
 
 import enum
+import math
 import queue
 import sys
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from time import perf_counter
 from typing import Any
 
@@ -54,6 +63,17 @@ from twotank_validation.online import (
     WindowReport,
 )
 from twotank_validation.online import streams as itf
+from twotank_validation.online.assembler import CommandAssembler
+from twotank_validation.online.interface import (
+    OUTPUT,
+    InterfaceMap,
+    InterfaceMapError,
+    check_message,
+    extract,
+    interface_map_from_text,
+    load_interface_map,
+    source_stamp_ns,
+)
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
 
@@ -110,6 +130,20 @@ VALIDATOR_PARAMS = (
         0.49,
     ),
     *UNIT_PARAMS,
+    Param(
+        "interface_map",
+        "",
+        "interface map YAML (docs/interface.md): each model input and output from its own "
+        "topic, message type, field, stamp and unit conversion; empty: the two-tank topics "
+        "flow_cmd, height, temperature",
+    ),
+    Param(
+        "inputs",
+        [""],
+        "the interface map as text instead of interface_map, one input source per entry in "
+        "model order: NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive]; empty: none",
+    ),
+    Param("outputs", [""], "the interface map's output sources as text, as inputs"),
 )
 
 
@@ -131,6 +165,23 @@ class _Event:
 
 
 @dataclass(slots=True)
+class _Input:
+    """One input's value from an interface map's source: assembled into a command.
+
+    Attributes:
+        position: the input's index in the model's inputs.
+        stamp_ns: its stamp (ns): the header stamp or the receive time, as the map says.
+        value: model units.
+        received: ``perf_counter()`` at reception (report latency).
+    """
+
+    position: int
+    stamp_ns: int
+    value: float
+    received: float
+
+
+@dataclass(slots=True)
 class _Marker:
     """Queue item: set ``done`` once every item queued before it is processed."""
 
@@ -145,7 +196,7 @@ class _Control(enum.Enum):
     EXIT = enum.auto()  # the worker returns
 
 
-_Item = _Event | _Marker | _Control
+_Item = _Event | _Input | _Marker | _Control
 
 
 _BLANK_REPORT = WindowReport(
@@ -236,11 +287,18 @@ class ValidatorNode(Node):
             raise ParameterError(f"cannot start the validator: {err}") from err
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
         flow_cls, self._report_cls = messages.message_classes()
+        self.interface = _interface_map(values)
+        # what the watchdog watches: the streams, or the map's topics with their types
+        self._watched: dict[str, str] = (
+            dict(itf.STREAM_TYPES)
+            if self.interface is None
+            else {t: s.msgtype for t, s in self.interface.topics().items()}
+        )
 
         self._queue: queue.Queue[_Item] = queue.Queue()
         self._lock = threading.Lock()
-        self._last_rx: dict[str, int | None] = dict.fromkeys(itf.STREAMS)
-        self.received: dict[str, int] = dict.fromkeys(itf.STREAMS, 0)
+        self._last_rx: dict[str, int | None] = dict.fromkeys(self._watched)
+        self.received: dict[str, int] = dict.fromkeys(self._watched, 0)
         # per model: level, text and the last report; replaced whole (never updated in place)
         # once every model's report of a window is out, so the watchdog sees one window
         self._status: dict[str, tuple[Alarm, str, WindowReport | None]] = {
@@ -252,9 +310,21 @@ class ValidatorNode(Node):
         self.report_latency_s: deque[float] = deque(maxlen=1000)
         self._watch: tuple[Alarm, str] | None = None  # the watchdog's latest finding
 
-        self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 1000)
-        self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 1000)
-        self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 1000)
+        self._refused: dict[str, str] = {}  # map topics whose messages do not fit, and why
+        self._checked: set[str] = set()
+        if self.interface is None:
+            self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 1000)
+            self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 1000)
+            self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 1000)
+        else:
+            self._assembler = CommandAssembler(len(self.interface.inputs), self.config.ts_s)
+            self._topics = self.interface.topics()
+            for topic, sources in self._topics.items():
+                try:
+                    cls = messages.message_class(sources.msgtype)
+                except ImportError as err:
+                    raise ParameterError(f"cannot start the validator: {err}") from err
+                self.create_subscription(cls, topic, partial(self._on_mapped, topic), 1000)
         latched = QoSProfile(
             depth=1,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
@@ -316,6 +386,35 @@ class ValidatorNode(Node):
         value = itf.temperature_value(msg, self.units)
         self._queue.put(_Event(itf.TEMPERATURE, itf.stamp_ns(msg), value, perf_counter()))
 
+    def _on_mapped(self, topic: str, msg: Any) -> None:
+        """A message of an interface map's topic: each of its sources' values queued."""
+        now = self._now_ns()
+        self._last_rx[topic] = now
+        self.received[topic] += 1
+        if topic in self._refused:
+            return
+        sources = self._topics[topic]
+        if topic not in self._checked:
+            self._checked.add(topic)
+            try:
+                for b in sources.bindings:
+                    check_message(b.source, msg, sources.msgtype)
+            except InterfaceMapError as err:
+                self._refused[topic] = str(err)
+                self.get_logger().error(f"interface map does not fit: {err}")
+                return
+        received = perf_counter()
+        for b in sources.bindings:
+            try:
+                value = extract(msg, b.source)
+            except InterfaceMapError:
+                value = math.nan  # the aligner flags it as a non-finite sample
+            stamp = source_stamp_ns(msg, b.source, now)
+            if b.role == OUTPUT:
+                self._queue.put(_Event(itf.MEASUREMENTS[b.position], stamp, value, received))
+            else:
+                self._queue.put(_Input(b.position, stamp, value, received))
+
     def _on_time_jump(self, jump: Any) -> None:
         if jump.delta.nanoseconds < 0:
             self._queue.put(_Control.RESET)
@@ -351,25 +450,30 @@ class ValidatorNode(Node):
                 with self._lock:
                     self.core.restart()
                 continue
-            assert isinstance(item, _Event)
-            try:
-                reports = self.feed(item.stream, item.stamp_ns, item.value)
-            except Exception as err:  # keep the node alive; the status says what happened
-                self.get_logger().error(
-                    f"validator failed on {item.stream} at {item.stamp_ns} ns: {err}"
-                )
-                self._status = {
-                    name: (Alarm.STALE, f"internal error: {err}", rep)
-                    for name, (_, _, rep) in self._status.items()
-                }
+            if isinstance(item, _Input):
+                for stamp, u in self._assembler.push(item.position, item.stamp_ns, item.value):
+                    self._process(itf.FLOW_CMD, stamp, (float(u[0]), float(u[1])), item.received)
                 continue
-            if reports:
-                status = dict(self._status)
-                for rep in reports:
-                    status[rep.model] = self._publish(rep)
-                self._status = status
-                self._publish_diagnostics()  # once every model's status is new
-                self.report_latency_s.append(perf_counter() - item.received)
+            self._process(item.stream, item.stamp_ns, item.value, item.received)
+
+    def _process(self, stream: str, stamp_ns: int, value: Any, received: float) -> None:
+        """Feed one event to the validator and publish the reports it completes."""
+        try:
+            reports = self.feed(stream, stamp_ns, value)
+        except Exception as err:  # keep the node alive; the status says what happened
+            self.get_logger().error(f"validator failed on {stream} at {stamp_ns} ns: {err}")
+            self._status = {
+                name: (Alarm.STALE, f"internal error: {err}", rep)
+                for name, (_, _, rep) in self._status.items()
+            }
+            return
+        if reports:
+            status = dict(self._status)
+            for rep in reports:
+                status[rep.model] = self._publish(rep)
+            self._status = status
+            self._publish_diagnostics()  # once every model's status is new
+            self.report_latency_s.append(perf_counter() - received)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Block until the worker has processed every queued event (tests, composition)."""
@@ -428,15 +532,14 @@ class ValidatorNode(Node):
 
     def _wrong_types(self) -> list[str]:
         problems = []
-        for stream in itf.STREAMS:
-            topic = self.resolve_topic_name(stream)
+        for name, msgtype in self._watched.items():
+            topic = self.resolve_topic_name(name)
             for info in self.get_publishers_info_by_topic(topic):
-                if info.topic_type != itf.STREAM_TYPES[stream]:
+                if info.topic_type != msgtype:
                     problems.append(
-                        f"{topic} has a publisher of type {info.topic_type}, "
-                        f"expected {itf.STREAM_TYPES[stream]}"
+                        f"{topic} has a publisher of type {info.topic_type}, expected {msgtype}"
                     )
-        return problems
+        return [*problems, *self._refused.values()]
 
     def _on_watchdog(self) -> None:
         now = self._now_ns()
@@ -462,6 +565,32 @@ class ValidatorNode(Node):
             self._queue.put(_Control.EXIT)
             worker.join(timeout=5.0)
         super().destroy_node()
+
+
+def _interface_map(values: dict[str, Any]) -> InterfaceMap | None:
+    """The interface map of the parameters, or None (the two-tank topics)."""
+    inputs = [s for s in values["inputs"] if s]
+    outputs = [s for s in values["outputs"] if s]
+    path = str(values["interface_map"])
+    try:
+        if path and (inputs or outputs):
+            raise ParameterError("give interface_map or inputs/outputs, not both")
+        imap = None
+        if path:
+            imap = load_interface_map(path)
+        elif inputs or outputs:
+            if not (inputs and outputs):
+                raise ParameterError("inputs and outputs go together: give every input and output")
+            imap = interface_map_from_text(inputs, outputs)
+    except InterfaceMapError as err:
+        raise ParameterError(f"cannot start the validator: {err}") from err
+    if imap is not None and (len(imap.inputs), len(imap.outputs)) != (2, len(itf.MEASUREMENTS)):
+        raise ParameterError(
+            f"the interface map has {len(imap.inputs)} input(s) and {len(imap.outputs)} "
+            f"output(s); the validator takes the two-tank interface's 2 inputs and "
+            f"{len(itf.MEASUREMENTS)} outputs"
+        )
+    return imap
 
 
 def main(args: list[str] | None = None) -> int:
