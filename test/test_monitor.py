@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -251,7 +252,8 @@ def test_monitor_refuses_windows_unfit_to_judge() -> None:
     stamps, u, y = rig_record()
     y_nan = y.copy()
     y_nan[700, 1] = np.nan
-    reports = online.monitor_record(stamps, u, y_nan, FAST, models()[:1])
+    strict = dataclasses.replace(FAST, max_recovered_fraction=0.0)  # no recovery
+    reports = online.monitor_record(stamps, u, y_nan, strict, models()[:1])
     affected = [r for r in reports if r.start_ns <= stamps[700] <= r.end_ns]
     assert affected
     assert all(not r.judged and "non-finite" in r.data_quality for r in affected)

@@ -57,7 +57,7 @@ class OnlineValidator:
         self, config: MonitorConfig, models: Sequence[LFTModel], *, jitter_fraction: float = 0.25
     ) -> None:
         self.config = config
-        self._monitor = WindowMonitor(config, models)
+        self._monitor = WindowMonitor(config, models, MEASUREMENTS)
         self._aligner = SampleAligner(config.ts_s, 2, MEASUREMENTS, jitter_fraction=jitter_fraction)
         self.samples_seen = 0
         self.sample_listeners: list[Callable[[Sample | SampleBlock], None]] = []

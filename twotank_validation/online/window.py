@@ -34,6 +34,7 @@ from twotank_validation.online.alarm import (
     update_alarm,
 )
 from twotank_validation.online.aligner import Sample, SampleBlock
+from twotank_validation.online.recovery import Recovery, recover_span
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,10 @@ class MonitorConfig:
         convention: norm convention of ||w||.
         method: solver choice passed to :func:`validate`.
         alarm: debouncing.
+        max_recovered_fraction: largest fraction of a window per signal whose unusable
+            samples (lost, late, non-finite; a held command) are recovered from the same phase
+            of the other periods (:mod:`~twotank_validation.online.recovery`); 0: a window with
+            any unusable sample is not judged.
     """
 
     ts_s: float = TS_S
@@ -63,6 +68,7 @@ class MonitorConfig:
     convention: NormConvention = NormConvention.POWER
     method: str = "auto"
     alarm: AlarmConfig = field(default_factory=AlarmConfig)
+    max_recovered_fraction: float = 0.01
 
     def __post_init__(self) -> None:
         checks = [
@@ -87,6 +93,10 @@ class MonitorConfig:
             (
                 self.method in METHODS,
                 f"unknown method {self.method!r}",
+            ),
+            (
+                0.0 <= self.max_recovered_fraction < 0.5,
+                f"max_recovered_fraction must be in [0, 0.5), found {self.max_recovered_fraction}",
             ),
         ]
         for ok, msg in checks:
@@ -155,9 +165,16 @@ class WindowMonitor:
     Args:
         config: monitor settings.
         models: models to validate (inputs/outputs must match the samples).
+        output_names: the outputs' names as the aligner's sample flags spell them (default:
+            the first model's output names).
     """
 
-    def __init__(self, config: MonitorConfig, models: Sequence[LFTModel]) -> None:
+    def __init__(
+        self,
+        config: MonitorConfig,
+        models: Sequence[LFTModel],
+        output_names: Sequence[str] | None = None,
+    ) -> None:
         if not models:
             raise ModelError("the monitor needs at least one model")
         self.config = config
@@ -176,6 +193,9 @@ class WindowMonitor:
                     "noise section with the sensors' noise to its file"
                 )
         self.n_inputs, self.n_outputs = nu, ny
+        # names of the aligner's flags (outputs) and of the signals in recovery reasons
+        self._output_names = tuple(output_names or self.models[0].output_names)
+        self._signal_names = (*self.models[0].input_names, *self._output_names)
         cap = self._cap = config.span_samples
         self._period = config.period_samples
         self._window = config.window_samples
@@ -287,17 +307,37 @@ class WindowMonitor:
             self._flag[head] + self._flag[tail],
         )
 
-    def _quality(self) -> str:
+    def _recovered(self) -> Recovery:
+        """The span in time order with its recoverable samples filled in (or why not)."""
+        cfg = self.config
+        span = min(self._count, cfg.span_samples)
+        u, y, _, flags = self._ordered(span)
+        return recover_span(
+            u,
+            y,
+            flags,
+            period=cfg.period_samples,
+            window=min(span, cfg.window_samples),
+            max_fraction=cfg.max_recovered_fraction,
+            names=self._signal_names,
+            output_names=self._output_names,
+            rtol=cfg.input_periodic_rtol,
+        )
+
+    def _quality(self, rec: Recovery) -> str:
         cfg = self.config
         L = cfg.period_samples
         span = min(self._count, cfg.span_samples)
-        u, _, _, flags = self._ordered(span)
-        bad = [f for f in flags if f is not None]
-        if bad:
-            return (
-                f"{len(bad)} unusable sample(s) in the window or its settling periods; "
-                f"first: {bad[0]}"
-            )
+        _, _, _, flags = self._ordered(span)
+        if rec.reason is not None:
+            bad = [f for f in flags if f is not None]
+            first = f"; first: {bad[0]}" if bad else ""
+            n_bad = max(len(bad), int(rec.recovered.sum()))
+            head = f"{n_bad} unusable sample(s) in the window or its settling periods"
+            if cfg.max_recovered_fraction <= 0.0:
+                return head + first
+            return f"{head}: {rec.reason}{first}"
+        u = rec.u
         if self._count < cfg.span_samples:
             return (
                 f"settling: {cfg.settle_periods} period(s) of periodic input are needed before "
@@ -323,9 +363,17 @@ class WindowMonitor:
     def _evaluate(self) -> list[WindowReport]:
         cfg = self.config
         n = cfg.window_samples
-        u, y, stamps, _ = self._ordered(n)
+        _, _, stamps, _ = self._ordered(n)
         start_ns, end_ns = int(stamps[0]), int(stamps[-1])
-        quality = self._quality()
+        rec = self._recovered()
+        quality = self._quality(rec)
+        u, y = rec.u[-n:], rec.y[-n:]
+        judged_quality = "ok"
+        if rec.recovered.any():
+            judged_quality = (
+                f"ok; recovered {int(rec.recovered.sum())} sample(s) from the other periods "
+                f"({rec.summary(self._signal_names)})"
+            )
         datum = None
         if quality == "ok":
             try:
@@ -364,7 +412,7 @@ class WindowMonitor:
                     n_periods=cfg.periods_per_window,
                     n_samples=n,
                     judged=True,
-                    data_quality="ok",
+                    data_quality=judged_quality,
                     beta=res.beta,
                     beta_lower=res.beta if general else math.nan,
                     beta_upper=res.beta_upper if general else math.nan,

@@ -123,6 +123,14 @@ VALIDATOR_PARAMS = (
         3600.0,
     ),
     Param(
+        "max_recovered_fraction",
+        0.01,
+        "largest fraction of a window per signal whose unusable samples are recovered from "
+        "the other periods (0: any unusable sample leaves the window unjudged)",
+        0.0,
+        0.49,
+    ),
+    Param(
         "jitter_fraction",
         0.25,
         "accepted stamp distance from the sample grid, fraction of ts_s",
@@ -233,6 +241,7 @@ def monitor_config(values: dict[str, Any]) -> MonitorConfig:
             input_periodic_rtol=float(values["input_periodic_rtol"]),
             convention=NormConvention(values["norm_convention"]),
             method=str(values["method"]),
+            max_recovered_fraction=float(values["max_recovered_fraction"]),
             alarm=AlarmConfig(
                 alarm_windows=int(values["alarm_windows"]),
                 clear_windows=int(values["clear_windows"]),
