@@ -2,8 +2,8 @@
 
 The layers, lowest first (a module may import its own layer and the layers below it):
 
-    errors, defaults -> core -> online -> sim -> bags -> diagnose -> replay -> experiment
-    -> report -> ros -> cli
+    errors, defaults -> core -> online -> sim -> bags -> tables -> diagnose -> replay
+    -> experiment -> report -> ros -> cli
 
 The package root (``twotank_validation/__init__.py``) is the public surface above them all; it
 loads its names on first use and imports nothing at import time. Every ``import`` statement
@@ -27,6 +27,7 @@ LAYERS = (
     ("online",),
     ("sim",),
     ("bags",),
+    ("tables",),
     ("diagnose",),
     ("replay",),
     ("experiment",),

@@ -207,11 +207,19 @@ def _replay_config(args: argparse.Namespace, ts_s: float, period_samples: int) -
 
 
 def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
-    """The interface map of ``--map`` or ``--input``/``--output``, or None (the two-tank one)."""
+    """The interface map of ``--map`` or ``--input``/``--output``, or None (the two-tank one).
+
+    ``--time`` gives a table's time column (it replaces the map file's ``time``).
+    """
     from twotank_validation.online import interface  # noqa: PLC0415
 
     texts = bool(args.input or args.output)
     if not (args.map or texts):
+        if args.time is not None:
+            raise UsageError(
+                "--time names a table's time column; give the table's columns with --map FILE "
+                "or --input/--output NAME=column:COLUMN"
+            )
         return None
     if args.topic:
         raise UsageError(
@@ -221,10 +229,13 @@ def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
     if args.map and texts:
         raise UsageError("give the interface either as --map FILE or as --input/--output")
     if args.map:
-        return interface.load_interface_map(args.map)
+        imap = interface.load_interface_map(args.map)
+        if args.time is None:
+            return imap
+        return replace(imap, time=interface.time_column_from_text(args.time))
     if not (args.input and args.output):
         raise UsageError("--input and --output go together: give every input and every output")
-    return interface.interface_map_from_text(args.input, args.output)
+    return interface.interface_map_from_text(args.input, args.output, args.time)
 
 
 def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
@@ -237,6 +248,12 @@ def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
 
     base = _replay_config(args, args.ts or TS_S, args.period or PERIOD_SAMPLES)
     assert isinstance(base, replay.ReplayConfig)
+    if replay.is_table_input(args.bag, base) and base.interface is None:
+        raise UsageError(
+            f"{args.bag} is a table (CSV/Parquet): give the map of its columns with --map FILE "
+            "(a 'column' per input and output, and the time column: docs/interface.md, "
+            "Tables), or --input/--output NAME=column:COLUMN[,scale=S][,offset=O]"
+        )
     timing = replay.resolve_timing(args.bag, base, ts_s=args.ts, period_samples=args.period)
     for note in timing.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -263,7 +280,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             bar.n = done
             bar.refresh()
 
-    result = replay.replay_bag(args.bag, models, cfg, progress=progress)
+    result = replay.replay_recording(args.bag, models, cfg, progress=progress)
     if bar is not None:
         bar.close()
     summary = replay.summary_json(result)
@@ -308,7 +325,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     if args.report:
         report.write_replay_report(result, {m.name: m for m in models}, summary, Path(args.report))
     print(
-        f"{result.messages} messages; decoding {result.decode_s:.2f} s, "
+        f"{result.messages} {'rows' if result.source == 'table' else 'messages'}; "
+        f"decoding {result.decode_s:.2f} s, "
         f"validation {result.validate_s:.2f} s; "
         + ("complete" if result.complete else "INCOMPLETE"),
         file=sys.stderr,
@@ -355,7 +373,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     cfg, timing = _timed_config(args)
     assert isinstance(cfg, replay.ReplayConfig)
     assert isinstance(timing, replay.Timing)
-    windows, replayed = replay.windows_from_bag(args.bag, model, cfg)
+    windows, replayed = replay.windows_from_recording(args.bag, model, cfg)
     for problem in replayed.problems:
         print(f"WARNING: {problem}", file=sys.stderr)
     summary = replay.summary_json(replayed)
@@ -484,7 +502,11 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=fmt,
         epilog=EXIT_CODES,
     )
-    val.add_argument("bag", help="rosbag2 directory (MCAP or SQLite3) or a plain .mcap file")
+    val.add_argument(
+        "bag",
+        help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
+        "table (with --map of its columns)",
+    )
     val.add_argument(
         "--model", action="append", help="model name or YAML path (repeat; default A and B)"
     )
@@ -499,7 +521,11 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=fmt,
         epilog=EXIT_CODES,
     )
-    dia.add_argument("bag", help="rosbag2 directory (MCAP or SQLite3) or a plain .mcap file")
+    dia.add_argument(
+        "bag",
+        help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
+        "table (with --map of its columns)",
+    )
     dia.add_argument("--model", required=True, help="model name (A, B) or YAML path")
     dia.add_argument("--json", help="write the diagnosis as JSON to this file")
     dia.add_argument("--report", help="write the evidence figures to this folder")
@@ -523,13 +549,15 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
     val.add_argument(
         "--map",
         help="interface map (YAML): each model input and output from its own topic, message "
-        "type, field, stamp and unit conversion (docs/interface.md); None: the two-tank topics",
+        "type, field, stamp and unit conversion, or from a table's column (docs/interface.md); "
+        "None: the two-tank topics",
     )
     val.add_argument(
         "--input",
         action="append",
         help="one input source instead of --map, in model input order (repeat): "
-        "NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive]",
+        "NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive], or for a table "
+        "NAME=column:COLUMN[,scale=S][,offset=O]",
     )
     val.add_argument(
         "--output",
@@ -537,11 +565,16 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
         help="one output source instead of --map, in model output order (repeat), as --input",
     )
     val.add_argument(
+        "--time",
+        help="a table's time column: COLUMN[,unit=auto|s|ms|us|ns|iso] (replaces the map's "
+        "'time'); None: the map's, else the column named time, t or timestamp",
+    )
+    val.add_argument(
         "--ts",
         type=float,
         default=None,
         help="sample period of the recording (s); None: from the bag's metadata, else "
-        "inferred from the command stamps (said on stderr)",
+        "inferred from the command stamps (a table's time column) (said on stderr)",
     )
     val.add_argument(
         "--period",

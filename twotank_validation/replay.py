@@ -1,9 +1,11 @@
-"""Validate recorded bags through the live validator's code path.
+"""Validate recorded bags and tables through the live validator's code path.
 
 Messages stream from :mod:`twotank_validation.bags.reader`, go through the same extractors as
 the ROS node (:mod:`twotank_validation.online.streams`, ROS-free) and the same
 :class:`~twotank_validation.online.validator.OnlineValidator` (alignment, windows, gates, alarm,
-input faults).
+input faults). A CSV or Parquet table (:mod:`twotank_validation.tables`, read through an
+interface map of columns) goes the same way, row by row: :func:`replay_table`;
+:func:`replay_recording` takes either.
 Memory stays bounded: only the window buffer and per-window summaries are kept, plus the samples
 of a few windows of interest (largest beta, first alarm) for the figures.
 
@@ -32,6 +34,7 @@ from typing import Any
 import numpy as np
 
 import twotank_validation.bags as bag_reader
+from twotank_validation import tables
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.diagnose import Window
@@ -46,6 +49,7 @@ from twotank_validation.online.infer import (
     infer_sample_period,
 )
 from twotank_validation.online.interface import (
+    INPUT,
     OUTPUT,
     InterfaceMap,
     InterfaceMapError,
@@ -69,7 +73,8 @@ class ReplayConfig:
         interface: an interface map (:mod:`twotank_validation.online.interface`): each model
             input and output read from its own topic, type, field and stamp, with its unit
             conversion; messages are decoded from the definitions stored in the bag. None:
-            the two-tank interface of ``topics`` and ``units`` (read in bulk).
+            the two-tank interface of ``topics`` and ``units`` (read in bulk). A table
+            (:func:`replay_table`) needs a map of columns.
     """
 
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
@@ -122,17 +127,19 @@ class ReplayResult:
     """Everything a replay found.
 
     Attributes:
-        path: the bag.
+        path: the bag or the table.
         reports: window reports in order (all models).
         complete: the whole bag was read and every expected topic was present.
         problems: what made the run incomplete or what was refused, in words (the input
             faults in the live node's words).
         counters: aligner counters (duplicates, out of order, gaps, ...).
-        messages: messages read.
+        messages: messages read (a table: rows read).
         decode_s: wall time spent reading and decoding.
         validate_s: wall time spent aligning and validating.
-        bag_start_ns: first log time in the bag (reports' times are relative to it in JSON).
+        bag_start_ns: first log time in the bag, or a table's first time (reports' times are
+            relative to it in JSON).
         snapshots: windows of interest per model.
+        source: ``"bag"`` or ``"table"``.
     """
 
     path: Path
@@ -145,6 +152,7 @@ class ReplayResult:
     validate_s: float = 0.0
     bag_start_ns: int = 0
     snapshots: dict[str, dict[str, WindowSnapshot]] = field(default_factory=dict)
+    source: str = "bag"
 
 
 _BATCH = 4096  # messages decoded and validated at a time
@@ -179,18 +187,18 @@ def replay_bag(
 
     Raises:
         BagNotFoundError, BagFormatError: the path is not a readable bag (nothing to report).
+        ReplayConfigError: the interface map reads a table's columns.
     """
     cfg = config or ReplayConfig()
+    if cfg.interface is not None and cfg.interface.is_table:
+        raise ReplayConfigError(
+            f"{path}: the interface map reads the columns of a table, but this is read as a "
+            f"bag; give a CSV or Parquet file ({', '.join(tables.TABLE_SUFFIXES)}), or a map "
+            "of topics for a bag"
+        )
     core = OnlineValidator(cfg.monitor, models, jitter_fraction=cfg.jitter_fraction)
     result = ReplayResult(Path(path))
-
-    def on_report(rep: WindowReport) -> None:
-        result.reports.append(rep)
-        _keep_if_interesting(result, core, rep)
-        if on_window is not None and rep.judged:
-            stamps, u, y = core.last_window()
-            on_window(rep, WindowSnapshot(rep, stamps, u, y))
-
+    on_report = _reporter(result, core, on_window)
     with bag_reader.open_bag(path) as bag:
         result.bag_start_ns = bag.info.start_ns or 0
         if cfg.interface is not None:
@@ -202,6 +210,173 @@ def replay_bag(
     if progress is not None:
         progress(result.messages, max(result.messages, 1))
     return result
+
+
+def _reporter(
+    result: ReplayResult,
+    core: OnlineValidator,
+    on_window: Callable[[WindowReport, WindowSnapshot], None] | None,
+) -> Callable[[WindowReport], None]:
+    """Each report into the result (and the windows of interest), judged ones to ``on_window``."""
+
+    def on_report(rep: WindowReport) -> None:
+        result.reports.append(rep)
+        _keep_if_interesting(result, core, rep)
+        if on_window is not None and rep.judged:
+            stamps, u, y = core.last_window()
+            on_window(rep, WindowSnapshot(rep, stamps, u, y))
+
+    return on_report
+
+
+def replay_table(
+    path: str | Path,
+    models: Sequence[LFTModel],
+    config: ReplayConfig,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    on_window: Callable[[WindowReport, WindowSnapshot], None] | None = None,
+) -> ReplayResult:
+    """Run a CSV or Parquet table through the validator, row by row in time order.
+
+    Each row's values go to the validator as a bag's messages do through a map
+    (:func:`replay_bag` with ``config.interface``): the inputs, in the order of ``u``, into
+    the command assembler, then the outputs; so the same run gives the same reports. Cells
+    that are empty or not numbers are NaN: their samples are flagged and the windows holding
+    them are not judged, with the reason (the columns and first rows are in
+    :attr:`ReplayResult.problems`).
+
+    Args:
+        path: ``.csv`` or ``.parquet`` file (:func:`twotank_validation.tables.read_table`).
+        models: models to validate.
+        config: validator settings; ``config.interface`` a map of columns (with the time
+            column).
+        progress: called with (rows fed, rows) now and then.
+        on_window: called with each judged window's report and its data (stamps, u, y in
+            model units).
+
+    Raises:
+        ReplayConfigError: no map, or a map of topics.
+        TableError: the file, a column or a time cell cannot be read (nothing to report).
+    """
+    imap = _table_map(config, path)
+    t_start = time.perf_counter()
+    table = tables.read_table(path, imap)
+    core = OnlineValidator(config.monitor, models, jitter_fraction=config.jitter_fraction)
+    result = ReplayResult(Path(path), source="table", bag_start_ns=int(table.stamps_ns[0]))
+    result.decode_s = time.perf_counter() - t_start
+    t_start = time.perf_counter()
+    feed = _MappedFeed(
+        core, len(imap.inputs), config.monitor.ts_s, _reporter(result, core, on_window)
+    )
+    stamps = table.stamps_ns.tolist()
+    inputs, outputs = table.inputs.tolist(), table.outputs.tolist()
+    for k, stamp in enumerate(stamps):
+        for j, value in enumerate(inputs[k]):
+            feed.value(INPUT, j, stamp, value)
+        for j, value in enumerate(outputs[k]):
+            feed.value(OUTPUT, j, stamp, value)
+        if progress is not None and k % 5000 == 4999:
+            progress(k + 1, len(stamps))
+    feed.flush()
+    result.validate_s = time.perf_counter() - t_start
+    result.messages = len(stamps)
+    for column, (count, row) in table.bad_cells.items():
+        result.problems.append(
+            f"column {column!r} of {path}: {count} cell(s) empty or not a number (the first in "
+            f"row {row} after the header); their samples count as non-finite and the windows "
+            "holding them are not judged"
+        )
+    result.counters = dataclasses.asdict(core.counters())
+    result.problems.extend(core.input_problems())
+    if progress is not None:
+        progress(result.messages, max(result.messages, 1))
+    return result
+
+
+def _table_map(config: ReplayConfig | None, path: str | Path) -> InterfaceMap:
+    """The map of columns a table is read through; else a ReplayConfigError with the fix."""
+    imap = config.interface if config is not None else None
+    if imap is None or not imap.is_table:
+        given = "no interface map" if imap is None else "a map of topics"
+        raise ReplayConfigError(
+            f"{path} is a table (CSV/Parquet) but {given} was given; a table is read through a "
+            "map of its columns: --map FILE with a 'column' per source and the time column "
+            "(e.g. inputs: [{name: hot, column: valve_hot_pct, scale: 100}, ...], time: "
+            "{column: t, unit: s}; docs/interface.md, Tables)"
+        )
+    return imap
+
+
+def replay_recording(
+    path: str | Path,
+    models: Sequence[LFTModel],
+    config: ReplayConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    on_window: Callable[[WindowReport, WindowSnapshot], None] | None = None,
+) -> ReplayResult:
+    """Replay a bag or a table: :func:`replay_table` or :func:`replay_bag`.
+
+    A table is a path with a table's suffix (``.csv``, ``.parquet``, ``.pq``), or any path
+    when the map reads columns (an unknown suffix is then a TableError naming it); anything
+    else is a bag. Arguments as :func:`replay_bag`.
+    """
+    if is_table_input(path, config):
+        return replay_table(
+            path, models, config or ReplayConfig(), progress=progress, on_window=on_window
+        )
+    return replay_bag(path, models, config, progress=progress, on_window=on_window)
+
+
+def is_table_input(path: str | Path, config: ReplayConfig | None = None) -> bool:
+    """The recording is read as a table: a table's suffix, or a map of columns."""
+    return tables.is_table(path) or (
+        config is not None and config.interface is not None and config.interface.is_table
+    )
+
+
+class _MappedFeed:
+    """An interface map's values into the validator, one value at a time (bags and tables).
+
+    Outputs go to the validator as they come; inputs are assembled into commands first
+    (:class:`~twotank_validation.online.assembler.CommandAssembler`: one command per sample
+    instant, a missing input holding its last value).
+
+    Args:
+        core: the validator.
+        n_inputs: inputs of a command.
+        ts_s: sample period (s).
+        on_report: called with each report.
+    """
+
+    def __init__(
+        self,
+        core: OnlineValidator,
+        n_inputs: int,
+        ts_s: float,
+        on_report: Callable[[WindowReport], None],
+    ) -> None:
+        self._core = core
+        self._assembler = CommandAssembler(n_inputs, ts_s)
+        self._on_report = on_report
+
+    def value(self, role: str, position: int, stamp_ns: int, value: float) -> None:
+        """One source's value (model units) at its stamp; ``role`` is INPUT or OUTPUT."""
+        if role == OUTPUT:
+            self._deliver(self._core.feed(MEASUREMENTS[position], stamp_ns, value))
+        else:
+            for s, u in self._assembler.push(position, stamp_ns, value):
+                self._deliver(self._core.feed(itf.FLOW_CMD, s, tuple(u)))
+
+    def flush(self) -> None:
+        """The commands still waiting for an input (at the end of the recording)."""
+        for s, u in self._assembler.flush():
+            self._deliver(self._core.feed(itf.FLOW_CMD, s, tuple(u)))
+
+    def _deliver(self, reports: list[WindowReport]) -> None:
+        for rep in reports:
+            self._on_report(rep)
 
 
 def _feed_streams(
@@ -299,15 +474,10 @@ def _feed_mapped(
         result.problems.append(problem)
     if not usable:
         return
-    assembler = CommandAssembler(len(imap.inputs), cfg.monitor.ts_s)
+    feed = _MappedFeed(core, len(imap.inputs), cfg.monitor.ts_s, on_report)
     checked: set[str] = set()
     refused: set[str] = set()
     bad_values = 0
-
-    def deliver(reports: list[WindowReport]) -> None:
-        for rep in reports:
-            on_report(rep)
-
     t_start = time.perf_counter()
     try:
         for m in bag.messages(usable):
@@ -328,14 +498,10 @@ def _feed_mapped(
                     value = extract(m.msg, b.source)
                 except InterfaceMapError:
                     value, bad_values = math.nan, bad_values + 1  # flagged as non-finite
-                stamp = source_stamp_ns(m.msg, b.source, m.log_time_ns)
-                if b.role == OUTPUT:
-                    deliver(core.feed(MEASUREMENTS[b.position], stamp, value))
-                else:
-                    for s, u in assembler.push(b.position, stamp, value):
-                        deliver(core.feed(itf.FLOW_CMD, s, tuple(u)))
-        for s, u in assembler.flush():
-            deliver(core.feed(itf.FLOW_CMD, s, tuple(u)))
+                feed.value(
+                    b.role, b.position, source_stamp_ns(m.msg, b.source, m.log_time_ns), value
+                )
+        feed.flush()
     except bag_reader.BagCorruptError as err:
         result.complete = False
         result.problems.append(str(err))
@@ -425,6 +591,7 @@ def summary_json(result: ReplayResult) -> dict[str, Any]:
             entry["first_alarm"] = sec(rep.end_ns)
     return {
         "bag": str(result.path),
+        "source": result.source,
         "complete": result.complete,
         "problems": list(result.problems),
         "messages": result.messages,
@@ -565,7 +732,7 @@ def resolve_timing(
     ts_s: float | None = None,
     period_samples: int | None = None,
 ) -> Timing:
-    """Choose the sample and excitation periods of a bag: option, else metadata, else data.
+    """Choose the sample and excitation periods of a recording: option, else metadata, else data.
 
     An explicit value (``ts_s``, ``period_samples``) always wins; where the bag's metadata
     or the command stream contradicts it, :attr:`Timing.conflicts` says so with the value
@@ -573,21 +740,33 @@ def resolve_timing(
     ``period_samples`` in its custom_data) are used, else the grid of the command stamps
     (:func:`~twotank_validation.online.infer.infer_sample_period`) and the shift under
     which the commands repeat (:func:`~twotank_validation.online.infer.
-    infer_excitation_period`), else the defaults.
+    infer_excitation_period`), else the defaults. A table (:func:`is_table_input`) has no
+    metadata: its time column and its first input column are the data.
 
     Args:
-        path: the bag.
-        config: topics (the command topic is read) and the window gate's tolerance.
+        path: the bag or the table.
+        config: topics (the command topic is read) or the map, and the window gate's
+            tolerance.
         ts_s: sample period given by the user (s), or None.
         period_samples: excitation period given by the user (samples), or None.
 
     Raises:
         BagError subclasses: the path is not a readable bag.
+        TableError, ReplayConfigError: the path is a table that cannot be read through the
+            map (or there is no map of columns).
     """
     cfg = config or ReplayConfig()
-    with bag_reader.open_bag(path) as bag:
-        meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
-        record = _command_record(bag, cfg)
+    meta_ts: float | None
+    meta_period: int | None
+    record: tuple[np.ndarray, np.ndarray] | None
+    if is_table_input(path, cfg):
+        table = tables.read_table(path, _table_map(cfg, path))
+        meta_ts = meta_period = None
+        record = (table.stamps_ns, table.inputs[:, :1])
+    else:
+        with bag_reader.open_bag(path) as bag:
+            meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
+            record = _command_record(bag, cfg)
     notes: list[str] = []
     conflicts: list[str] = []
     grid = infer_sample_period(record[0]) if record is not None else None
@@ -757,6 +936,28 @@ def windows_from_bag(
     Raises:
         BagError subclasses: the path is not a readable bag.
     """
+    return _windows(replay_bag, path, model, config)
+
+
+def windows_from_recording(
+    path: str | Path, model: LFTModel, config: ReplayConfig | None = None
+) -> tuple[list[Window], ReplayResult]:
+    """The judged, non-overlapping windows of a bag or a table (:func:`replay_recording`).
+
+    As :func:`windows_from_bag`; a table's times are in s from its first row.
+
+    Raises:
+        BagError subclasses, TableError, ReplayConfigError: as :func:`replay_recording`.
+    """
+    return _windows(replay_recording, path, model, config)
+
+
+def _windows(
+    replay: Callable[..., ReplayResult],
+    path: str | Path,
+    model: LFTModel,
+    config: ReplayConfig | None,
+) -> tuple[list[Window], ReplayResult]:
     cfg = config or ReplayConfig()
     kept: list[tuple[int, WindowSnapshot]] = []
 
@@ -765,7 +966,7 @@ def windows_from_bag(
             return  # overlaps the last kept window
         kept.append((int(snap.stamps_ns[0]), snap))
 
-    result = replay_bag(path, [model], cfg, on_window=collect)
+    result = replay(path, [model], cfg, on_window=collect)
     t0 = result.bag_start_ns
     mon = cfg.monitor
     windows = [

@@ -6,6 +6,11 @@ type (``pkg/msg/Type``), a field path into the message (``data[1]``, ``position[
 ``a.b[2].c``), where the time stamp comes from (``header.stamp`` or the receive/log time) and
 the conversion to model units, ``model = (raw - offset) / scale``.
 
+A map of a table (a CSV or Parquet log of a PLC or historian) names a ``column`` per source
+instead of topic, type and field, and the table's time column once for the map
+(:class:`TimeColumn`); a map is all-topic (a bag) or all-column (a table). Reading tables is
+:mod:`twotank_validation.tables`.
+
 Maps come from YAML (:func:`load_interface_map`, :meth:`InterfaceMap.from_dict`), from the
 text form of CLI options and node parameters (:func:`source_from_text`,
 :func:`interface_map_from_text`), or :func:`default_interface_map` (today's fixed interface of
@@ -49,12 +54,17 @@ __all__ = [
     "STAMPS",
     "STAMP_HEADER",
     "STAMP_RECEIVE",
+    "TABLE_TEXT_FORM",
     "TEXT_FORM",
+    "TIME_COLUMNS",
+    "TIME_TEXT_FORM",
+    "TIME_UNITS",
     "Binding",
     "FieldPath",
     "InterfaceMap",
     "InterfaceMapError",
     "Source",
+    "TimeColumn",
     "TopicSources",
     "check_message",
     "convert",
@@ -70,6 +80,7 @@ __all__ = [
     "source_from_text",
     "source_stamp_ns",
     "source_to_text",
+    "time_column_from_text",
 ]
 
 
@@ -95,15 +106,28 @@ OUTPUT: Final = "output"
 """Role of a source that feeds a model output."""
 
 TEXT_FORM: Final = "NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=header|receive]"
-"""The grammar of :func:`source_from_text`, as shown in error messages."""
+"""The grammar of :func:`source_from_text` for a bag's source, as shown in error messages."""
+TABLE_TEXT_FORM: Final = "NAME=column:COLUMN[,scale=S][,offset=O]"
+"""The grammar of :func:`source_from_text` for a table's source (a column)."""
+TIME_TEXT_FORM: Final = "COLUMN[,unit=auto|s|ms|us|ns|iso]"
+"""The grammar of :func:`time_column_from_text` (a table's time column)."""
+
+TIME_UNITS: Final = ("auto", "s", "ms", "us", "ns", "iso")
+"""Units of a table's time column: ``auto`` (numbers are seconds; datetimes and text are
+ISO-8601), seconds, milliseconds, microseconds, nanoseconds (numbers), ``iso`` (ISO-8601
+text such as ``2024-05-01T12:00:00.800Z``, or a datetime column)."""
+TIME_COLUMNS: Final = ("time", "t", "timestamp")
+"""Names taken as a table's time column when the map names none (case-insensitive)."""
 
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 _TOPIC = re.compile(r"[~/A-Za-z0-9_{}]+")
 _MSGTYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
 _SHORT_MSGTYPE = re.compile(r"([A-Za-z][A-Za-z0-9_]*)/([A-Za-z][A-Za-z0-9_]*)")
 _PATH_STEP = re.compile(r"\.?([A-Za-z][A-Za-z0-9_]*)|\[([0-9]+)\]")
-_KEYS: Final = ("name", "topic", "type", "field", "stamp", "offset", "scale")
+_KEYS: Final = ("name", "topic", "type", "field", "stamp", "offset", "scale", "column")
 _REQUIRED: Final = ("name", "topic", "type", "field")
+_BAG_KEYS: Final = ("topic", "type", "field", "stamp")  # keys a table's source cannot have
+_TIME_KEYS: Final = ("column", "unit")
 _ATTR = {"type": "msgtype"}  # YAML/text key -> Source attribute, where they differ
 
 
@@ -180,28 +204,36 @@ def _number(key: str, value: Any) -> float:
 
 
 def _checked_values(
-    values: Mapping[str, Any],
-) -> tuple[str, str, str, str, str, float, float, FieldPath]:
+    values: Mapping[str, Any], table: bool | None = None
+) -> tuple[str, str, str, str, str, float, float, str, FieldPath]:
     """Validate one source's values; the canonical values and the parsed path.
 
     Args:
-        values: Value of each of the seven keys (YAML/text names: ``type``, not ``msgtype``).
+        values: Value of each of the eight keys (YAML/text names: ``type``, not ``msgtype``);
+            ``column`` empty for a bag's source, ``topic``, ``type``, ``field`` empty and
+            ``stamp`` ``header`` for a table's.
+        table: The source is a table's (its ``column`` key was given); None: it is when
+            ``column`` is not empty.
 
     Raises:
         _BadKeyError: naming the key and what is wrong with it.
     """
-    name, topic, msgtype, field, stamp = (
-        values[k] for k in ("name", "topic", "type", "field", "stamp")
+    name, topic, msgtype, field, stamp, column = (
+        values[k] for k in ("name", "topic", "type", "field", "stamp", "column")
     )
-    for key, value in (("name", name), ("topic", topic), ("type", msgtype), ("field", field)):
-        if not isinstance(value, str) or not value:
-            raise _BadKeyError(key, f"expected a non-empty string, found {value!r}")
+    if not isinstance(name, str) or not name:
+        raise _BadKeyError("name", f"expected a non-empty string, found {name!r}")
     if not _NAME.fullmatch(name):
         raise _BadKeyError(
             "name",
             f"{name!r} is not a signal name: use letters, digits and '_', starting with a "
             "letter (e.g. hot, level)",
         )
+    if table or (table is None and column != ""):
+        return (name, "", "", "", STAMP_HEADER, *_checked_column(values), ())
+    for key, value in (("topic", topic), ("type", msgtype), ("field", field)):
+        if not isinstance(value, str) or not value:
+            raise _BadKeyError(key, f"expected a non-empty string, found {value!r}")
     if not _TOPIC.fullmatch(topic):
         raise _BadKeyError(
             "topic",
@@ -224,6 +256,11 @@ def _checked_values(
             f"{stamp!r} is not a stamp source; use 'header' (header.stamp) or 'receive' "
             "(receive/log time, for types without a header)",
         )
+    off, sc = _conversion(values)
+    return name, topic, msgtype, format_field_path(path), stamp, off, sc, "", path
+
+
+def _conversion(values: Mapping[str, Any]) -> tuple[float, float]:
     off = _number("offset", values["offset"])
     sc = _number("scale", values["scale"])
     if sc == 0.0:
@@ -232,38 +269,65 @@ def _checked_values(
             "0 is not a scale (model = (raw - offset) / scale); give raw units "
             "per model unit, e.g. 9806.65 Pa per m of water",
         )
-    return name, topic, msgtype, format_field_path(path), stamp, off, sc, path
+    return off, sc
+
+
+def _checked_column(values: Mapping[str, Any]) -> tuple[float, float, str]:
+    """Offset, scale and column of a table's source (the name is checked already)."""
+    column = values["column"]
+    if not isinstance(column, str) or not column.strip():
+        raise _BadKeyError(
+            "column", f"expected the name of a table column (a non-empty string), found {column!r}"
+        )
+    bag_keys = [key for key in ("topic", "type", "field") if values[key] not in ("", None)] + (
+        ["stamp"] if values["stamp"] != STAMP_HEADER else []
+    )
+    if bag_keys:
+        raise _BadKeyError(
+            "column",
+            f"a source reads either a table's column or a bag's topic, but this one gives "
+            f"'column' and {bag_keys}: drop {bag_keys} for a CSV/Parquet table (its rows are "
+            "stamped by the map's time column), or drop 'column' for a bag",
+        )
+    return (*_conversion(values), column)
 
 
 @dataclasses.dataclass(frozen=True)
 class Source:
     """Where one model input or output comes from, and its conversion to model units.
 
-    ``model = (raw - offset) / scale`` with ``raw`` the field's value as a float.
+    ``model = (raw - offset) / scale`` with ``raw`` the field's (or the cell's) value as a
+    float. A bag's source gives ``topic``, ``msgtype`` and ``field`` (``column`` empty); a
+    table's gives ``column`` only (``Source("hot", column="valve_hot_pct", scale=100.0)``).
 
     Attributes:
         name: Signal name, e.g. ``hot`` (letters, digits, ``_``; unique within a map).
-        topic: ROS 2 topic, e.g. ``/valves/hot``.
-        msgtype: ROS 2 message type name ``pkg/msg/Type`` (key ``type`` in YAML and text).
+        topic: ROS 2 topic, e.g. ``/valves/hot``; empty for a table's source.
+        msgtype: ROS 2 message type name ``pkg/msg/Type`` (key ``type`` in YAML and text);
+            empty for a table's source.
         field: Field path, e.g. ``data``, ``data[1]``, ``position[0]``, ``a.b[2].c``; stored
-            in canonical form (``data[01]`` becomes ``data[1]``).
+            in canonical form (``data[01]`` becomes ``data[1]``); empty for a table's source.
         stamp: ``"header"`` (the message's ``header.stamp``) or ``"receive"`` (receive time
-            live, log time in a bag; for types without a header).
+            live, log time in a bag; for types without a header). A table's source leaves it
+            at ``"header"``, unused: its rows are stamped by the map's :class:`TimeColumn`.
         offset: Raw value at model 0 (raw units).
         scale: Raw units per model unit; non-zero (negative flips the sign).
-        path: The parsed field path (derived from ``field``).
+        column: The table column (CSV header or Parquet field name, exactly); empty for a
+            bag's source.
+        path: The parsed field path (derived from ``field``; ``()`` for a table's source).
 
     Raises:
         InterfaceMapError: If a value is invalid (the message names the attribute and the fix).
     """
 
     name: str
-    topic: str
-    msgtype: str
-    field: str
+    topic: str = ""
+    msgtype: str = ""
+    field: str = ""
     stamp: str = STAMP_HEADER
     offset: float = 0.0
     scale: float = 1.0
+    column: str = ""
     path: FieldPath = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -277,6 +341,7 @@ class Source:
                     "stamp": self.stamp,
                     "offset": self.offset,
                     "scale": self.scale,
+                    "column": self.column,
                 }
             )
         except _BadKeyError as bad:
@@ -284,18 +349,30 @@ class Source:
                 f"source {self.name!r}: {_ATTR.get(bad.key, bad.key)}: {bad.detail}"
             ) from None
         for attr, value in zip(
-            ("name", "topic", "msgtype", "field", "stamp", "offset", "scale", "path"),
+            ("name", "topic", "msgtype", "field", "stamp", "offset", "scale", "column", "path"),
             values,
             strict=True,
         ):
             object.__setattr__(self, attr, value)
+
+    @property
+    def is_column(self) -> bool:
+        """The source reads a table's column (not a bag's topic)."""
+        return self.column != ""
 
     def to_model(self, raw: float) -> float:
         """Model-unit value of one raw field value: ``(raw - offset) / scale``."""
         return (float(raw) - self.offset) / self.scale
 
     def to_dict(self) -> dict[str, Any]:
-        """The YAML mapping of this source (every key, in schema order)."""
+        """The YAML mapping of this source (every key of its kind, in schema order)."""
+        if self.is_column:
+            return {
+                "name": self.name,
+                "column": self.column,
+                "offset": self.offset,
+                "scale": self.scale,
+            }
         return {
             "name": self.name,
             "topic": self.topic,
@@ -344,21 +421,71 @@ class TopicSources(NamedTuple):
 
 
 @dataclasses.dataclass(frozen=True)
+class TimeColumn:
+    """A table's time column: which column stamps the rows, and in what unit.
+
+    Attributes:
+        column: Column name (exactly as in the table); empty: the first column named
+            ``time``, ``t`` or ``timestamp`` (:data:`TIME_COLUMNS`, case-insensitive).
+        unit: One of :data:`TIME_UNITS`: ``s``, ``ms``, ``us``, ``ns`` (numbers since any
+            origin), ``iso`` (ISO-8601 text, or a datetime column; naive times are taken as
+            UTC), or ``auto`` (the default: a numeric column is seconds, a datetime or text
+            column ISO-8601).
+
+    Raises:
+        InterfaceMapError: If the column is not a string or the unit is not one of
+            :data:`TIME_UNITS`.
+    """
+
+    column: str = ""
+    unit: str = "auto"
+
+    def __post_init__(self) -> None:
+        try:
+            _checked_time({"column": self.column, "unit": self.unit})
+        except _BadKeyError as bad:
+            raise InterfaceMapError(f"time: {bad.key}: {bad.detail}") from None
+
+    def to_dict(self) -> dict[str, str]:
+        """The YAML mapping (keys at their defaults left out)."""
+        out = {"column": self.column} if self.column else {}
+        return out | ({"unit": self.unit} if self.unit != "auto" else {})
+
+
+def _checked_time(values: Mapping[str, Any]) -> None:
+    column, unit = values["column"], values["unit"]
+    if not isinstance(column, str):
+        raise _BadKeyError(
+            "column", f"expected the name of the table's time column, found {column!r}"
+        )
+    if unit not in TIME_UNITS:
+        raise _BadKeyError(
+            "unit",
+            f"{unit!r} is not a time unit; use one of {list(TIME_UNITS)} (s, ms, us, ns: "
+            "numbers; iso: ISO-8601 text such as 2024-05-01T12:00:00.8Z)",
+        )
+
+
+@dataclasses.dataclass(frozen=True)
 class InterfaceMap:
     """The sources of a model's inputs and outputs.
 
     Attributes:
         inputs: One source per model input, in the order of ``u``.
         outputs: One source per model output, in the order of ``y``.
+        time: A table's time column (a map of column sources only; None there means
+            ``TimeColumn()``, the column found by name, unit ``auto``). None for a bag's map.
 
     Raises:
         InterfaceMapError: If either is empty or not made of :class:`Source`, a name is used
-            twice, a topic is given two message types, or one topic's sources disagree on the
-            stamp (one message has one stamp).
+            twice, a topic is given two message types, one topic's sources disagree on the
+            stamp (one message has one stamp), topic and column sources are mixed, or a map
+            of topics is given a time column.
     """
 
     inputs: tuple[Source, ...]
     outputs: tuple[Source, ...]
+    time: TimeColumn | None = None
 
     def __post_init__(self) -> None:
         for role in ("inputs", "outputs"):
@@ -367,6 +494,15 @@ class InterfaceMap:
                 raise InterfaceMapError(f"{role}: expected a sequence of Source, found {value!r}")
             object.__setattr__(self, role, tuple(value))
         _check_sources(self.inputs, self.outputs)
+        if self.time is not None and not isinstance(self.time, TimeColumn):
+            raise InterfaceMapError(f"time: expected a TimeColumn, found {self.time!r}")
+        if self.is_table and self.time is None:
+            object.__setattr__(self, "time", TimeColumn())
+        elif not self.is_table and self.time is not None:
+            raise InterfaceMapError(
+                "time: a map of topics is stamped by its messages; 'time' names the time "
+                "column of a table: drop it, or read a table with column sources"
+            )
 
     # --- construction ---------------------------------------------------------------------
 
@@ -377,7 +513,9 @@ class InterfaceMap:
         Args:
             doc: ``{"inputs": [...], "outputs": [...]}``, each entry a mapping with keys
                 ``name``, ``topic``, ``type``, ``field`` (required), ``stamp``, ``offset``,
-                ``scale`` (optional: ``header``, 0, 1).
+                ``scale`` (optional: ``header``, 0, 1); for a table, ``name`` and ``column``
+                (required), ``offset``, ``scale``, and the map's optional ``time``: a column
+                name or ``{column: ..., unit: ...}`` (:class:`TimeColumn`).
             source: Label of the document in error messages (the file name).
 
         Raises:
@@ -390,10 +528,11 @@ class InterfaceMap:
                 f"{source}: expected a mapping with keys 'inputs' and 'outputs', found "
                 f"{type(doc).__name__}"
             )
-        unknown = sorted(str(k) for k in set(doc) - {"inputs", "outputs"})
+        unknown = sorted(str(k) for k in set(doc) - {"inputs", "outputs", "time"})
         if unknown:
             raise InterfaceMapError(
-                f"{source}: unknown keys {unknown}; allowed: ['inputs', 'outputs']"
+                f"{source}: unknown keys {unknown}; allowed: ['inputs', 'outputs', 'time' "
+                "(a table's time column)]"
             )
         lists: dict[str, tuple[Source, ...]] = {}
         for role in ("inputs", "outputs"):
@@ -407,19 +546,32 @@ class InterfaceMap:
             lists[role] = tuple(
                 _source_from_mapping(e, source, f"{role}[{i}]") for i, e in enumerate(entries)
             )
+        time = _time_from_node(doc["time"], source) if "time" in doc else None
         try:
-            return cls(lists["inputs"], lists["outputs"])
+            return cls(lists["inputs"], lists["outputs"], time)
         except InterfaceMapError as err:
             raise InterfaceMapError(f"{source}: {err}") from None
 
     def to_dict(self) -> dict[str, Any]:
         """The YAML document of the map (:meth:`from_dict` of it gives an equal map)."""
-        return {
+        doc: dict[str, Any] = {
             "inputs": [s.to_dict() for s in self.inputs],
             "outputs": [s.to_dict() for s in self.outputs],
         }
+        if self.time is not None:
+            doc["time"] = self.time.to_dict()
+        return doc
+
+    @property
+    def is_table(self) -> bool:
+        """The map reads a table (every source a column), not a bag (every source a topic)."""
+        return self.inputs[0].is_column
 
     # --- views ----------------------------------------------------------------------------
+
+    def sources(self) -> tuple[Source, ...]:
+        """Every source: the inputs in the order of ``u``, then the outputs (order of ``y``)."""
+        return self.inputs + self.outputs
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -435,7 +587,16 @@ class InterfaceMap:
         """Topic -> its message type and the sources read from it (role, index, source).
 
         Topics in order of first appearance (inputs first); a topic's bindings in map order.
+
+        Raises:
+            InterfaceMapError: If the map reads a table (it has columns, no topics).
         """
+        if self.is_table:
+            raise InterfaceMapError(
+                f"the interface map reads the columns {[s.column for s in self.sources()]} of a "
+                "table (CSV/Parquet), not topics: give a map of topics (topic, type, field) for "
+                "a bag or a live system"
+            )
         out: dict[str, tuple[str, list[Binding]]] = {}
         for role, sources in ((INPUT, self.inputs), (OUTPUT, self.outputs)):
             for index, src in enumerate(sources):
@@ -443,9 +604,14 @@ class InterfaceMap:
         return {t: TopicSources(mt, tuple(b)) for t, (mt, b) in out.items()}
 
 
+def _reads(src: Source) -> str:
+    return f"column {src.column!r}" if src.is_column else f"topic {src.topic!r}"
+
+
 def _check_sources(inputs: tuple[Source, ...], outputs: tuple[Source, ...]) -> None:
     names: dict[str, str] = {}
     topics: dict[str, tuple[str, Source]] = {}
+    kind: tuple[str, Source] | None = None  # the first source: a bag's or a table's
     for role, sources in (("inputs", inputs), ("outputs", outputs)):
         if not sources:
             raise InterfaceMapError(f"{role}: no sources; give one per model {role[:-1]}")
@@ -453,12 +619,23 @@ def _check_sources(inputs: tuple[Source, ...], outputs: tuple[Source, ...]) -> N
             where = f"{role}[{i}]"
             if not isinstance(src, Source):
                 raise InterfaceMapError(f"{where}: expected a Source, found {src!r}")
+            if kind is None:
+                kind = (where, src)
+            elif src.is_column != kind[1].is_column:
+                raise InterfaceMapError(
+                    f"{where}: reads {_reads(src)} but {kind[0]} reads {_reads(kind[1])}; a "
+                    "map reads either a bag (every source a topic, type and field) or a table "
+                    "(every source a column), not both: make every source a column for a "
+                    "CSV/Parquet file, or every source a topic for a bag"
+                )
             if src.name in names:
                 raise InterfaceMapError(
                     f"{where}.name: {src.name!r} is used already by {names[src.name]}; "
                     "names must be unique"
                 )
             names[src.name] = where
+            if src.is_column:
+                continue
             if src.topic in topics:
                 first, other = topics[src.topic]
                 if other.msgtype != src.msgtype:
@@ -478,30 +655,78 @@ def _check_sources(inputs: tuple[Source, ...], outputs: tuple[Source, ...]) -> N
 def _source_from_mapping(node: Any, source: str, where: str) -> Source:
     if not isinstance(node, Mapping):
         raise InterfaceMapError(
-            f"{source}: {where}: expected a mapping with keys {list(_REQUIRED)}, found {node!r}"
+            f"{source}: {where}: expected a mapping with keys {list(_REQUIRED)} (a bag) or "
+            f"['name', 'column'] (a table), found {node!r}"
         )
     unknown = sorted(str(k) for k in set(node) - set(_KEYS))
     if unknown:
         raise InterfaceMapError(
             f"{source}: {where}: unknown keys {unknown}; allowed: {list(_KEYS)}"
         )
-    missing = [k for k in _REQUIRED if k not in node]
+    if "column" in node:
+        bag_keys = [k for k in _BAG_KEYS if k in node]
+        if bag_keys:
+            raise InterfaceMapError(
+                f"{source}: {where}: 'column' reads a table but {bag_keys} read a bag; give "
+                f"either 'column' (a CSV/Parquet table, its rows stamped by the map's 'time') "
+                f"or 'topic', 'type', 'field' (a bag)"
+            )
+        required: tuple[str, ...] = ("name", "column")
+    else:
+        required = _REQUIRED
+    missing = [k for k in required if k not in node]
     if missing:
-        raise InterfaceMapError(f"{source}: {where}: missing keys {missing}")
+        hint = " (or 'column', for a CSV/Parquet table)" if "topic" in missing else ""
+        raise InterfaceMapError(f"{source}: {where}: missing keys {missing}{hint}")
     return _make_source(
         {k: node[k] for k in _KEYS if k in node}, lambda key: f"{source}: {where}.{key}"
     )
 
 
 def _make_source(values: Mapping[str, Any], where: Any) -> Source:
-    """Source from key -> value (YAML/text keys); errors prefixed by ``where(key)``."""
+    """Source from key -> value (YAML/text keys); errors prefixed by ``where(key)``.
+
+    A table's source when the ``column`` key is given (even empty: that is an error).
+    """
     try:
-        name, topic, msgtype, field, stamp, offset, scale, _ = _checked_values(
-            {"stamp": STAMP_HEADER, "offset": 0.0, "scale": 1.0, **values}
+        name, topic, msgtype, field, stamp, offset, scale, column, _ = _checked_values(
+            {
+                "topic": "",
+                "type": "",
+                "field": "",
+                "stamp": STAMP_HEADER,
+                "offset": 0.0,
+                "scale": 1.0,
+                "column": "",
+                **values,
+            },
+            table="column" in values,
         )
     except _BadKeyError as bad:
         raise InterfaceMapError(f"{where(bad.key)}: {bad.detail}") from None
-    return Source(name, topic, msgtype, field, stamp, offset, scale)
+    return Source(name, topic, msgtype, field, stamp, offset, scale, column)
+
+
+def _time_from_node(node: Any, source: str) -> TimeColumn:
+    """The map's ``time`` key: a column name, or a mapping with ``column`` and ``unit``."""
+    if isinstance(node, str):
+        node = {"column": node}
+    if not isinstance(node, Mapping):
+        raise InterfaceMapError(
+            f"{source}: time: expected a column name or a mapping with keys "
+            f"{list(_TIME_KEYS)} (e.g. time: {{column: t, unit: s}}), found {node!r}"
+        )
+    unknown = sorted(str(k) for k in set(node) - set(_TIME_KEYS))
+    if unknown:
+        raise InterfaceMapError(
+            f"{source}: time: unknown keys {unknown}; allowed: {list(_TIME_KEYS)}"
+        )
+    values = {"column": "", "unit": "auto", **node}
+    try:
+        _checked_time(values)
+    except _BadKeyError as bad:
+        raise InterfaceMapError(f"{source}: time.{bad.key}: {bad.detail}") from None
+    return TimeColumn(values["column"], values["unit"])
 
 
 def load_interface_map(path: str | Path) -> InterfaceMap:
@@ -565,13 +790,16 @@ _TEXT_OPTIONS: Final = ("scale", "offset", "stamp")
 def source_from_text(text: str) -> Source:
     """Parse one source from its text form (CLI options, node parameters).
 
-    Grammar (:data:`TEXT_FORM`)::
+    Grammar (:data:`TEXT_FORM`, a bag's source; :data:`TABLE_TEXT_FORM`, a table's)::
 
         NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=header|receive]
+        NAME=column:COLUMN[,scale=S][,offset=O]
 
-    e.g. ``hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive``. Options in any order,
-    each at most once; spaces around the parts are ignored. Numbers as Python's ``float()``
-    reads them.
+    e.g. ``hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive`` or
+    ``hot=column:valve_hot_pct,scale=100``. Options in any order, each at most once; spaces
+    around the parts are ignored. Numbers as Python's ``float()`` reads them. A column name
+    runs to the first ``,`` (it may hold ``:`` and inner spaces, not ``,``). A topic named
+    ``column`` is written ``/column``.
 
     Raises:
         InterfaceMapError: If the text does not follow the grammar or a value is invalid (the
@@ -582,21 +810,38 @@ def source_from_text(text: str) -> Source:
     name, eq, rest = text.strip().partition("=")
     head, *options = rest.split(",")
     parts = head.split(":")
-    if not eq or len(parts) != 3:
+    table = bool(eq) and len(parts) >= 2 and parts[0].strip() == "column"
+    if table and len(parts) == 3 and _MSGTYPE.fullmatch(parts[1].strip()):
+        raise InterfaceMapError(
+            f"source {text!r} is ambiguous: write a topic named 'column' as '/column' "
+            f"({TEXT_FORM}); a table's column is {TABLE_TEXT_FORM}"
+        )
+    if not eq or (len(parts) != 3 and not table):
         raise InterfaceMapError(
             f"source {text!r} is not {TEXT_FORM}, e.g. "
-            "'hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive'"
+            "'hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive' (a bag), nor "
+            f"{TABLE_TEXT_FORM}, e.g. 'hot=column:valve_hot_pct,scale=100' (a table)"
         )
-    values: dict[str, Any] = dict(
-        zip(("name", "topic", "type", "field"), [name, *parts], strict=True)
-    )
+    values: dict[str, Any]
+    allowed: tuple[str, ...]
+    if table:
+        values = {"name": name, "column": ":".join(parts[1:])}
+        allowed, form = _TEXT_OPTIONS[:2], TABLE_TEXT_FORM
+    else:
+        values = dict(zip(("name", "topic", "type", "field"), [name, *parts], strict=True))
+        allowed, form = _TEXT_OPTIONS, TEXT_FORM
     for option in options:
         key, eq, value = option.partition("=")
         key = key.strip()
-        if not eq or key not in _TEXT_OPTIONS:
+        if not eq or key not in allowed:
             raise InterfaceMapError(
-                f"source {text!r}: option {option.strip()!r} is not scale=S, offset=O or "
-                f"stamp=header|receive; expected {TEXT_FORM}"
+                f"source {text!r}: option {option.strip()!r} is not "
+                + (
+                    "scale=S or offset=O (a table's rows are stamped by the map's time column)"
+                    if table
+                    else "scale=S, offset=O or stamp=header|receive"
+                )
+                + f"; expected {form}"
             )
         if key in values:
             raise InterfaceMapError(f"source {text!r}: option {key!r} is given twice")
@@ -609,8 +854,21 @@ def source_to_text(source: Source) -> str:
     """Text form of a source: the inverse of :func:`source_from_text`.
 
     Options at their defaults are left out; numbers are written exactly (``repr``).
+
+    Raises:
+        InterfaceMapError: If a column name cannot be written in the text form (it holds
+            ``,`` or starts or ends with a space); such a column is given in YAML.
     """
-    text = f"{source.name}={source.topic}:{source.msgtype}:{source.field}"
+    if source.is_column:
+        col = source.column
+        if "," in col or col != col.strip():
+            raise InterfaceMapError(
+                f"source {source.name!r}: column {col!r} has no text form ({TABLE_TEXT_FORM}: "
+                "no ',' and no spaces at the ends); give it in a YAML map"
+            )
+        text = f"{source.name}=column:{col}"
+    else:
+        text = f"{source.name}={source.topic}:{source.msgtype}:{source.field}"
     if source.scale != 1.0:
         text += f",scale={source.scale!r}"
     if source.offset != 0.0:
@@ -620,8 +878,44 @@ def source_to_text(source: Source) -> str:
     return text
 
 
-def interface_map_from_text(inputs: Sequence[str], outputs: Sequence[str]) -> InterfaceMap:
+def time_column_from_text(text: str) -> TimeColumn:
+    """Parse a table's time column from its text form (:data:`TIME_TEXT_FORM`).
+
+    ``COLUMN[,unit=auto|s|ms|us|ns|iso]``, e.g. ``t``, ``t_ms,unit=ms``, ``stamp,unit=iso``;
+    an empty COLUMN (``,unit=ms``) finds the column by name (:data:`TIME_COLUMNS`).
+
+    Raises:
+        InterfaceMapError: If the text does not follow the grammar or the unit is unknown.
+    """
+    if not isinstance(text, str):
+        raise InterfaceMapError(f"time text {text!r} is not a string; expected {TIME_TEXT_FORM}")
+    column, *options = text.split(",")
+    values: dict[str, Any] = {"column": column.strip()}
+    for option in options:
+        key, eq, value = option.partition("=")
+        if not eq or key.strip() != "unit" or "unit" in values:
+            raise InterfaceMapError(
+                f"time {text!r}: option {option.strip()!r} is not unit=U (once); expected "
+                f"{TIME_TEXT_FORM}"
+            )
+        values["unit"] = value.strip()
+    try:
+        _checked_time({"unit": "auto", **values})
+    except _BadKeyError as bad:
+        raise InterfaceMapError(f"time {text!r}: {bad.key}: {bad.detail}") from None
+    return TimeColumn(**values)
+
+
+def interface_map_from_text(
+    inputs: Sequence[str], outputs: Sequence[str], time: str | None = None
+) -> InterfaceMap:
     """A map from the text forms of its inputs and outputs (e.g. two string-array parameters).
+
+    Args:
+        inputs: One :func:`source_from_text` form per model input.
+        outputs: One per model output.
+        time: A table's time column (:func:`time_column_from_text`), None: found by name
+            for a table (none for a bag).
 
     Raises:
         InterfaceMapError: As :func:`source_from_text` (prefixed ``inputs[i]``/``outputs[i]``)
@@ -636,7 +930,11 @@ def interface_map_from_text(inputs: Sequence[str], outputs: Sequence[str]) -> In
                 lists[role].append(source_from_text(text))
             except InterfaceMapError as err:
                 raise InterfaceMapError(f"{role}[{i}]: {err}") from None
-    return InterfaceMap(tuple(lists["inputs"]), tuple(lists["outputs"]))
+    return InterfaceMap(
+        tuple(lists["inputs"]),
+        tuple(lists["outputs"]),
+        time_column_from_text(time) if time is not None else None,
+    )
 
 
 # --------------------------------------------------------------------------- extraction

@@ -38,7 +38,8 @@ class Recovery:
     Attributes:
         u: (n, nu) float, the commands, recovered samples filled in (model units).
         y: (n, ny) float, the outputs, the window's recovered samples filled in.
-        recovered: (nu + ny,) int, samples recovered per signal (inputs, then outputs).
+        recovered: (nu + ny,) int, samples recovered in the window per signal (inputs, then
+            outputs; commands of the settling periods are recovered too, not counted).
         reason: why the span cannot be judged (too many or unrecoverable samples), or None.
     """
 
@@ -172,10 +173,12 @@ def recover_span(
     if not bad.any():
         return Recovery(u, y, np.zeros(bad.shape[1], int), None)
     in_window = np.arange(n) >= n - window
-    # outputs matter only in the window (they are not used in the settling periods)
+    # outputs matter only in the window (the settling periods' are not used); commands are
+    # recovered in the whole span (the periodicity gate reads it), exactly, and count
+    # against the cap in the window only, like the outputs
     need = bad.copy()
     need[:, nu:] &= in_window[:, None]
-    counts = need.sum(axis=0)
+    counts = (need & in_window[:, None]).sum(axis=0)
     cap = int(np.floor(max_fraction * window))
     if np.any(counts > cap):
         j = int(np.argmax(counts - cap))
