@@ -283,20 +283,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     result = replay.replay_recording(args.bag, models, cfg, progress=progress)
     if bar is not None:
         bar.close()
-    summary = replay.summary_json(result)
+    summary = replay.summary_json(result, [m.name for m in models])
     summary["timing"] = timing.to_json()
-    for name in (m.name for m in models):  # a model with no window at all is listed too
-        summary["models"].setdefault(
-            name,
-            {
-                "windows": [],
-                "beta_max": None,
-                "first_alarm": None,
-                "judged": 0,
-                "not_judged": 0,
-                "not_judged_reasons": {},
-            },
-        )
     _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7}  {'verdict':<12} alarm")
     for name, entry in summary["models"].items():
         for w in entry["windows"]:
@@ -376,10 +364,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     windows, replayed = replay.windows_from_recording(args.bag, model, cfg)
     for problem in replayed.problems:
         print(f"WARNING: {problem}", file=sys.stderr)
-    summary = replay.summary_json(replayed)
-    summary["models"].setdefault(
-        model.name, {"judged": 0, "not_judged": 0, "not_judged_reasons": {}}
-    )
+    summary = replay.summary_json(replayed, [model.name])
     if unjudged := replay.unjudged_models(summary, timing, cfg):
         return _exit_code(replayed.complete, unjudged, timing)
     _out(f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}")

@@ -544,26 +544,32 @@ def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: Windo
             kept[r] = snap
 
 
-def summary_json(result: ReplayResult) -> dict[str, Any]:
-    """The documented JSON (docs/cli.md, "validate JSON"): times in seconds of bag time."""
+def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[str, Any]:
+    """The documented JSON (docs/cli.md, "validate JSON"): times in seconds of bag time.
+
+    Args:
+        result: the replay.
+        model_names: models to list even if they got no window (the recording too short, a
+            topic missing): each with no windows and nothing judged.
+    """
     t0 = result.bag_start_ns
 
     def sec(ns: int) -> float:
         return (ns - t0) / NS_PER_S
 
-    models: dict[str, Any] = {}
+    def empty() -> dict[str, Any]:
+        return {
+            "windows": [],
+            "beta_max": None,
+            "first_alarm": None,
+            "judged": 0,
+            "not_judged": 0,
+            "not_judged_reasons": {},
+        }
+
+    models: dict[str, Any] = {name: empty() for name in model_names}
     for rep in result.reports:
-        entry = models.setdefault(
-            rep.model,
-            {
-                "windows": [],
-                "beta_max": None,
-                "first_alarm": None,
-                "judged": 0,
-                "not_judged": 0,
-                "not_judged_reasons": {},
-            },
-        )
+        entry = models.setdefault(rep.model, empty())
         if rep.judged:
             entry["judged"] += 1
         else:
