@@ -416,13 +416,17 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXIT_CODES,
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    fmt = argparse.ArgumentDefaultsHelpFormatter  # every option's help shows its default
-    demo = sub.add_parser(
-        "demo",
-        help="reproduce the paper's Model A / Model B experiment in simulation",
-        formatter_class=fmt,
-        epilog=EXIT_CODES,
-    )
+
+    def command(name: str, help_: str) -> argparse.ArgumentParser:
+        # every option's help shows its default; every command's help ends with the exit codes
+        return sub.add_parser(
+            name,
+            help=help_,
+            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            epilog=EXIT_CODES,
+        )
+
+    demo = command("demo", "reproduce the paper's Model A / Model B experiment in simulation")
     demo.add_argument("--out", default="report", help="report folder")
     demo.add_argument(
         "--norm", choices=[c.value for c in NormConvention], default="power", help="norm of w"
@@ -433,11 +437,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--no-sdp", action="store_true", help="skip the general SDP cross-check")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
     demo.set_defaults(func=_cmd_demo)
-    live = sub.add_parser(
-        "live",
-        help="plant, excitation and validator nodes in one process on a simulated clock",
-        formatter_class=fmt,
-        epilog=EXIT_CODES,
+    live = command(
+        "live", "plant, excitation and validator nodes in one process on a simulated clock"
     )
     live.add_argument("--duration", type=float, default=3000.0, help="simulated seconds")
     live.add_argument("--ts", type=float, default=TS_S, help="sample period (s)")
@@ -452,12 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--json", action="store_true", help="one JSON object per report")
     live.set_defaults(func=_cmd_live)
 
-    sim = sub.add_parser(
-        "simulate",
-        help="simulate a scenario of the rig into a rosbag2 bag",
-        formatter_class=fmt,
-        epilog=EXIT_CODES,
-    )
+    sim = command("simulate", "simulate a scenario of the rig into a rosbag2 bag")
     sim.add_argument(
         "--scenario", required=True, help="scenario YAML file or shipped name (e.g. nominal, leak)"
     )
@@ -465,12 +461,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage")
     sim.set_defaults(func=_cmd_simulate)
 
-    rec = sub.add_parser(
-        "record",
-        help="record the interface topics of a live system into a bag",
-        formatter_class=fmt,
-        epilog=EXIT_CODES,
-    )
+    rec = command("record", "record the interface topics of a live system into a bag")
     rec.add_argument("--out", required=True, help="bag to write (must not exist)")
     rec.add_argument(
         "--duration", type=float, default=None, help="seconds (ROS time); None: until Ctrl-C"
@@ -481,12 +472,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rec.set_defaults(func=_cmd_record)
 
-    val = sub.add_parser(
-        "validate",
-        help="validate recorded bags through the live validator's code",
-        formatter_class=fmt,
-        epilog=EXIT_CODES,
-    )
+    val = command("validate", "validate recorded bags through the live validator's code")
     val.add_argument(
         "bag",
         help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
@@ -500,11 +486,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bag_options(val)
     val.set_defaults(func=_cmd_validate)
 
-    dia = sub.add_parser(
-        "diagnose",
-        help="trace a model's residual on a bag to the effect it lacks, add it, compare",
-        formatter_class=fmt,
-        epilog=EXIT_CODES,
+    dia = command(
+        "diagnose", "trace a model's residual on a bag to the effect it lacks, add it, compare"
     )
     dia.add_argument(
         "bag",
