@@ -55,6 +55,7 @@ from twotank_validation.online.interface import (
     InterfaceMapError,
     Source,
     check_message,
+    check_online_shape,
     extract,
     source_stamp_ns,
 )
@@ -84,15 +85,11 @@ class ReplayConfig:
     interface: InterfaceMap | None = None
 
     def __post_init__(self) -> None:
-        if self.interface is not None and (
-            len(self.interface.inputs),
-            len(self.interface.outputs),
-        ) != (2, len(MEASUREMENTS)):
-            raise ReplayConfigError(
-                f"the interface map has {len(self.interface.inputs)} input(s) and "
-                f"{len(self.interface.outputs)} output(s); the online validator takes the "
-                f"two-tank interface's 2 inputs and {len(MEASUREMENTS)} outputs"
-            )
+        if self.interface is not None:
+            try:
+                check_online_shape(self.interface)
+            except InterfaceMapError as err:
+                raise ReplayConfigError(str(err)) from err
         if set(self.topics) != set(STREAMS):
             raise ReplayConfigError(
                 f"topics must name a topic for each of the streams {list(STREAMS)}, "

@@ -42,6 +42,8 @@ from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,
     HEIGHT,
     HEIGHT_TYPE,
+    MEASUREMENTS,
+    STREAM_FIELDS,
     TEMPERATURE,
     TEMPERATURE_TYPE,
     RigUnits,
@@ -752,6 +754,25 @@ def load_interface_map(path: str | Path) -> InterfaceMap:
 
 
 _RIG_UNITS: Final = RigUnits()
+
+
+def check_online_shape(imap: InterfaceMap) -> None:
+    """Check that a map has the inputs and outputs the online validator takes.
+
+    The online validator (aligner, node, replay) is shaped for the two-tank interface: the
+    commands of :data:`~twotank_validation.online.streams.FLOW_CMD` and the outputs of
+    :data:`~twotank_validation.online.streams.MEASUREMENTS`.
+
+    Raises:
+        InterfaceMapError: Naming both counts.
+    """
+    n_in, n_out = len(STREAM_FIELDS[FLOW_CMD]), len(MEASUREMENTS)
+    if (len(imap.inputs), len(imap.outputs)) != (n_in, n_out):
+        raise InterfaceMapError(
+            f"the interface map has {len(imap.inputs)} input(s) and {len(imap.outputs)} "
+            f"output(s); the online validator takes the two-tank interface's {n_in} inputs "
+            f"and {n_out} outputs"
+        )
 
 
 def default_interface_map(units: RigUnits = _RIG_UNITS) -> InterfaceMap:

@@ -69,6 +69,7 @@ from twotank_validation.online.interface import (
     InterfaceMap,
     InterfaceMapError,
     check_message,
+    check_online_shape,
     extract,
     interface_map_from_text,
     load_interface_map,
@@ -591,14 +592,10 @@ def _interface_map(values: dict[str, Any]) -> InterfaceMap | None:
             if not (inputs and outputs):
                 raise ParameterError("inputs and outputs go together: give every input and output")
             imap = interface_map_from_text(inputs, outputs)
+        if imap is not None:
+            check_online_shape(imap)
     except InterfaceMapError as err:
         raise ParameterError(f"cannot start the validator: {err}") from err
-    if imap is not None and (len(imap.inputs), len(imap.outputs)) != (2, len(itf.MEASUREMENTS)):
-        raise ParameterError(
-            f"the interface map has {len(imap.inputs)} input(s) and {len(imap.outputs)} "
-            f"output(s); the validator takes the two-tank interface's 2 inputs and "
-            f"{len(itf.MEASUREMENTS)} outputs"
-        )
     return imap
 
 
