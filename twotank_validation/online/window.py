@@ -307,11 +307,10 @@ class WindowMonitor:
             self._flag[head] + self._flag[tail],
         )
 
-    def _recovered(self) -> Recovery:
-        """The span in time order with its recoverable samples filled in (or why not)."""
+    def _recovered(self, u: np.ndarray, y: np.ndarray, flags: list[str | None]) -> Recovery:
+        """The span (time order) with its recoverable samples filled in (or why not)."""
         cfg = self.config
-        span = min(self._count, cfg.span_samples)
-        u, y, _, flags = self._ordered(span)
+        span = len(u)
         return recover_span(
             u,
             y,
@@ -324,11 +323,10 @@ class WindowMonitor:
             rtol=cfg.input_periodic_rtol,
         )
 
-    def _quality(self, rec: Recovery) -> str:
+    def _quality(self, rec: Recovery, flags: list[str | None]) -> str:
         cfg = self.config
         L = cfg.period_samples
-        span = min(self._count, cfg.span_samples)
-        _, _, _, flags = self._ordered(span)
+        span = len(flags)
         if rec.reason is not None:
             bad = [f for f in flags if f is not None]
             first = f"; first: {bad[0]}" if bad else ""
@@ -363,10 +361,11 @@ class WindowMonitor:
     def _evaluate(self) -> list[WindowReport]:
         cfg = self.config
         n = cfg.window_samples
-        _, _, stamps, _ = self._ordered(n)
-        start_ns, end_ns = int(stamps[0]), int(stamps[-1])
-        rec = self._recovered()
-        quality = self._quality(rec)
+        # the window and its settling periods, once (the window is their last n samples)
+        u_span, y_span, stamps, flags = self._ordered(min(self._count, cfg.span_samples))
+        start_ns, end_ns = int(stamps[-n]), int(stamps[-1])
+        rec = self._recovered(u_span, y_span, flags)
+        quality = self._quality(rec, flags)
         u, y = rec.u[-n:], rec.y[-n:]
         judged_quality = "ok"
         if rec.recovered.any():
