@@ -204,7 +204,9 @@ def same_samples(got: list[online.Sample], want: list[online.Sample]) -> None:
 
 def run_both(events, *, ts_s: float = 0.1, reset_after_s: float = 60.0) -> int:
     """Feed ``events`` (("cmd", t, (hot, cold)) | (channel, t, value)) to both aligners."""
-    new = online.SampleAligner(ts_s, 2, NAMES, reset_after_s=reset_after_s)
+    new = online.SampleAligner(
+        ts_s, 2, NAMES, reset_after_s=reset_after_s, phase_fit=0, jitter_fraction=0.25
+    )
     ref = ReferenceAligner(ts_s, 2, NAMES, reset_after_s=reset_after_s)
     n = 0
     for kind, t, value in events:
@@ -318,7 +320,7 @@ def as_arrays(events):
 
 def run_batched(events, rng: np.random.Generator, *, ts_s: float = 0.1, jitter=0.25) -> int:
     """push_events on random splits of ``events`` == the reference aligner event by event."""
-    new = online.SampleAligner(ts_s, 2, NAMES, jitter_fraction=jitter)
+    new = online.SampleAligner(ts_s, 2, NAMES, jitter_fraction=jitter, phase_fit=0)
     ref = ReferenceAligner(ts_s, 2, NAMES, jitter_fraction=jitter)
     kinds, stamps, values = as_arrays(events)
     cuts = np.sort(

@@ -413,7 +413,7 @@ def messy_bag(path: Path, storage: str, seed: int) -> Path:
                     ("temperature", bags.temperature_msg(t - 3 * 800_000_000, 0.5, units))
                 )
             if rng.random() < 0.01:
-                events[2] = ("temperature", bags.temperature_msg(t + 300_000_000, y[k, 1], units))
+                events[2] = ("temperature", bags.temperature_msg(t + 400_000_000, y[k, 1], units))
             for i, (topic, msg) in enumerate(events):
                 if k % 97 == 5:  # now and then a big-endian message
                     bag.write_raw(

@@ -17,6 +17,13 @@ TS_S: Final = 0.1
 PERIOD_SAMPLES: Final = 2048
 """Default excitation period (samples): 204.8 s at :data:`TS_S`."""
 
+JITTER_FRACTION: Final = 0.45
+"""Default accepted distance of a stamp from its sample-grid point, as a fraction of the
+sample period: each stamp goes to the nearest grid point, with a guard band of 5 % of a step
+either side of the midpoint (stamps there are flagged off-grid, as they could belong to
+either neighbour). The grid's phase is fit to the stamps, so jitter up to this fraction is
+absorbed."""
+
 
 class Method(enum.StrEnum):
     """The per-bin solver routes of :func:`twotank_validation.core.validate.validate`."""

@@ -36,7 +36,7 @@ import numpy as np
 import twotank_validation.bags as bag_reader
 from twotank_validation import tables
 from twotank_validation.core.model import LFTModel
-from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.defaults import JITTER_FRACTION, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.diagnose import Window
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
@@ -81,7 +81,7 @@ class ReplayConfig:
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
     topics: Mapping[str, str] = field(default_factory=lambda: {s: s for s in STREAMS})
     units: itf.RigUnits = field(default_factory=itf.RigUnits)
-    jitter_fraction: float = 0.25
+    jitter_fraction: float = JITTER_FRACTION
     interface: InterfaceMap | None = None
 
     def __post_init__(self) -> None:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twotank_validation.defaults import NS_PER_S
+from twotank_validation.defaults import JITTER_FRACTION, NS_PER_S
 from twotank_validation.errors import DatumError
 
 
@@ -127,6 +127,11 @@ class SampleAligner:
         max_abs_value: measurements and commands beyond this magnitude (model units) are
             implausible and flagged like non-finite ones (a judged window of such values
             would overflow the DFT).
+        phase_fit: measurements per output channel whose stamps fix the grid's phase at a
+            start or reset (their mean phase modulo ``ts``; they are held back until then
+            and aligned in arrival order). A sender's grid is then found under stamp jitter,
+            where the first stamp alone can be up to the jitter off it and push jittered
+            stamps beyond the tolerance. 0: the grid starts at the first stamp.
     """
 
     def __init__(
@@ -135,10 +140,11 @@ class SampleAligner:
         n_inputs: int,
         output_names: Sequence[str],
         *,
-        jitter_fraction: float = 0.25,
+        jitter_fraction: float = JITTER_FRACTION,
         reset_after_s: float = 60.0,
         jump_after_s: float = 3600.0,
         max_abs_value: float = 1e6,
+        phase_fit: int = 64,
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0):
             raise DatumError(f"sample period must be positive, found {ts_s}")
@@ -153,6 +159,7 @@ class SampleAligner:
         self.counters = AlignerCounters()
         self._half_ns = self.ts_ns // 2
         self._n_outputs = len(self.output_names)
+        self._fit_n = max(0, int(phase_fit)) * self._n_outputs
         self._clear()
 
     def _clear(self) -> None:
@@ -169,6 +176,7 @@ class SampleAligner:
         self._retry_at = 0  # event (of the current batch) from which to look for a run
         self._off_run = 0  # consecutive off-grid measurements (re-anchor the grid after many)
         self._backoff = self._n_outputs + 1
+        self._startup: list[tuple[int, int, float]] = []  # held back until the phase is fit
 
     def reset(self) -> None:
         """Start over (new grid origin); counters are kept."""
@@ -226,19 +234,20 @@ class SampleAligner:
         """Add one measurement of output ``channel``. Returns the samples now complete."""
         t0 = self.t0_ns
         if t0 is None:
+            if self._fit_n:
+                return self._fit_phase(channel, stamp_ns, value)
             self.t0_ns = t0 = stamp_ns
         ts = self.ts_ns
         offset = stamp_ns - t0
         k = (offset + self._half_ns) // ts
-        if k > max(self._newest, self.next_index) + self.jump_ns // ts:
-            self.counters.clock_resets += 1  # clock jump forwards: start over there
+        if k > max(self._newest, self.next_index) + self.jump_ns // ts or (
+            k < self.next_index and stamp_ns < self.grid_time(self.next_index) - self.reset_ns
+        ):
+            # clock jump forwards, or backwards beyond reset_after_s: start over there
+            self.counters.clock_resets += 1
             self._clear()
             return self.push_measurement(channel, stamp_ns, value)
         if k < self.next_index:
-            if stamp_ns < self.grid_time(self.next_index) - self.reset_ns:
-                self.counters.clock_resets += 1
-                self._clear()
-                return self.push_measurement(channel, stamp_ns, value)
             self.counters.out_of_order += 1
             return []
         pend = self._pending.get(k)
@@ -273,6 +282,37 @@ class SampleAligner:
             what = "non-finite" if not math.isfinite(value) else "implausible"
             pend.flag = pend.flag or f"{what} {self.output_names[channel]} ({value})"
         return self._finalise()
+
+    def _fit_phase(self, channel: int, stamp_ns: int, value: float) -> list[Sample]:
+        """Hold a measurement back until enough have come to fix the grid's phase.
+
+        The grid origin is the first stamp moved to the sender's tick under zero-mean jitter:
+        the circular mean of the stamps modulo ``ts`` (a plain mean would fail where the
+        stamps straddle a tick boundary), refined by the mean deviation from that grid. Then
+        the held measurements are aligned in the order they came.
+        """
+        held = self._startup
+        held.append((channel, stamp_ns, value))
+        if len(held) < self._fit_n:
+            return []
+        first = held[0][1]
+        ts = self.ts_ns
+        angle = 2.0 * math.pi / ts
+        c = math.fsum(math.cos(angle * ((s - first) % ts)) for _, s, _ in held)
+        s_ = math.fsum(math.sin(angle * ((s - first) % ts)) for _, s, _ in held)
+        shift = round(math.atan2(s_, c) / angle) if math.hypot(c, s_) > 0.0 else 0
+        # the circular mean is a coarse estimate where the jitter is a large part of a step:
+        # refine with the plain mean of the deviations from the coarse grid (twice)
+        for _ in range(2):
+            origin = first + shift
+            dev = [(s - origin + ts // 2) % ts - ts // 2 for _, s, _ in held]
+            shift += round(math.fsum(dev) / len(dev))
+        self._startup = []
+        self.t0_ns = first + shift
+        out: list[Sample] = []
+        for ch, st, v in held:
+            out.extend(self.push_measurement(ch, st, v))
+        return out
 
     def _finalise(self) -> list[Sample]:
         out: list[Sample] = []

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from twotank_validation.core.model import LFTModel
+from twotank_validation.defaults import JITTER_FRACTION
 from twotank_validation.errors import DatumError
 from twotank_validation.online.alarm import Alarm
 from twotank_validation.online.aligner import (
@@ -54,7 +55,11 @@ class OnlineValidator:
     """
 
     def __init__(
-        self, config: MonitorConfig, models: Sequence[LFTModel], *, jitter_fraction: float = 0.25
+        self,
+        config: MonitorConfig,
+        models: Sequence[LFTModel],
+        *,
+        jitter_fraction: float = JITTER_FRACTION,
     ) -> None:
         self.config = config
         self._monitor = WindowMonitor(config, models, MEASUREMENTS)

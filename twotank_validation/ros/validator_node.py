@@ -53,7 +53,7 @@ from std_srvs.srv import Trigger
 
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel, load_model
-from twotank_validation.defaults import METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.defaults import JITTER_FRACTION, METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import (
     Alarm,
@@ -133,7 +133,7 @@ VALIDATOR_PARAMS = (
     ),
     Param(
         "jitter_fraction",
-        0.25,
+        JITTER_FRACTION,
         "accepted stamp distance from the sample grid, fraction of ts_s",
         0.0,
         0.49,
