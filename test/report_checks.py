@@ -10,7 +10,8 @@ from twotank_validation.online import WindowReport
 
 
 def assert_same_reports(got: Sequence[WindowReport], want: Sequence[WindowReport]) -> None:
-    """Pairwise equal windows, verdicts and reasons; judged windows bit for bit (beta, w_min)."""
+    """Pairwise equal windows, verdicts, reasons and warnings; judged windows bit for bit
+    (beta, w_min)."""
     for a, b in zip(got, want, strict=False):
         assert (a.model, a.start_ns, a.end_ns, a.judged, a.alarm, a.data_quality) == (
             b.model,
@@ -20,6 +21,7 @@ def assert_same_reports(got: Sequence[WindowReport], want: Sequence[WindowReport
             b.alarm,
             b.data_quality,
         )
+        assert a.warnings == b.warnings
         if a.judged:
             assert a.beta == b.beta  # bit for bit
             np.testing.assert_array_equal(a.w_min, b.w_min)

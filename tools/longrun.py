@@ -53,7 +53,7 @@ class Rec(NamedTuple):
         start_ns: stamp of the window's first sample (ns).
         end_ns: stamp of its last sample (ns).
         judged: the window was judged.
-        quality: ``"ok"`` or why it was not judged.
+        quality: ``"ok"`` (and what was recovered, the warnings) or why it was not judged.
         beta: total min ||w|| (NaN when not judged).
         invalidated: raw verdict.
         alarm: debounced alarm level after the window.
@@ -217,7 +217,7 @@ def account_windows(  # noqa: PLR0917 (the window settings, in their usual order
         if r.end_ns - r.start_ns != span_ns:
             acc.bad_span += 1
         if r.judged:
-            good = r.quality == "ok" and math.isfinite(r.beta)
+            good = r.quality.startswith("ok") and math.isfinite(r.beta)  # or "ok; warning: ..."
         else:
             good = r.quality not in ("", "ok") and math.isnan(r.beta) and not r.invalidated
         acc.inconsistent += not good

@@ -10,6 +10,8 @@ clock jumps backwards, malformed values), then clean data again. The invariants:
   value) ever leaves ``feed``, and the validator keeps working after one;
 * no window that overlaps the hostile stretch is judged (unless the stretch holds only exact
   duplicates, which are dropped and harm nothing), and every judged window has a finite beta;
+* every report has a reason: a window not judged says why in ``data_quality``, a judged one
+  starts with ``"ok"`` and names its warnings there;
 * after the hostile stretch the validator judges windows again and Model B's alarm returns
   to OK (the clean data are the nominal rig, which Model B explains).
 
@@ -180,7 +182,19 @@ def check(result: RunResult) -> None:
     lo, hi = result.hostile_span_ns
     for r in result.reports:
         if not r.judged:
+            if not r.data_quality.strip() or r.invalidated or r.warnings:
+                result.violations.append(
+                    f"{r.model}: window {r.start_ns}..{r.end_ns} not judged without a reason "
+                    f"or with a verdict ({r.data_quality!r}, invalidated {r.invalidated})"
+                )
             continue
+        if not r.data_quality.startswith("ok") or any(
+            f"warning: {w}" not in r.data_quality for w in r.warnings
+        ):
+            result.violations.append(
+                f"{r.model}: judged window {r.start_ns}..{r.end_ns} with data_quality "
+                f"{r.data_quality!r} and warnings {r.warnings}"
+            )
         if not math.isfinite(r.beta):
             result.violations.append(f"judged window of {r.model} with beta {r.beta}")
         if r.start_ns <= hi and r.end_ns >= lo and set(result.kinds) != {"duplicate"}:

@@ -128,9 +128,10 @@ def _cmd_live(args: argparse.Namespace) -> int:
             if rep.judged
             else f"not judged: {rep.data_quality}"
         )
+        warned = "".join(f"  warning: {w}" for w in rep.warnings)
         print(
             f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
-            f"{verdict}  alarm {rep.alarm.name}",
+            f"{verdict}  alarm {rep.alarm.name}{warned}",
             flush=True,
         )
 
@@ -155,6 +156,7 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
         "invalidated": rep.invalidated,
         "alarm": rep.alarm.name,
         "reason": None if rep.judged else rep.data_quality,
+        "warnings": list(rep.warnings),
     }
 
 
@@ -295,6 +297,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             )
             beta = f"{w['beta']:7.3f}" if w["beta"] is not None else "      -"
             extra = f"  ({w['reason']})" if w["reason"] else ""
+            extra += "".join(f"  (warning: {text})" for text in w["warnings"])
             _out(
                 f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<12} "
                 f"{w['alarm']}{extra}"

@@ -562,6 +562,8 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
             "judged": 0,
             "not_judged": 0,
             "not_judged_reasons": {},
+            "with_warnings": 0,
+            "warnings": {},
         }
 
     models: dict[str, Any] = {name: empty() for name in model_names}
@@ -573,6 +575,10 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
             entry["not_judged"] += 1
             why = reason_category(rep.data_quality)
             entry["not_judged_reasons"][why] = entry["not_judged_reasons"].get(why, 0) + 1
+        if rep.warnings:
+            entry["with_warnings"] += 1
+            for text in rep.warnings:
+                entry["warnings"][text] = entry["warnings"].get(text, 0) + 1
         entry["windows"].append(
             {
                 "start": sec(rep.start_ns),
@@ -582,6 +588,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
                 "alarm": rep.alarm.name,
                 "reason": None if rep.judged else rep.data_quality,
                 "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
+                "warnings": list(rep.warnings),
             }
         )
         if (

@@ -125,7 +125,9 @@ class WindowReport:
         n_periods: periods in the window.
         n_samples: samples in the window.
         judged: the window was fit to judge.
-        data_quality: ``"ok"`` or why it was not judged.
+        data_quality: ``"ok"`` or why it was not judged; a judged window's text starts with
+            ``"ok"`` and goes on with what was recovered and, one ``"; warning: ..."`` each,
+            the :attr:`warnings`.
         beta: total min ||w|| (NaN when not judged).
         beta_lower: general solver's certified lower bound (NaN for the closed form).
         beta_upper: general solver's witness upper bound (NaN for the closed form).
@@ -137,6 +139,10 @@ class WindowReport:
         freqs_hz: (n_bins,) float.
         w_min: (n_bins,) float.
         compute_time_s: wall time of the validation.
+        warnings: what makes a judged window's verdict weaker than it looks, in words
+            (``ValidationResult.warnings`` of :func:`validate`, e.g. a transient still
+            decaying in the window); empty when there is nothing to say, and for a window
+            not judged (``data_quality`` says why).
     """
 
     model: str
@@ -157,6 +163,7 @@ class WindowReport:
     freqs_hz: np.ndarray
     w_min: np.ndarray
     compute_time_s: float
+    warnings: tuple[str, ...] = ()
 
 
 class WindowMonitor:
@@ -411,7 +418,7 @@ class WindowMonitor:
                     n_periods=cfg.periods_per_window,
                     n_samples=n,
                     judged=True,
-                    data_quality=judged_quality,
+                    data_quality=with_warnings(judged_quality, res.warnings),
                     beta=res.beta,
                     beta_lower=res.beta if general else math.nan,
                     beta_upper=res.beta_upper if general else math.nan,
@@ -423,6 +430,7 @@ class WindowMonitor:
                     freqs_hz=res.freqs_hz,
                     w_min=res.w_min,
                     compute_time_s=elapsed,
+                    warnings=res.warnings,
                 )
             )
         return reports
@@ -452,6 +460,14 @@ class WindowMonitor:
             w_min=np.zeros(0),
             compute_time_s=0.0,
         )
+
+
+def with_warnings(quality: str, warnings: Sequence[str]) -> str:
+    """A judged window's ``data_quality``: ``quality`` and ``"; warning: <text>"`` per warning.
+
+    ``quality`` itself when there is no warning (a clean window's text is ``"ok"``).
+    """
+    return "".join([quality, *(f"; warning: {w}" for w in warnings)])
 
 
 def monitor_record(

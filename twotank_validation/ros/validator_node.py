@@ -500,7 +500,7 @@ class ValidatorNode(Node):
             + ("INVALIDATED" if rep.invalidated else "not invalidated")
             if rep.judged
             else f"window not judged: {rep.data_quality}"
-        )
+        ) + "".join(f"; warning: {w}" for w in rep.warnings)
         self.reports.append(rep)
         for listener in self.report_listeners:
             listener(rep)
@@ -534,6 +534,7 @@ class ValidatorNode(Node):
                     KeyValue(key="margin", value=f"{rep.margin:.6g}"),
                     KeyValue(key="window_end_s", value=f"{rep.end_ns / NS_PER_S:.3f}"),
                     KeyValue(key="data_quality", value=rep.data_quality),
+                    KeyValue(key="warnings", value=" | ".join(rep.warnings)),
                 ]
             arr.status.append(st)
         self._pub_diag.publish(arr)

@@ -1,0 +1,103 @@
+"""The validator node passes the core's warnings on: /diagnostics and the report message.
+
+A record with a start-up transient (test_report_warnings.py) through the node's subscription
+callbacks: each judged window's warnings appear in the status message, in the ``warnings``
+key of /diagnostics and in the ValidationReport's ``data_quality``; a clean window's status
+is what it was ("ok", no warning text, an empty ``warnings`` value).
+
+Node tests start DDS participants: run them in a private network namespace with only
+loopback up, like test_ros_nodes.py (`scripts/run test` does).
+"""
+
+from __future__ import annotations
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import FluidPressure, Temperature
+from test_report_warnings import transient_record
+
+from twotank_validation.online import WindowReport
+from twotank_validation.online import streams as itf
+from twotank_validation.ros import messages
+from twotank_validation.ros.validator_node import ValidatorNode
+
+FAST = {"ts_s": 0.8, "period_samples": 256}
+
+
+class _Recorder:
+    """Stands in for the /diagnostics publisher: keeps what the node publishes."""
+
+    def __init__(self) -> None:
+        self.published: list[DiagnosticArray] = []
+
+    def publish(self, msg: DiagnosticArray) -> None:
+        self.published.append(msg)
+
+
+def test_diagnostics_and_report_carry_the_warnings() -> None:
+    stamps, u, y = transient_record(5)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = ValidatorNode(
+            context=ctx,
+            parameter_overrides=[
+                Parameter("use_sim_time", value=True),
+                *[
+                    Parameter(k, value=v)
+                    for k, v in {**FAST, "models": ["B"], "settle_periods": 0}.items()
+                ],
+            ],
+        )
+        diag = _Recorder()
+        node._pub_diag = diag  # white-box: the node's /diagnostics publisher
+        pairs: list[tuple[WindowReport, DiagnosticArray | None]] = []
+        # the diagnostics of a window go out after its report: pair each with the next one
+        node.report_listeners.append(lambda rep: pairs.append((rep, None)))
+        flow_cls, report_cls = messages.message_classes()
+        units = itf.RigUnits()
+        seen = 0
+        for k in range(len(stamps)):
+            f, h, t = flow_cls(), FluidPressure(), Temperature()
+            for msg in (f, h, t):
+                itf.set_stamp(msg.header.stamp, int(stamps[k]))
+            f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
+            h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
+            t.temperature = units.celsius_from_temperature(float(y[k, 1]))
+            node._on_flow(f)  # the subscription callbacks, as the executor calls them
+            node._on_height(h)
+            node._on_temperature(t)
+            assert node.wait_idle()
+            if len(pairs) > seen:
+                assert len(pairs) == seen + 1  # one model, one report per window
+                assert diag.published
+                pairs[-1] = (pairs[-1][0], diag.published[-1])
+                seen = len(pairs)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+    judged = [(rep, arr) for rep, arr in pairs if rep.judged]
+    assert len(judged) >= 3
+    assert judged[0][0].warnings  # the transient, from the first window on
+    assert not judged[-1][0].warnings  # settled by the end
+    for rep, arr in pairs:
+        assert arr is not None
+        (status,) = arr.status
+        values = {kv.key: kv.value for kv in status.values}
+        assert values["data_quality"] == rep.data_quality
+        assert values["warnings"] == " | ".join(rep.warnings)
+        msg = messages.report_message(rep, report_cls)
+        assert msg.data_quality == rep.data_quality
+        if rep.warnings:
+            assert rep.data_quality.startswith("ok; warning: ")
+            assert status.message.endswith("".join(f"; warning: {w}" for w in rep.warnings))
+            assert "transient" in values["warnings"]
+        elif rep.judged:
+            assert rep.data_quality == "ok"
+            assert values["warnings"] == ""
+            assert "warning" not in status.message
+        else:
+            assert status.message == f"window not judged: {rep.data_quality}"
