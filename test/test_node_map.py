@@ -84,7 +84,7 @@ class MapHarness:
             self.ex.spin_once(timeout_sec=0.005)
         return True
 
-    def send(self, t_ns: int, u, y) -> None:
+    def send(self, t_ns: int, u, y, *, temperature: bool = True) -> None:
         clock = Clock()
         itf.set_stamp(clock.clock, t_ns)
         self.pub_clock.publish(clock)
@@ -99,7 +99,10 @@ class MapHarness:
         self.pub_hot.publish(Float64(data=float(u[0])))
         self.pub_cold.publish(Float64(data=float(u[1])))
         self.pub_joint.publish(joint)
-        self.pub_state.publish(state)
+        if temperature:
+            self.pub_state.publish(state)
+        else:
+            n0.pop("/tank/state")  # the temperature's topic
         assert self.spin_until(lambda: all(self.val.received[k] > n0[k] for k in n0), 2.0)
 
     def close(self) -> None:
@@ -139,6 +142,37 @@ def test_the_node_reads_a_rigs_own_topics_through_the_map() -> None:
         assert g.beta == w.beta or (math.isnan(g.beta) and math.isnan(w.beta))
 
 
+def test_a_temperature_at_half_rate_is_judged_at_the_rate_it_supports() -> None:
+    """Valves and level every 0.8 s, temperature every 1.6 s: ts_s 1.6 with oversampling."""
+    stamps, u, y = streamfuzz.clean_record(4, 0)
+    slow = {"ts_s": 1.6, "period_samples": 128}
+    h = MapHarness(**slow, oversampling=["flow_cmd=2", "height=2"])
+    try:
+        for k in range(len(stamps)):
+            h.send(int(stamps[k]), u[k], y[k], temperature=k % 2 == 0)
+        assert h.val.wait_idle()
+        h.spin_until(lambda: False, 0.05)
+    finally:
+        h.close()
+    # the reference: the core fed the samples at the supported rate (every other sample of
+    # every signal; test_half_rate holds that path to make_datum + validate)
+    core = OnlineValidator(MonitorConfig(**slow), [load_model("B")])
+    want = []
+    for k in range(0, len(stamps), 2):
+        want += core.feed(itf.FLOW_CMD, int(stamps[k]), (float(u[k, 0]), float(u[k, 1])))
+        want += core.feed(itf.HEIGHT, int(stamps[k]), float(y[k, 0]))
+        want += core.feed(itf.TEMPERATURE, int(stamps[k]), float(y[k, 1]))
+    assert [r.judged for r in want] == [False, True, True]
+    got = h.reports
+    assert [(g.start_ns, g.end_ns, g.judged) for g in got] == [
+        (w.start_ns, w.end_ns, w.judged) for w in want
+    ]
+    # (to the ulp: the level and temperature go through Pa and degC and back)
+    assert [g.beta for g in got if g.judged] == pytest.approx(
+        [w.beta for w in want if w.judged], rel=1e-12
+    )
+
+
 def test_a_topic_that_does_not_fit_the_map_is_refused_with_the_reason() -> None:
     outputs = [OUTPUTS[0].replace("position[0]", "effort[0]"), OUTPUTS[1]]
     stamps, u, y = streamfuzz.clean_record(2, 0)
@@ -174,6 +208,7 @@ def test_a_topic_that_does_not_fit_the_map_is_refused_with_the_reason() -> None:
         ),
         ({"inputs": ["hot=/valves/hot"]}, "cannot start the validator"),
         ({"inputs": INPUTS[:1]}, "the interface map has 1 input"),
+        ({"oversampling": ["temp=2"]}, "oversampling entry 'temp=2'"),
     ],
 )
 def test_bad_map_parameters_stop_the_node_with_a_clear_message(params, match) -> None:

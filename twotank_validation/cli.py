@@ -182,7 +182,12 @@ def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
     return topics
 
 
-def _replay_config(args: argparse.Namespace, ts_s: float, period_samples: int) -> object:
+def _replay_config(
+    args: argparse.Namespace,
+    ts_s: float,
+    period_samples: int,
+    oversampling: dict[str, int] | None = None,
+) -> object:
     """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
     from twotank_validation import replay  # noqa: PLC0415
     from twotank_validation.online import AlarmConfig, MonitorConfig  # noqa: PLC0415
@@ -203,6 +208,7 @@ def _replay_config(args: argparse.Namespace, ts_s: float, period_samples: int) -
                 args.pascal_per_unit, args.temperature_offset_c, args.temperature_span_c
             ),
             interface=_interface_map(args),
+            oversampling=oversampling or {},
         )
     except ValueError as err:
         raise UsageError(str(err)) from err
@@ -261,7 +267,7 @@ def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
         print(f"note: {note}", file=sys.stderr)
     for conflict in timing.conflicts:
         print(f"WARNING: {conflict}", file=sys.stderr)
-    return _replay_config(args, timing.ts_s, timing.period_samples), timing
+    return _replay_config(args, timing.ts_s, timing.period_samples, timing.oversampling), timing
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:

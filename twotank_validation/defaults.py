@@ -17,6 +17,13 @@ TS_S: Final = 0.1
 PERIOD_SAMPLES: Final = 2048
 """Default excitation period (samples): 204.8 s at :data:`TS_S`."""
 
+MAX_RECOVERED_FRACTION: Final = 0.02
+"""Default largest fraction of a window per signal whose unusable samples are recovered from
+the other periods. At 1 % of the messages lost per topic a window of N samples loses about
+N/100 per signal (close to Poisson), so a cap of 2 % judges nearly every window there; the
+recovered samples move β by a random amount well inside its window-to-window spread
+(docs/theory.md §7)."""
+
 JITTER_FRACTION: Final = 0.45
 """Default accepted distance of a stamp from its sample-grid point, as a fraction of the
 sample period: each stamp goes to the nearest grid point, with a guard band of 5 % of a step

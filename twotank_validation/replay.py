@@ -47,6 +47,7 @@ from twotank_validation.online.infer import (
     grid_samples,
     infer_excitation_period,
     infer_sample_period,
+    supported_rate,
 )
 from twotank_validation.online.interface import (
     INPUT,
@@ -71,6 +72,9 @@ class ReplayConfig:
         topics: stream name (``flow_cmd``, ``height``, ``temperature``) -> topic in the bag.
         units: per-rig unit conversion of the measurements.
         jitter_fraction: accepted stamp distance from the sample grid (fraction of ts).
+        oversampling: messages per sample of streams published faster than
+            ``monitor.ts_s`` (stream -> whole number; :attr:`Timing.oversampling`): they are
+            decimated to the sample grid.
         interface: an interface map (:mod:`twotank_validation.online.interface`): each model
             input and output read from its own topic, type, field and stamp, with its unit
             conversion; messages are decoded from the definitions stored in the bag. None:
@@ -83,6 +87,7 @@ class ReplayConfig:
     units: itf.RigUnits = field(default_factory=itf.RigUnits)
     jitter_fraction: float = JITTER_FRACTION
     interface: InterfaceMap | None = None
+    oversampling: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.interface is not None:
@@ -193,7 +198,9 @@ def replay_bag(
             f"bag; give a CSV or Parquet file ({', '.join(tables.TABLE_SUFFIXES)}), or a map "
             "of topics for a bag"
         )
-    core = OnlineValidator(cfg.monitor, models, jitter_fraction=cfg.jitter_fraction)
+    core = OnlineValidator(
+        cfg.monitor, models, jitter_fraction=cfg.jitter_fraction, oversampling=cfg.oversampling
+    )
     result = ReplayResult(Path(path))
     on_report = _reporter(result, core, on_window)
     with bag_reader.open_bag(path) as bag:
@@ -259,12 +266,17 @@ def replay_table(
     imap = _table_map(config, path)
     t_start = time.perf_counter()
     table = tables.read_table(path, imap)
-    core = OnlineValidator(config.monitor, models, jitter_fraction=config.jitter_fraction)
+    core = OnlineValidator(
+        config.monitor,
+        models,
+        jitter_fraction=config.jitter_fraction,
+        oversampling=config.oversampling,
+    )
     result = ReplayResult(Path(path), source="table", bag_start_ns=int(table.stamps_ns[0]))
     result.decode_s = time.perf_counter() - t_start
     t_start = time.perf_counter()
     feed = _MappedFeed(
-        core, len(imap.inputs), config.monitor.ts_s, _reporter(result, core, on_window)
+        core, len(imap.inputs), core.command_period_s, _reporter(result, core, on_window)
     )
     stamps = table.stamps_ns.tolist()
     inputs, outputs = table.inputs.tolist(), table.outputs.tolist()
@@ -343,7 +355,7 @@ class _MappedFeed:
     Args:
         core: the validator.
         n_inputs: inputs of a command.
-        ts_s: sample period (s).
+        ts_s: period of the command messages (s).
         on_report: called with each report.
     """
 
@@ -471,7 +483,7 @@ def _feed_mapped(
         result.problems.append(problem)
     if not usable:
         return
-    feed = _MappedFeed(core, len(imap.inputs), cfg.monitor.ts_s, on_report)
+    feed = _MappedFeed(core, len(imap.inputs), core.command_period_s, on_report)
     checked: set[str] = set()
     refused: set[str] = set()
     bad_values = 0
@@ -649,6 +661,9 @@ class Timing:
         notes: what was taken or inferred, and why, in words.
         conflicts: options or metadata that the data contradict, with the value the data
             suggest (``"stamps lie on a 0.5 s grid: pass --ts 0.5"``).
+        stream_ts_s: each stream's period found in its stamps (s), where it has a grid.
+        oversampling: messages per sample of the streams published faster than ``ts_s``
+            (stream -> whole number > 1): they are decimated to the sample grid.
     """
 
     ts_s: float
@@ -659,6 +674,8 @@ class Timing:
     data_period_samples: int | None = None
     notes: tuple[str, ...] = ()
     conflicts: tuple[str, ...] = ()
+    stream_ts_s: dict[str, float] = field(default_factory=dict)
+    oversampling: dict[str, int] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """The JSON form (``timing`` in the validate and diagnose JSON)."""
@@ -715,9 +732,12 @@ def _command_record(
 
 
 def _source_record(
-    bag: bag_reader.BagReader, source: Source
+    bag: bag_reader.BagReader, source: Source, limit: int | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Stamps (n,) ns and model-unit values (n, 1) of one map source, None if unreadable."""
+    """Stamps (n,) ns and model-unit values (n, 1) of one map source, None if unreadable.
+
+    ``limit``: read at most this many messages (all if None).
+    """
     name = bag.resolve_topic(source.topic)
     if name is None or bag.info.topics.get(name) != source.msgtype:
         return None
@@ -726,9 +746,38 @@ def _source_record(
         for m in bag.messages([source.topic]):
             values.append(extract(m.msg, source))
             stamps.append(source_stamp_ns(m.msg, source, m.log_time_ns))
+            if limit is not None and len(stamps) >= limit:
+                break
     if not stamps:
         return None
     return np.asarray(stamps, dtype=np.int64), np.asarray(values, dtype=float)[:, None]
+
+
+_RATE_MESSAGES = 4096
+"""Messages per output stream read to find its period (its first ones)."""
+
+
+def _output_stamps(bag: bag_reader.BagReader, cfg: ReplayConfig) -> dict[str, np.ndarray]:
+    """Stamps (n,) ns of each output stream's first messages (streams that can be read)."""
+    out: dict[str, np.ndarray] = {}
+    for i, name in enumerate(MEASUREMENTS):
+        if cfg.interface is not None:
+            rec = _source_record(bag, cfg.interface.outputs[i], limit=_RATE_MESSAGES)
+            if rec is not None:
+                out[name] = rec[0]
+            continue
+        topic = cfg.topics[name]
+        if not _usable(bag, topic, bag_reader.expected_types()[name]):
+            continue
+        stamps: list[np.ndarray] = []
+        with contextlib.suppress(bag_reader.BagCorruptError):
+            for batch in bag.field_batches([topic], {topic: itf.STREAM_FIELDS[name]}, size=_BATCH):
+                stamps.append(batch.stamp_ns)
+                if sum(map(len, stamps)) >= _RATE_MESSAGES:
+                    break
+        if stamps:
+            out[name] = np.concatenate(stamps)[:_RATE_MESSAGES]
+    return out
 
 
 def _fmt_s(x: float) -> str:
@@ -773,25 +822,76 @@ def resolve_timing(
         table = tables.read_table(path, _table_map(cfg, path))
         meta_ts = meta_period = None
         record = (table.stamps_ns, table.inputs[:, :1])
+        out_stamps = {
+            name: table.stamps_ns[np.isfinite(table.outputs[:, i])]
+            for i, name in enumerate(MEASUREMENTS)
+        }
     else:
         with bag_reader.open_bag(path) as bag:
             meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
             record = _command_record(bag, cfg)
+            out_stamps = _output_stamps(bag, cfg)
     notes: list[str] = []
     conflicts: list[str] = []
     grid = infer_sample_period(record[0]) if record is not None else None
     data_ts = grid.ts_s if grid is not None and grid.on_grid >= 0.5 else None
+    stream_ts = {itf.FLOW_CMD: data_ts} if data_ts is not None else {}
+    for name, stamps in out_stamps.items():
+        g = infer_sample_period(stamps)
+        if g is not None and g.on_grid >= 0.5:
+            stream_ts[name] = g.ts_s
+    # the grid every output has a sample on: a multiple of the commands' step
+    rates = (
+        supported_rate(
+            data_ts, {k: v for k, v in stream_ts.items() if k != itf.FLOW_CMD}, itf.FLOW_CMD
+        )
+        if data_ts is not None
+        else None
+    )
+    slow = rates is not None and rates.factor > 1
+    supported = data_ts * rates.factor if rates is not None and data_ts is not None else None
 
     def differs(a: float, b: float) -> bool:
         return abs(a - b) > 0.01 * b
 
+    def multiple(a: float, b: float) -> bool:  # a is a whole multiple of b
+        return round(a / b) >= 1 and not differs(a, round(a / b) * b)
+
+    def slow_streams() -> str:
+        assert data_ts is not None
+        return ", ".join(
+            f"{name} every {_fmt_s(t)} s"
+            for name, t in stream_ts.items()
+            if name != itf.FLOW_CMD and differs(t, data_ts) and t > data_ts
+        )
+
     if ts_s is not None:
         ts, ts_from = ts_s, "option"
-        if data_ts is not None and differs(ts_s, data_ts):
-            conflicts.append(
-                f"--ts {_fmt_s(ts_s)} does not fit the data: the command stamps lie on a "
-                f"{_fmt_s(data_ts)} s grid: pass --ts {_fmt_s(data_ts)}"
-            )
+        if data_ts is not None and supported is not None and not multiple(ts_s, supported):
+            fix = f"pass --ts {_fmt_s(supported)}"
+            if slow:
+                conflicts.append(
+                    f"--ts {_fmt_s(ts_s)} does not fit the data: {slow_streams()}, the commands "
+                    f"every {_fmt_s(data_ts)} s: not every sample would have a value of each; "
+                    f"{fix} (the rate the data support)"
+                )
+            else:
+                conflicts.append(
+                    f"--ts {_fmt_s(ts_s)} does not fit the data: the command stamps lie on a "
+                    f"{_fmt_s(data_ts)} s grid: {fix}"
+                )
+    elif (
+        slow
+        and supported is not None
+        and data_ts is not None
+        and (meta_ts is None or not differs(meta_ts, data_ts))
+    ):
+        ts, ts_from = supported, "stream rates"
+        notes.append(
+            f"sample period {_fmt_s(ts)} s, the rate the data support: {slow_streams()}, the "
+            f"commands every {_fmt_s(data_ts)} s; the faster streams are decimated to it; "
+            "--ts overrides"
+        )
     elif meta_ts is not None:
         ts, ts_from = meta_ts, "bag metadata"
         notes.append(f"sample period {_fmt_s(ts)} s from the bag's metadata")
@@ -820,29 +920,45 @@ def resolve_timing(
         u = grid_samples(record[0], record[1], grid_ts)
         data_period = infer_excitation_period(u, cfg.monitor.input_periodic_rtol)
 
+    def in_steps(n: int, step_s: float) -> int | None:
+        """``n`` samples of ``step_s`` in samples of ``ts``, if a whole number."""
+        m = n * step_s / ts
+        return round(m) if abs(m - round(m)) <= 1e-6 * max(m, 1.0) and round(m) >= 1 else None
+
     def period_doubt(given: int, what: str) -> str | None:
         if data_period is None or abs(given * ts - data_period * grid_ts) <= 0.5 * grid_ts:
             return None
         seen = f"the commands repeat every {_fmt_s(data_period * grid_ts)} s"
+        here = in_steps(data_period, grid_ts)
         if grid_ts != ts:
             seen += f" ({data_period} samples of {_fmt_s(grid_ts)} s)"
         return (
             f"{what} {given} ({_fmt_s(given * ts)} s at ts {_fmt_s(ts)} s) does not fit the "
-            f"data: {seen}: pass --period {data_period}"
-            + (f" with --ts {_fmt_s(grid_ts)}" if grid_ts != ts else "")
+            f"data: {seen}: pass --period "
+            + (f"{here}" if here is not None else f"{data_period} with --ts {_fmt_s(grid_ts)}")
         )
 
     if period_samples is not None:
         period, period_from = period_samples, "option"
         if doubt := period_doubt(period_samples, "--period"):
             conflicts.append(doubt)
-    elif meta_period is not None:
+    elif meta_period is not None and (
+        meta_ts is None or (meta_here := in_steps(meta_period, meta_ts)) is not None
+    ):
         period, period_from = meta_period, "bag metadata"
-        notes.append(f"excitation period {period} samples from the bag's metadata")
-        if doubt := period_doubt(meta_period, "the bag's metadata period"):
+        if meta_ts is not None and differs(ts, meta_ts):
+            assert meta_here is not None
+            period = meta_here
+            notes.append(
+                f"excitation period {period} samples from the bag's metadata "
+                f"({meta_period} samples of {_fmt_s(meta_ts)} s)"
+            )
+        else:
+            notes.append(f"excitation period {period} samples from the bag's metadata")
+        if doubt := period_doubt(period, "the bag's metadata period"):
             conflicts.append(doubt)
-    elif data_period is not None and grid_ts == ts:
-        period, period_from = data_period, "commands"
+    elif data_period is not None and (data_here := in_steps(data_period, grid_ts)) is not None:
+        period, period_from = data_here, "commands"
         notes.append(
             f"excitation period {period} samples ({_fmt_s(period * ts)} s) inferred from the "
             "commands (the smallest shift under which they repeat); --period overrides"
@@ -853,6 +969,17 @@ def resolve_timing(
             f"excitation period {period} samples (the default): no --period, no metadata, and "
             "the commands do not repeat within the recording; pass --period"
         )
+    # each stream published a whole number of times per sample (> 1) is decimated
+    over = {
+        name: round(ts / t)
+        for name, t in stream_ts.items()
+        if round(ts / t) > 1 and multiple(ts, t)
+    }
+    if over and ts_from != "stream rates":
+        notes.append(
+            f"ts {_fmt_s(ts)} s spans several messages of "
+            + ", ".join(f"{name} (every {n}th kept)" for name, n in over.items())
+        )
     return Timing(
         ts_s=ts,
         period_samples=period,
@@ -862,6 +989,8 @@ def resolve_timing(
         data_period_samples=data_period,
         notes=tuple(notes),
         conflicts=tuple(conflicts),
+        stream_ts_s=stream_ts,
+        oversampling=over,
     )
 
 

@@ -86,6 +86,7 @@ class AlignerCounters:
     non_finite: int = 0
     missing: int = 0
     clock_resets: int = 0
+    decimated: int = 0
 
 
 class _Pending:
@@ -132,6 +133,13 @@ class SampleAligner:
             and aligned in arrival order). A sender's grid is then found under stamp jitter,
             where the first stamp alone can be up to the jitter off it and push jittered
             stamps beyond the tolerance. 0: the grid starts at the first stamp.
+        oversampling: messages per grid step of each stream, commands first, then each
+            output (all 1 by default). A stream published ``r`` times per step (a grid chosen
+            at the rate of a slower sensor) is decimated: a measurement stamped on one of its
+            in-between ticks (within the jitter tolerance of that tick) is dropped and counted
+            in ``decimated``, and a command is held from the grid point whose tolerance of
+            ``ts / r`` it falls in (a zero-order hold sampled at the grid). The grid's phase
+            is fit to the streams with the fewest messages per step.
     """
 
     def __init__(
@@ -145,6 +153,7 @@ class SampleAligner:
         jump_after_s: float = 3600.0,
         max_abs_value: float = 1e6,
         phase_fit: int = 64,
+        oversampling: Sequence[int] | None = None,
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0):
             raise DatumError(f"sample period must be positive, found {ts_s}")
@@ -159,7 +168,21 @@ class SampleAligner:
         self.counters = AlignerCounters()
         self._half_ns = self.ts_ns // 2
         self._n_outputs = len(self.output_names)
-        self._fit_n = max(0, int(phase_fit)) * self._n_outputs
+        over = tuple(int(r) for r in (oversampling or (1,) * (1 + self._n_outputs)))
+        if len(over) != 1 + self._n_outputs or min(over) < 1:
+            raise DatumError(
+                f"oversampling needs {1 + self._n_outputs} whole numbers >= 1 (commands, then "
+                f"each output), found {over}"
+            )
+        self._over_y = over[1:]
+        self._decimating = max(over) > 1
+        # commands: the tolerance of their own tick (the same as the grid's when r = 1)
+        self.cmd_tol_ns = round(jitter_fraction * self.ts_ns / over[0])
+        # the phase is fit modulo the step of the least oversampled outputs, on their stamps
+        r_fit = min(self._over_y, default=1)
+        self._fit_channels = frozenset(c for c, r in enumerate(self._over_y) if r == r_fit)
+        self._fit_step = self.ts_ns // r_fit
+        self._fit_n = max(0, int(phase_fit)) * len(self._fit_channels)
         self._clear()
 
     def _clear(self) -> None:
@@ -171,6 +194,7 @@ class SampleAligner:
         self._newest = -1
         self._commands: deque[tuple[int, tuple[float, ...], bool]] = deque()
         self._held: tuple[float, ...] = (math.nan,) * self.n_inputs
+        self._held_ns: int | None = None  # stamp of the held command (decimated commands)
         self._held_finite = self.n_inputs == 0
         self.last_command_ns: int | None = None
         self._retry_at = 0  # event (of the current batch) from which to look for a run
@@ -240,15 +264,25 @@ class SampleAligner:
         ts = self.ts_ns
         offset = stamp_ns - t0
         k = (offset + self._half_ns) // ts
-        if k > max(self._newest, self.next_index) + self.jump_ns // ts or (
-            k < self.next_index and stamp_ns < self.grid_time(self.next_index) - self.reset_ns
+        # a faster stream's in-between tick (decimated), not a late or lost sample
+        between = (
+            self._decimating
+            and self._over_y[channel] > 1
+            and self._between_ticks(channel, offset - k * ts)
+        )
+        if not between and (
+            k > max(self._newest, self.next_index) + self.jump_ns // ts
+            or (k < self.next_index and stamp_ns < self.grid_time(self.next_index) - self.reset_ns)
         ):
             # clock jump forwards, or backwards beyond reset_after_s: start over there
             self.counters.clock_resets += 1
             self._clear()
             return self.push_measurement(channel, stamp_ns, value)
-        if k < self.next_index:
-            self.counters.out_of_order += 1
+        if between or k < self.next_index:
+            if between:
+                self.counters.decimated += 1
+            else:
+                self.counters.out_of_order += 1
             return []
         pend = self._pending.get(k)
         if pend is None:
@@ -283,6 +317,12 @@ class SampleAligner:
             pend.flag = pend.flag or f"{what} {self.output_names[channel]} ({value})"
         return self._finalise()
 
+    def _between_ticks(self, channel: int, dev_ns: int) -> bool:
+        """Whether a deviation from the grid point is one of the channel's in-between ticks."""
+        sub = self.ts_ns // self._over_y[channel]
+        j = round(dev_ns / sub)
+        return j != 0 and abs(dev_ns - j * sub) <= self.tol_ns // self._over_y[channel]
+
     def _fit_phase(self, channel: int, stamp_ns: int, value: float) -> list[Sample]:
         """Hold a measurement back until enough have come to fix the grid's phase.
 
@@ -293,19 +333,20 @@ class SampleAligner:
         """
         held = self._startup
         held.append((channel, stamp_ns, value))
-        if len(held) < self._fit_n:
+        fit = [s for c, s, _ in held if c in self._fit_channels]
+        if len(fit) < self._fit_n:
             return []
-        first = held[0][1]
-        ts = self.ts_ns
+        first = fit[0]
+        ts = self._fit_step
         angle = 2.0 * math.pi / ts
-        c = math.fsum(math.cos(angle * ((s - first) % ts)) for _, s, _ in held)
-        s_ = math.fsum(math.sin(angle * ((s - first) % ts)) for _, s, _ in held)
+        c = math.fsum(math.cos(angle * ((s - first) % ts)) for s in fit)
+        s_ = math.fsum(math.sin(angle * ((s - first) % ts)) for s in fit)
         shift = round(math.atan2(s_, c) / angle) if math.hypot(c, s_) > 0.0 else 0
         # the circular mean is a coarse estimate where the jitter is a large part of a step:
         # refine with the plain mean of the deviations from the coarse grid (twice)
         for _ in range(2):
             origin = first + shift
-            dev = [(s - origin + ts // 2) % ts - ts // 2 for _, s, _ in held]
+            dev = [(s - origin + ts // 2) % ts - ts // 2 for s in fit]
             shift += round(math.fsum(dev) / len(dev))
         self._startup = []
         self.t0_ns = first + shift
@@ -326,7 +367,7 @@ class SampleAligner:
             if pend is not None and pend.n_seen == n_out:
                 if not later:
                     last = self.last_command_ns
-                    if last is None or last < t_k - self.tol_ns:
+                    if last is None or last < t_k - self.cmd_tol_ns:
                         break  # wait for the command of this instant
                 flag = pend.flag
                 y = pend.y
@@ -345,21 +386,32 @@ class SampleAligner:
             else:
                 break
             cmds = self._commands
-            limit = t_k + self.tol_ns
+            limit = t_k + self.cmd_tol_ns
             while cmds and cmds[0][0] <= limit:
-                _, self._held, self._held_finite = cmds.popleft()
+                self._held_ns, self._held, self._held_finite = cmds.popleft()
+            u = np.array(self._held, dtype=float)
             if flag is None and not self._held_finite:
                 flag = (
                     "no valid valve command yet"
                     if self.last_command_ns is None
                     else "non-finite valve command"
                 )
+            elif (
+                self._decimating
+                and self._held_ns is not None
+                and self._held_ns < t_k - self.cmd_tol_ns
+            ):
+                # decimated commands: the one of this grid point was lost, and the one held
+                # is an in-between tick's, not this sample's value (unusable, recoverable)
+                u[:] = math.nan
+                flag = flag or (
+                    f"gap: no valve command at t = {t_k / NS_PER_S:.3f} s (held "
+                    f"{(t_k - self._held_ns) / 1e6:.0f} ms old)"
+                )
             if pend is not None:
                 del pending[k]
             self.next_index = k + 1
-            out.append(
-                Sample(k, t_k, np.array(self._held, dtype=float), np.array(y, dtype=float), flag)
-            )
+            out.append(Sample(k, t_k, u, np.array(y, dtype=float), flag))
         return out
 
     # -- batches
@@ -394,6 +446,7 @@ class SampleAligner:
         while i < n:
             if (
                 i >= self._retry_at
+                and not self._decimating  # decimated streams are not regular groups
                 and not self._pending
                 and self.t0_ns is not None
                 and n - i >= group * _MIN_RUN

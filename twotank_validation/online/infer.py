@@ -16,6 +16,7 @@ functions are pure and take plain arrays:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -161,3 +162,59 @@ def infer_excitation_period(u: np.ndarray, rtol: float = 1e-6) -> int | None:
         if np.all(change <= rtol * np.maximum(rms, 1e-12)):
             return int(p)
     return None
+
+
+@dataclass(frozen=True)
+class StreamRates:
+    """The sample grid the slowest stream supports, as whole steps of the command grid.
+
+    Attributes:
+        factor: command-grid steps per sample of the supported grid (1: the commands' own).
+        oversampling: messages per sample of the supported grid, per stream (the commands
+            and each output with a known rate).
+        odd: streams whose period is not a whole multiple of the commands' (s), left out.
+    """
+
+    factor: int
+    oversampling: dict[str, int]
+    odd: dict[str, float]
+
+
+def supported_rate(
+    command_ts_s: float, output_ts_s: dict[str, float], command_stream: str, rtol: float = 0.01
+) -> StreamRates:
+    """The grid at which every output has a sample: the commands' step times the outputs' steps.
+
+    An output published every ``m`` command steps (``m`` whole, within ``rtol``) has a sample
+    on every ``m``-th step only; validating at the least common multiple ``L`` of the ``m``
+    gives every signal a sample at every step, each faster stream decimated by ``L / m``.
+    An output published ``q`` times per command step is decimated by ``L q``.
+
+    Args:
+        command_ts_s: the commands' period (s).
+        output_ts_s: each output's period (s), from its stamps.
+        command_stream: the commands' stream name (its key in ``oversampling``).
+        rtol: accepted relative distance of a ratio from a whole number.
+
+    Returns:
+        The factor ``L`` and the messages per sample of each stream.
+    """
+    steps: dict[str, int] = {}
+    faster: dict[str, int] = {}  # outputs published q times per command step
+    odd: dict[str, float] = {}
+    for name, ts in output_ts_s.items():
+        ratio = ts / command_ts_s
+        m, q = round(ratio), round(1.0 / ratio)
+        if m >= 1 and abs(ratio - m) <= rtol * m:
+            steps[name] = m
+        elif q >= 2 and abs(1.0 / ratio - q) <= rtol * q:
+            faster[name] = q
+        else:
+            odd[name] = ts
+    factor = math.lcm(*steps.values()) if steps else 1
+    over = (
+        {command_stream: factor}
+        | {name: factor // m for name, m in steps.items()}
+        | {name: factor * q for name, q in faster.items()}
+    )
+    return StreamRates(factor=factor, oversampling=over, odd=odd)

@@ -5,7 +5,7 @@ periodic steady state: the commands repeat exactly every period, and the outputs
 noise. So a sample that did not arrive is taken from the same phase of the other periods of
 the span (the window and its settling periods): the commands exactly, the outputs as the mean
 of the other periods' samples at that phase. A window is still judged when no signal has more
-than a set fraction of the window recovered (``max_recovered_fraction``, default 1 %); beyond
+than a set fraction of the window recovered (``max_recovered_fraction``, default 2 %); beyond
 that, or where a phase is missing in every period, it is not judged, with the reason.
 
 What it does to β (docs/theory.md §7): an output sample replaced by the mean of ``q`` other

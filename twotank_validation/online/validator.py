@@ -11,7 +11,7 @@ ROS-free: callers feed it stamped values (integer nanoseconds) and get
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -37,6 +37,31 @@ from twotank_validation.online.streams import (
 from twotank_validation.online.window import MonitorConfig, WindowMonitor, WindowReport
 
 
+def parse_oversampling(entries: Sequence[str]) -> dict[str, int]:
+    """``["flow_cmd=2", "height=2"]`` -> ``{"flow_cmd": 2, "height": 2}`` (empty entries skipped).
+
+    Raises:
+        DatumError: an entry that is not ``STREAM=N`` with a known stream and a whole N >= 1.
+    """
+    out: dict[str, int] = {}
+    for entry in entries:
+        if not entry.strip():
+            continue
+        name, sep, count = entry.partition("=")
+        name = name.strip()
+        try:
+            n = int(count) if sep else 0
+        except ValueError:
+            n = 0
+        if name not in STREAMS or n < 1:
+            raise DatumError(
+                f"oversampling entry {entry!r}: give STREAM=N, a stream of {list(STREAMS)} and "
+                "the whole number N >= 1 of its messages per sample"
+            )
+        out[name] = n
+    return out
+
+
 class OnlineValidator:
     """Aligner + window monitor + input faults: stamped stream values in, window reports out.
 
@@ -48,6 +73,10 @@ class OnlineValidator:
         config: monitor settings.
         models: models to validate.
         jitter_fraction: accepted stamp distance from the sample grid (fraction of ts).
+        oversampling: messages per sample of each stream published faster than the sample
+            grid (stream name -> whole number; 1 for streams not named). A grid at a slower
+            sensor's rate (``config.ts_s`` a multiple of the commands' period) decimates the
+            faster streams (:class:`~twotank_validation.online.aligner.SampleAligner`).
 
     Attributes:
         sample_listeners: called with each aligned :class:`Sample` or :class:`SampleBlock`
@@ -60,10 +89,22 @@ class OnlineValidator:
         models: Sequence[LFTModel],
         *,
         jitter_fraction: float = JITTER_FRACTION,
+        oversampling: Mapping[str, int] | None = None,
     ) -> None:
         self.config = config
+        over = dict(oversampling or {})
+        if unknown := sorted(set(over) - set(STREAMS)):
+            raise DatumError(f"oversampling names unknown stream(s) {unknown}; streams: {STREAMS}")
         self._monitor = WindowMonitor(config, models, MEASUREMENTS)
-        self._aligner = SampleAligner(config.ts_s, 2, MEASUREMENTS, jitter_fraction=jitter_fraction)
+        self._aligner = SampleAligner(
+            config.ts_s,
+            2,
+            MEASUREMENTS,
+            jitter_fraction=jitter_fraction,
+            oversampling=[over.get(name, 1) for name in STREAMS],
+        )
+        self.command_period_s = config.ts_s / over.get(FLOW_CMD, 1)
+        """Period of the command messages (s): the sample period over their oversampling."""
         self.samples_seen = 0
         self.sample_listeners: list[Callable[[Sample | SampleBlock], None]] = []
         self._faults = InputFaults(

@@ -24,7 +24,14 @@ from twotank_validation.core.validate import (
     takes_fast_path,
     validate,
 )
-from twotank_validation.defaults import METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S, Method
+from twotank_validation.defaults import (
+    MAX_RECOVERED_FRACTION,
+    METHODS,
+    NS_PER_S,
+    PERIOD_SAMPLES,
+    TS_S,
+    Method,
+)
 from twotank_validation.errors import ModelError, TwotankError
 from twotank_validation.online.alarm import (
     Alarm,
@@ -68,7 +75,7 @@ class MonitorConfig:
     convention: NormConvention = NormConvention.POWER
     method: str = "auto"
     alarm: AlarmConfig = field(default_factory=AlarmConfig)
-    max_recovered_fraction: float = 0.01
+    max_recovered_fraction: float = MAX_RECOVERED_FRACTION
 
     def __post_init__(self) -> None:
         checks = [

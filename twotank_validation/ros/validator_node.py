@@ -53,7 +53,14 @@ from std_srvs.srv import Trigger
 
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel, load_model
-from twotank_validation.defaults import JITTER_FRACTION, METHODS, NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.defaults import (
+    JITTER_FRACTION,
+    MAX_RECOVERED_FRACTION,
+    METHODS,
+    NS_PER_S,
+    PERIOD_SAMPLES,
+    TS_S,
+)
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import (
     Alarm,
@@ -75,6 +82,7 @@ from twotank_validation.online.interface import (
     load_interface_map,
     source_stamp_ns,
 )
+from twotank_validation.online.validator import parse_oversampling
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
 
@@ -125,7 +133,7 @@ VALIDATOR_PARAMS = (
     ),
     Param(
         "max_recovered_fraction",
-        0.01,
+        MAX_RECOVERED_FRACTION,
         "largest fraction of a window per signal whose unusable samples are recovered from "
         "the other periods (0: any unusable sample leaves the window unjudged)",
         0.0,
@@ -153,6 +161,13 @@ VALIDATOR_PARAMS = (
         "model order: NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive]; empty: none",
     ),
     Param("outputs", [""], "the interface map's output sources as text, as inputs"),
+    Param(
+        "oversampling",
+        [""],
+        "streams published faster than ts_s, one STREAM=N per entry (N messages per sample, "
+        "decimated to the grid): e.g. flow_cmd=2 and height=2 with ts_s 0.2 for commands and "
+        "level at 10 Hz, temperature at 5 Hz; empty: every stream at ts_s",
+    ),
 )
 
 
@@ -291,7 +306,10 @@ class ValidatorNode(Node):
                 list(models) if models is not None else [load_model(m) for m in values["models"]]
             )
             self.core = OnlineValidator(
-                self.config, self.models, jitter_fraction=float(values["jitter_fraction"])
+                self.config,
+                self.models,
+                jitter_fraction=float(values["jitter_fraction"]),
+                oversampling=parse_oversampling(values["oversampling"]),
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
@@ -327,7 +345,9 @@ class ValidatorNode(Node):
             self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 1000)
             self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 1000)
         else:
-            self._assembler = CommandAssembler(len(self.interface.inputs), self.config.ts_s)
+            self._assembler = CommandAssembler(
+                len(self.interface.inputs), self.core.command_period_s
+            )
             self._topics = self.interface.topics()
             for topic, sources in self._topics.items():
                 try:
