@@ -208,6 +208,10 @@ def test_empty_and_bad_cells_leave_those_windows_unjudged(run, bag_reports, tmp_
     lost = [r for r in res.reports if r.start_ns <= 1100 * step < r.end_ns]
     assert lost
     assert all(r.judged and "recovered 1 sample(s)" in r.data_quality for r in lost)
+    windows = [w for m in replay.summary_json(res)["models"].values() for w in m["windows"]]
+    said = [w for w in windows if "recovered 1 sample(s)" in w["data_quality"]]
+    assert len(said) == len(lost)  # the JSON says so too
+    assert all(w["reason"] is None and w["beta"] is not None for w in said)
     clean = 1100 * step
     later = [g for g in got if g[1] > clean]
     assert len(later) >= 6

@@ -156,6 +156,7 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
         "invalidated": rep.invalidated,
         "alarm": rep.alarm.name,
         "reason": None if rep.judged else rep.data_quality,
+        "data_quality": rep.data_quality,
         "warnings": list(rep.warnings),
     }
 

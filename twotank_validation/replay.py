@@ -599,6 +599,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
                 "invalidated": bool(rep.invalidated),
                 "alarm": rep.alarm.name,
                 "reason": None if rep.judged else rep.data_quality,
+                "data_quality": rep.data_quality,
                 "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
                 "warnings": list(rep.warnings),
             }
