@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -17,6 +18,7 @@ from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import WindowReport
+from twotank_validation.online.window import verdict_text
 
 if TYPE_CHECKING:
     from twotank_validation.online.interface import InterfaceMap
@@ -123,11 +125,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(report_dict(rep)), flush=True)
             return
-        verdict = (
-            f"beta {rep.beta:6.3f}  {'INVALIDATED' if rep.invalidated else 'valid      '}"
-            if rep.judged
-            else f"not judged: {rep.data_quality}"
-        )
+        verdict = verdict_text(rep) if rep.judged else f"not judged: {rep.data_quality}"
         warned = "".join(f"  warning: {w}" for w in rep.warnings)
         print(
             f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
@@ -145,6 +143,11 @@ def _cmd_live(args: argparse.Namespace) -> int:
     return 0
 
 
+def _finite(x: float) -> float | None:
+    """``x``, or None (JSON null) where it is NaN or infinite."""
+    return x if math.isfinite(x) else None
+
+
 def report_dict(rep: WindowReport) -> dict[str, object]:
     """JSON-friendly summary of a window report (spectrum left out)."""
     return {
@@ -158,6 +161,10 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
         "reason": None if rep.judged else rep.data_quality,
         "data_quality": rep.data_quality,
         "warnings": list(rep.warnings),
+        "beta_op": _finite(rep.beta_op),
+        "beta_total": _finite(rep.beta_total),
+        "raised_by": rep.raised_by,
+        "operating_point": rep.operating_point,
     }
 
 
@@ -294,7 +301,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         bar.close()
     summary = replay.summary_json(result, [m.name for m in models])
     summary["timing"] = timing.to_json()
-    _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7}  {'verdict':<12} alarm")
+    _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7} {'beta_op':>7}  {'verdict':<12} alarm")
     for name, entry in summary["models"].items():
         for w in entry["windows"]:
             verdict = (
@@ -303,6 +310,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
                 else "not judged"
             )
             beta = f"{w['beta']:7.3f}" if w["beta"] is not None else "      -"
+            beta += f" {w['beta_op']:7.3f}" if w["beta_op"] is not None else "       -"
+            if w["raised_by"]:
+                verdict += f" ({w['raised_by']})"
             extra = f"  ({w['reason']})" if w["reason"] else ""
             extra += "".join(f"  (warning: {text})" for text in w["warnings"])
             _out(

@@ -602,6 +602,10 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
                 "data_quality": rep.data_quality,
                 "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
                 "warnings": list(rep.warnings),
+                "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
+                "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
+                "raised_by": rep.raised_by,
+                "operating_point": rep.operating_point,
             }
         )
         if (

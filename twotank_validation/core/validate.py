@@ -334,6 +334,33 @@ def _route(resp: PlantResponse, method: str) -> _Route:  # noqa: PLR0911 - one r
     )
 
 
+def solve_bins(
+    resp: PlantResponse, u_bins: np.ndarray, y_bins: np.ndarray, *, method: str = "auto"
+) -> solvers.BinSolutions:
+    """Problem 3 at the given bins, on the route :func:`validate` takes for ``method``.
+
+    Args:
+        resp: P at the bins, (n_bins, ...).
+        u_bins: (n_bins, nu) complex, scaled DFT of the inputs at those bins.
+        y_bins: (n_bins, ny) complex, scaled DFT of the outputs.
+        method: as :func:`validate`.
+
+    Raises:
+        ModelError: unknown method, or a route asked for where it does not apply.
+    """
+    if method not in METHODS:
+        raise ModelError(f"unknown method {method!r}; use one of {METHODS}")
+    route = _route(resp, method)
+    if route.refused:
+        raise ModelError(f"{route.refused} this model: {route.reason}; use method='sdp'")
+    if route.method == Method.SDP:
+        return solvers.solve_sdp(resp, u_bins, y_bins)
+    if route.method == Method.FAST:
+        return fast.solve_fast(resp, u_bins, y_bins).solutions
+    assert route.structure is not None
+    return solvers.solve_closed_form(resp, u_bins, y_bins, route.structure)
+
+
 def _solve_fast(
     resp: PlantResponse, datum: Datum, progress: Callable[[int], None] | None
 ) -> tuple[solvers.BinSolutions, int, str, np.ndarray]:

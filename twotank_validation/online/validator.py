@@ -242,3 +242,18 @@ class OnlineValidator:
     def reset_alarms(self) -> None:
         """Clear latched alarms of every model."""
         self._monitor.reset_alarms()
+
+    def reset_operating_points(self) -> None:
+        """Forget every model's reference operating point (given again, or commission anew)."""
+        self._monitor.reset_operating_points()
+
+    def operating_points(self) -> dict[str, Any]:
+        """Per model: the reference's state and its input and output means (None if none)."""
+        return {
+            name: {
+                "state": str(t.state),
+                "u": None if t.reference is None else t.reference.u.tolist(),
+                "y": None if t.reference is None else t.reference.y.tolist(),
+            }
+            for name, t in self._monitor.operating_points.items()
+        }

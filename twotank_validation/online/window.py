@@ -18,6 +18,7 @@ import numpy as np
 from twotank_validation.core import fast
 from twotank_validation.core.datum import NormConvention, make_datum
 from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.oppoint import OperatingPoint, combined_beta
 from twotank_validation.core.validate import (
     check_compatible,
     pulse_moment,
@@ -41,6 +42,7 @@ from twotank_validation.online.alarm import (
     update_alarm,
 )
 from twotank_validation.online.aligner import Sample, SampleBlock
+from twotank_validation.online.oppoint import OperatingPointTracker, OpPointConfig
 from twotank_validation.online.recovery import Recovery, recover_span
 
 
@@ -64,6 +66,7 @@ class MonitorConfig:
             samples (lost, late, non-finite; a held command) are recovered from the same phase
             of the other periods (:mod:`~twotank_validation.online.recovery`); 0: a window with
             any unusable sample is not judged.
+        op: the operating-point check (:mod:`~twotank_validation.online.oppoint`).
     """
 
     ts_s: float = TS_S
@@ -76,6 +79,7 @@ class MonitorConfig:
     method: str = "auto"
     alarm: AlarmConfig = field(default_factory=AlarmConfig)
     max_recovered_fraction: float = MAX_RECOVERED_FRACTION
+    op: OpPointConfig = field(default_factory=OpPointConfig)
 
     def __post_init__(self) -> None:
         checks = [
@@ -135,11 +139,11 @@ class WindowReport:
         data_quality: ``"ok"`` or why it was not judged; a judged window's text starts with
             ``"ok"`` and goes on with what was recovered and, one ``"; warning: ..."`` each,
             the :attr:`warnings`.
-        beta: total min ||w|| (NaN when not judged).
+        beta: total min ||w|| over the window's bins: the dynamics (NaN when not judged).
         beta_lower: general solver's certified lower bound (NaN for the closed form).
         beta_upper: general solver's witness upper bound (NaN for the closed form).
         margin: ``1 - beta``.
-        invalidated: raw verdict (``beta > 1``).
+        invalidated: raw verdict of the window (``beta_total > 1``): what the alarm debounces.
         alarm: debounced alarm after this window.
         convention: norm convention name.
         solver: solver that ran (empty when not judged).
@@ -150,6 +154,17 @@ class WindowReport:
             (``ValidationResult.warnings`` of :func:`validate`, e.g. a transient still
             decaying in the window); empty when there is nothing to say, and for a window
             not judged (``data_quality`` says why).
+        beta_op: the operating point's min ``|W(0)|``: the window's input and output means
+            against the reference (:mod:`~twotank_validation.online.oppoint`); NaN where it
+            was not checked (no reference yet, a transient, the check off, not judged).
+        beta_total: ``sqrt(beta² + beta_op²)`` (``beta`` where the operating point was not
+            checked; NaN when not judged).
+        raised_by: what made the window invalidating: ``"dynamics"``, ``"operating point"``,
+            ``"dynamics and operating point"`` (each below 1, together above); empty when it
+            is valid or not judged.
+        operating_point: the reference's state (``commissioning``, ``given``,
+            ``commissioned``, ``moved by a setpoint change``, ``off``) and, after a colon,
+            why the window was not checked or what happened.
     """
 
     model: str
@@ -171,6 +186,34 @@ class WindowReport:
     w_min: np.ndarray
     compute_time_s: float
     warnings: tuple[str, ...] = ()
+    beta_op: float = math.nan
+    beta_total: float = math.nan
+    raised_by: str = ""
+    operating_point: str = ""
+
+
+def raised_by(beta: float, beta_op: float, beta_total: float) -> str:
+    """Which part of the verdict made a window invalidating (empty if it is valid)."""
+    if not beta_total > 1.0:
+        return ""
+    if beta > 1.0:
+        return "dynamics" if not beta_op > 1.0 else "dynamics and operating point"
+    if beta_op > 1.0:
+        return "operating point"
+    return "dynamics and operating point"
+
+
+def verdict_text(rep: WindowReport) -> str:
+    """A judged window's verdict in words: β, β_op where checked, and what invalidated it.
+
+    ``"beta 0.502 (margin +0.498), operating point beta_op 5.02: INVALIDATED by the
+    operating point"``.
+    """
+    op = f", operating point beta_op {rep.beta_op:.3g}" if math.isfinite(rep.beta_op) else ""
+    verdict = f"INVALIDATED by the {rep.raised_by}" if rep.invalidated else "not invalidated"
+    if rep.invalidated and rep.raised_by == "dynamics and operating point":
+        verdict = "INVALIDATED by the dynamics and the operating point"
+    return f"beta {rep.beta:.3f} (margin {rep.margin:+.3f}){op}: {verdict}"
 
 
 class WindowMonitor:
@@ -233,6 +276,17 @@ class WindowMonitor:
             if takes_fast_path(self._responses[m.name], config.method):
                 fast.warm_up(self._responses[m.name])
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
+        self.operating_points: dict[str, OperatingPointTracker] = {
+            m.name: OperatingPointTracker(
+                m,
+                config.op,
+                config.ts_s,
+                config.window_samples,
+                convention=config.convention,
+                method=config.method,
+            )
+            for m in self.models
+        }
 
     def reset_buffer(self) -> None:
         """Forget buffered samples (after a clock reset); alarm states are kept."""
@@ -242,6 +296,11 @@ class WindowMonitor:
     def reset_alarms(self) -> None:
         """Clear latched alarms of every model."""
         self.alarms = {k: reset_alarm(v) for k, v in self.alarms.items()}
+
+    def reset_operating_points(self) -> None:
+        """Forget every model's reference operating point (the given one again, or commission)."""
+        for tracker in self.operating_points.values():
+            tracker.reset()
 
     def push(self, sample: Sample) -> list[WindowReport]:
         """Add one aligned sample; returns one report per model at each period boundary."""
@@ -407,13 +466,18 @@ class WindowMonitor:
             check_compatible(datum, model)
             t0 = time.perf_counter()
             res = validate(datum, model, method=cfg.method, response=self._responses[model.name])
+            op = self.operating_points[model.name].observe(
+                OperatingPoint(datum.u_bias, datum.y_bias),
+                steady=not datum.periodicity.transient_suspected,
+            )
             elapsed = time.perf_counter() - t0
+            total = combined_beta(res.beta, op.beta) if op.check is not None else res.beta
             state = update_alarm(
                 self.alarms[model.name],
                 cfg.alarm,
                 judged=True,
-                invalidated=res.invalidated,
-                beta=res.beta,
+                invalidated=total > 1.0,
+                beta=total,
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
@@ -430,7 +494,7 @@ class WindowMonitor:
                     beta_lower=res.beta if general else math.nan,
                     beta_upper=res.beta_upper if general else math.nan,
                     margin=res.margin,
-                    invalidated=res.invalidated,
+                    invalidated=total > 1.0,
                     alarm=state.level,
                     convention=cfg.convention.value,
                     solver=res.method,
@@ -438,6 +502,10 @@ class WindowMonitor:
                     w_min=res.w_min,
                     compute_time_s=elapsed,
                     warnings=res.warnings,
+                    beta_op=op.beta,
+                    beta_total=total,
+                    raised_by=raised_by(res.beta, op.beta, total),
+                    operating_point=f"{op.state}: {op.note}" if op.note else str(op.state),
                 )
             )
         return reports

@@ -81,4 +81,8 @@ def report_message(report: WindowReport, cls: Any) -> Any:
     msg.frequencies_hz = _doubles(report.freqs_hz)
     msg.w_min = _doubles(report.w_min)
     msg.compute_time_s = float(report.compute_time_s)
+    msg.beta_op = float(report.beta_op)
+    msg.beta_total = float(report.beta_total)
+    msg.raised_by = report.raised_by
+    msg.operating_point = report.operating_point
     return msg

@@ -11,6 +11,8 @@ publishes. Topics (node-relative, remappable):
   (std_msgs/Float64, ``1 - beta``), ``validation/M/invalidated`` (std_msgs/Bool,
   transient-local, the debounced alarm == ERROR); ``/diagnostics`` (one status per model);
 * service ``reset_alarm`` (std_srvs/Trigger) clears latched alarms.
+* service ``reset_operating_point`` (std_srvs/Trigger) forgets the reference operating point
+  (the given one again, or commissioned from the next steady windows).
 
 With an interface map (parameter ``interface_map``, a YAML file, or ``inputs``/``outputs`` as
 text; :mod:`twotank_validation.online.interface`) the inputs are each map topic instead, of
@@ -82,7 +84,9 @@ from twotank_validation.online.interface import (
     load_interface_map,
     source_stamp_ns,
 )
+from twotank_validation.online.oppoint import OpPointConfig
 from twotank_validation.online.validator import parse_oversampling
+from twotank_validation.online.window import verdict_text
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
 
@@ -124,6 +128,35 @@ VALIDATOR_PARAMS = (
     Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),
     Param("warn_beta", 0.8, "beta at or above which a valid window reports WARN", 1e-6, 1e6),
     Param("latch_alarm", False, "keep ERROR until the reset_alarm service is called"),
+    Param("op_check", True, "check the operating point (window means against a reference)"),
+    Param(
+        "op_commission_windows",
+        2,
+        "steady judged windows whose means commission the reference operating point",
+        1,
+        1000,
+    ),
+    Param(
+        "op_drift_allowance",
+        0.002,
+        "dead band on each output's mean deviation from the reference (model units)",
+        0.0,
+        1e6,
+    ),
+    Param(
+        "op_input_tolerance",
+        1e-3,
+        "input mean change (model units) above which the inputs moved (a setpoint change)",
+        0.0,
+        1e6,
+    ),
+    Param(
+        "op_reference_u",
+        [0.0],
+        "given reference input means (model units), one per input; [0.0] alone or empty: "
+        "commission from the first steady windows (reset_operating_point: commission again)",
+    ),
+    Param("op_reference_y", [0.0], "given reference output means, with op_reference_u"),
     Param(
         "stale_timeout_s",
         2.0,
@@ -245,6 +278,23 @@ _BLANK_REPORT = WindowReport(
 )
 
 
+def op_reference_text(op: dict[str, Any]) -> str:
+    """``"commissioned: u [0.4, 0.4], y [0.47, 0.5]"`` (or the state alone without one)."""
+    if op["u"] is None:
+        return str(op["state"])
+    fmt = ", ".join
+    return (
+        f"{op['state']}: u [{fmt(f'{v:.4g}' for v in op['u'])}], "
+        f"y [{fmt(f'{v:.4g}' for v in op['y'])}]"
+    )
+
+
+def _given(values: Any) -> tuple[float, ...]:
+    """A double-array parameter as a tuple; ``[0.0]`` (the declared default) and ``[]``: none."""
+    out = tuple(float(v) for v in (values or ()))
+    return () if out == (0.0,) else out
+
+
 def monitor_config(values: dict[str, Any]) -> MonitorConfig:
     """Build the core config from parameter values (raises ParameterError if inconsistent)."""
     try:
@@ -258,6 +308,14 @@ def monitor_config(values: dict[str, Any]) -> MonitorConfig:
             convention=NormConvention(values["norm_convention"]),
             method=str(values["method"]),
             max_recovered_fraction=float(values["max_recovered_fraction"]),
+            op=OpPointConfig(
+                enabled=bool(values["op_check"]),
+                commission_windows=int(values["op_commission_windows"]),
+                drift_allowance=float(values["op_drift_allowance"]),
+                input_tolerance=float(values["op_input_tolerance"]),
+                reference_u=_given(values["op_reference_u"]),
+                reference_y=_given(values["op_reference_y"]),
+            ),
             alarm=AlarmConfig(
                 alarm_windows=int(values["alarm_windows"]),
                 clear_windows=int(values["clear_windows"]),
@@ -377,6 +435,7 @@ class ValidatorNode(Node):
         # the first window's latency
         messages.report_message(_BLANK_REPORT, self._report_cls)
         self.create_service(Trigger, "reset_alarm", self._on_reset)
+        self.create_service(Trigger, "reset_operating_point", self._on_reset_op)
         for m in self.models:
             self._publish_invalidated(m.name, False)
         self.create_timer(0.5, self._on_watchdog)
@@ -458,6 +517,16 @@ class ValidatorNode(Node):
         resp.message = "alarms reset"
         return resp
 
+    def _on_reset_op(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        with self._lock:
+            self.core.reset_operating_points()
+        resp.success = True
+        resp.message = (
+            "operating point reset: the given reference again, or commissioned from the next "
+            "steady windows"
+        )
+        return resp
+
     # ---------------------------------------------------------------- worker thread
 
     def feed(self, stream: str, stamp: int, value: Any) -> list[WindowReport]:
@@ -516,10 +585,7 @@ class ValidatorNode(Node):
         self._pub_margin[rep.model].publish(Float64(data=float(rep.margin)))
         self._publish_invalidated(rep.model, rep.alarm == Alarm.ERROR)
         text = (
-            f"beta {rep.beta:.3f} (margin {rep.margin:+.3f}), "
-            + ("INVALIDATED" if rep.invalidated else "not invalidated")
-            if rep.judged
-            else f"window not judged: {rep.data_quality}"
+            verdict_text(rep) if rep.judged else f"window not judged: {rep.data_quality}"
         ) + "".join(f"; warning: {w}" for w in rep.warnings)
         self.reports.append(rep)
         for listener in self.report_listeners:
@@ -537,6 +603,8 @@ class ValidatorNode(Node):
         fault = self.core.input_fault
         override = override or self._watch
         status = self._status
+        with self._lock:
+            ops = self.core.operating_points()
         for m in self.models:
             level, text, rep = status[m.name]
             if override is not None:
@@ -555,6 +623,11 @@ class ValidatorNode(Node):
                     KeyValue(key="window_end_s", value=f"{rep.end_ns / NS_PER_S:.3f}"),
                     KeyValue(key="data_quality", value=rep.data_quality),
                     KeyValue(key="warnings", value=" | ".join(rep.warnings)),
+                    KeyValue(key="beta_op", value=f"{rep.beta_op:.6g}"),
+                    KeyValue(key="beta_total", value=f"{rep.beta_total:.6g}"),
+                    KeyValue(key="raised_by", value=rep.raised_by),
+                    KeyValue(key="operating_point", value=rep.operating_point),
+                    KeyValue(key="op_reference", value=op_reference_text(ops[m.name])),
                 ]
             arr.status.append(st)
         self._pub_diag.publish(arr)

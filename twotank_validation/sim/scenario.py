@@ -136,6 +136,9 @@ class Scenario:
         faults: Fault specs ``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``
             (:func:`twotank_validation.sim.faults.parse_fault`), each with its onset inside
             the run.
+        setpoints: Setpoint changes ``height=H[,temperature=T]@TIME_S`` (either key or
+            both): from that time on the valves are commanded around the equilibrium of the
+            new level and temperature (:func:`parse_setpoint`); the excitation goes on.
         seed: Seed of the sensor noise, >= 0.
         units: Conversion of level and temperature to Pa and °C in the messages.
 
@@ -164,6 +167,7 @@ class Scenario:
     leak_per_level: float = 0.0
     heat_loss_coeff: float = 0.0
     faults: tuple[str, ...] = ()
+    setpoints: tuple[str, ...] = ()
     seed: int = 0
     units: RigUnits = field(default_factory=RigUnits)
 
@@ -240,6 +244,27 @@ class Scenario:
                     f"{where}: faults[{i}]={spec!r} starts at {fault.onset_s:g} s, not before the "
                     f"end of the run (duration_s={self.duration_s:g}); move the onset earlier"
                 )
+        points: object = self.setpoints
+        if isinstance(points, str) or not isinstance(points, tuple | list):
+            raise ScenarioError(
+                f"{where}: setpoints={points!r} must be a list such as ['height=0.49@2000']"
+            )
+        put(self, "setpoints", tuple(points))
+        for i, spec in enumerate(self.setpoints):
+            try:
+                height, temperature, at = parse_setpoint(spec)
+                rig.operating_point(
+                    self.rig_params(),
+                    self.height if height is None else height,
+                    self.temperature if temperature is None else temperature,
+                )
+            except ModelError as err:
+                raise ScenarioError(f"{where}: setpoints[{i}]: {err}") from err
+            if not 0.0 < at < self.duration_s:
+                raise ScenarioError(
+                    f"{where}: setpoints[{i}]={spec!r} at {at:g} s is not inside the run "
+                    f"(0 .. {self.duration_s:g} s)"
+                )
         # Combined checks: operating point, rig, excitation range (cheap: one period).
         try:
             self.operating_point()
@@ -309,6 +334,23 @@ class Scenario:
             self.excitation_config(), self.operating_point().commands
         )
 
+    def setpoint_steps(self) -> list[tuple[int, FloatArray]]:
+        """``(first sample, command offset)`` of each setpoint, in time order.
+
+        The offset moves the excitation's centre from the scenario's equilibrium commands to
+        those of the new level and temperature (later changes start from the earlier ones).
+        """
+        base = self.operating_point().commands
+        height, temperature = self.height, self.temperature
+        steps = []
+        for spec in sorted(self.setpoints, key=lambda x: parse_setpoint(x)[2]):
+            h, t, at = parse_setpoint(spec)
+            height = height if h is None else h
+            temperature = temperature if t is None else t
+            new = rig.operating_point(self.rig_params(), height, temperature).commands
+            steps.append((math.ceil(at / self.ts_s - 1e-9), new - base))
+        return steps
+
     def fault_objects(self) -> tuple[Fault, ...]:
         """The faults, parsed."""
         return tuple(parse_fault(spec) for spec in self.faults)
@@ -317,11 +359,40 @@ class Scenario:
         """Plain mapping of the YAML keys (``scenario_from_dict`` inverts it)."""
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         out["faults"] = list(self.faults)
+        out["setpoints"] = list(self.setpoints)
         out["units"] = dataclasses.asdict(self.units)
         return out
 
 
 _SCENARIO_KEYS: Final = tuple(f.name for f in dataclasses.fields(Scenario))
+
+
+def parse_setpoint(spec: object) -> tuple[float | None, float | None, float]:
+    """``"height=0.49,temperature=0.52@2000"`` -> ``(0.49, 0.52, 2000.0)`` (a key left out: None).
+
+    Raises:
+        ModelError: not of that form.
+    """
+    usage = (
+        f"setpoint {spec!r}: write height=H[,temperature=T]@TIME_S (either key or both), "
+        "e.g. 'height=0.49@2000'"
+    )
+    if not isinstance(spec, str) or spec.count("@") != 1:
+        raise ModelError(usage)
+    body, _, when = spec.partition("@")
+    values: dict[str, float] = {}
+    try:
+        at = float(when)
+        for part in body.split(","):
+            key, sep, value = part.partition("=")
+            if not sep or key.strip() not in ("height", "temperature") or key.strip() in values:
+                raise ModelError(usage)
+            values[key.strip()] = float(value)
+    except ValueError as err:
+        raise ModelError(usage) from err
+    if not values or not all(math.isfinite(v) for v in (*values.values(), at)):
+        raise ModelError(usage)
+    return values.get("height"), values.get("temperature"), at
 
 
 def scenario_from_dict(doc: object, source: str, default_name: str = "") -> Scenario:
@@ -354,6 +425,8 @@ def scenario_from_dict(doc: object, source: str, default_name: str = "") -> Scen
         kwargs["description"] = ""
     if kwargs.get("faults") is None:
         kwargs["faults"] = ()
+    if kwargs.get("setpoints") is None:
+        kwargs["setpoints"] = ()
     if "units" in kwargs:
         units = kwargs["units"]
         if not isinstance(units, Mapping):
@@ -442,6 +515,8 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
     """
     rows = scenario.command_table().tolist()
     period = len(rows)
+    steps = scenario.setpoint_steps()
+    offset = (0.0, 0.0)
     ts_ns = scenario.ts_ns
     sim = rig.TankSimulator(
         scenario.rig_params(),
@@ -452,7 +527,10 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
         faults=scenario.fault_objects(),
     )
     for k in range(scenario.n_samples):
+        while steps and k >= steps[0][0]:
+            offset = tuple(steps.pop(0)[1].tolist())
         hot, cold = rows[k % period]
+        hot, cold = hot + offset[0], cold + offset[1]
         height, temperature = sim.measure().tolist()
         sim.step((hot, cold))
         yield k * ts_ns, hot, cold, height, temperature
