@@ -22,6 +22,12 @@ def assert_same_reports(got: Sequence[WindowReport], want: Sequence[WindowReport
             b.data_quality,
         )
         assert a.warnings == b.warnings
+        assert (a.raised_by, a.operating_point, a.invalidated) == (
+            b.raised_by,
+            b.operating_point,
+            b.invalidated,
+        )
         if a.judged:
             assert a.beta == b.beta  # bit for bit
             np.testing.assert_array_equal(a.w_min, b.w_min)
+            np.testing.assert_array_equal([a.beta_op, a.beta_total], [b.beta_op, b.beta_total])

@@ -261,3 +261,16 @@ def test_the_check_can_be_switched_off() -> None:
     assert all(math.isnan(r.beta_op) for r in judged)
     assert all(r.beta_total == r.beta for r in judged)
     assert all(r.operating_point.startswith("off") for r in judged)
+
+
+def test_the_report_message_carries_the_operating_point() -> None:
+    from twotank_validation.ros import messages  # noqa: PLC0415 - ROS only here
+
+    _, report_cls = messages.message_classes()
+    _, reports = run(scenario([f"sensor_bias:height=0.03@{ONSET}"], periods=10))
+    rep = next(r for r in reports if r.raised_by == "operating point")
+    msg = messages.report_message(rep, report_cls)
+    assert (msg.beta_op, msg.beta_total) == (rep.beta_op, rep.beta_total)
+    assert (msg.raised_by, msg.operating_point) == ("operating point", rep.operating_point)
+    assert msg.invalidated
+    assert msg.beta == rep.beta < 1.0  # the dynamics alone do not invalidate it
