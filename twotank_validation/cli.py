@@ -208,6 +208,7 @@ def _replay_config(
                 period_samples=period_samples,
                 periods_per_window=args.periods_per_window,
                 settle_periods=args.settle_periods,
+                hop_samples=args.hop,
                 convention=NormConvention(args.norm),
                 alarm=AlarmConfig(),
             ),
@@ -576,6 +577,12 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
     )
     val.add_argument(
         "--settle-periods", type=int, default=1, help="periods of settled input before a window"
+    )
+    val.add_argument(
+        "--hop",
+        type=int,
+        default=0,
+        help="samples between judged (overlapping) windows, dividing the period; 0: one period",
     )
     val.add_argument(
         "--norm", choices=[c.value for c in NormConvention], default="power", help="norm of w"

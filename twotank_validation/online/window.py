@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -67,6 +67,11 @@ class MonitorConfig:
             of the other periods (:mod:`~twotank_validation.online.recovery`); 0: a window with
             any unusable sample is not judged.
         op: the operating-point check (:mod:`~twotank_validation.online.oppoint`).
+        hop_samples: samples between two judged windows; 0: one period. A window spans
+            whole periods but may start at any sample, so a hop of a fraction of a period
+            judges overlapping windows more often and a fault is seen sooner. The alarm's
+            window counts are scaled to the hop so that they weigh the same span of data
+            (:func:`evidence_alarm`).
     """
 
     ts_s: float = TS_S
@@ -80,6 +85,7 @@ class MonitorConfig:
     alarm: AlarmConfig = field(default_factory=AlarmConfig)
     max_recovered_fraction: float = MAX_RECOVERED_FRACTION
     op: OpPointConfig = field(default_factory=OpPointConfig)
+    hop_samples: int = 0
 
     def __post_init__(self) -> None:
         checks = [
@@ -109,6 +115,16 @@ class MonitorConfig:
                 0.0 <= self.max_recovered_fraction < 0.5,
                 f"max_recovered_fraction must be in [0, 0.5), found {self.max_recovered_fraction}",
             ),
+            (
+                self.hop_samples == 0
+                or (
+                    0 < self.hop_samples <= self.period_samples
+                    and self.period_samples % self.hop_samples == 0
+                ),
+                f"hop_samples must divide period_samples = {self.period_samples} (e.g. "
+                f"{self.period_samples // 4} for a quarter period), or be 0 for one period; "
+                f"found {self.hop_samples}",
+            ),
         ]
         for ok, msg in checks:
             if not ok:
@@ -118,6 +134,11 @@ class MonitorConfig:
     def window_samples(self) -> int:
         """Samples per validated window."""
         return self.periods_per_window * self.period_samples
+
+    @property
+    def hop(self) -> int:
+        """Samples between two judged windows (``hop_samples``, or one period)."""
+        return self.hop_samples or self.period_samples
 
     @property
     def span_samples(self) -> int:
@@ -203,6 +224,25 @@ def raised_by(beta: float, beta_op: float, beta_total: float) -> str:
     return "dynamics and operating point"
 
 
+def evidence_alarm(alarm: AlarmConfig, hops_per_period: int) -> AlarmConfig:
+    """The debounce for windows ``hops_per_period`` times a period, weighing the same data.
+
+    ``alarm_windows`` invalidating windows a period apart span ``alarm_windows − 1`` periods
+    beyond the first window. With a hop of ``1/q`` period the same span holds
+    ``(alarm_windows − 1) q + 1`` windows, and ERROR needs all of them invalidating: the
+    event contains the one-per-period rule's event for that alignment (its first and last
+    window are that rule's two), so a hop never makes a false alarm likelier than the
+    period rule at the same start (docs/theory.md §9). Clearing is scaled the same way.
+    """
+    if hops_per_period == 1:
+        return alarm
+    return replace(
+        alarm,
+        alarm_windows=(alarm.alarm_windows - 1) * hops_per_period + 1,
+        clear_windows=(alarm.clear_windows - 1) * hops_per_period + 1,
+    )
+
+
 def verdict_text(rep: WindowReport) -> str:
     """A judged window's verdict in words: β, β_op where checked, and what invalidated it.
 
@@ -255,6 +295,8 @@ class WindowMonitor:
         self._signal_names = (*self.models[0].input_names, *self._output_names)
         cap = self._cap = config.span_samples
         self._period = config.period_samples
+        self._hop = config.hop
+        self._alarm = evidence_alarm(config.alarm, config.period_samples // config.hop)
         self._window = config.window_samples
         self._u = np.zeros((cap, nu))
         self._y = np.zeros((cap, ny))
@@ -316,7 +358,7 @@ class WindowMonitor:
         self._stamp[pos] = sample.stamp_ns
         self._flag[pos] = sample.flag
         self._count = count = count + 1
-        if count % self._period or count < self._window:
+        if count % self._hop or count < self._window:
             return []
         return self._evaluate()
 
@@ -335,7 +377,7 @@ class WindowMonitor:
             self._count = 0  # the aligner restarted (clock reset)
         self._last_index = block.first_index + m - 1
         out: list[WindowReport] = []
-        cap, period = self._cap, self._period
+        cap, period = self._cap, self._hop
         i = 0
         while i < m:
             count = self._count
@@ -474,7 +516,7 @@ class WindowMonitor:
             total = combined_beta(res.beta, op.beta) if op.check is not None else res.beta
             state = update_alarm(
                 self.alarms[model.name],
-                cfg.alarm,
+                self._alarm,
                 judged=True,
                 invalidated=total > 1.0,
                 beta=total,
@@ -512,7 +554,7 @@ class WindowMonitor:
 
     def _unjudged(self, name: str, start_ns: int, end_ns: int, reason: str) -> WindowReport:
         state = update_alarm(
-            self.alarms[name], self.config.alarm, judged=False, invalidated=False, beta=math.nan
+            self.alarms[name], self._alarm, judged=False, invalidated=False, beta=math.nan
         )
         self.alarms[name] = state
         return WindowReport(

@@ -128,6 +128,13 @@ VALIDATOR_PARAMS = (
     Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),
     Param("warn_beta", 0.8, "beta at or above which a valid window reports WARN", 1e-6, 1e6),
     Param("latch_alarm", False, "keep ERROR until the reset_alarm service is called"),
+    Param(
+        "hop_samples",
+        0,
+        "samples between judged (overlapping) windows, dividing period_samples; 0: one period",
+        0,
+        1e9,
+    ),
     Param("op_check", True, "check the operating point (window means against a reference)"),
     Param(
         "op_commission_windows",
@@ -308,6 +315,7 @@ def monitor_config(values: dict[str, Any]) -> MonitorConfig:
             convention=NormConvention(values["norm_convention"]),
             method=str(values["method"]),
             max_recovered_fraction=float(values["max_recovered_fraction"]),
+            hop_samples=int(values["hop_samples"]),
             op=OpPointConfig(
                 enabled=bool(values["op_check"]),
                 commission_windows=int(values["op_commission_windows"]),

@@ -1,0 +1,113 @@
+"""Overlapping windows every hop, and the debounce scaled to weigh the same data.
+
+References: a fresh ``make_datum`` + ``validate`` of the same samples for each hop window's
+β; a brute-force check of the debounce's containment claim (every ERROR the hop rule raises,
+the one-per-period rule raises on the windows a period apart ending at the same window).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tools import streamfuzz
+from twotank_validation.core.datum import make_datum
+from twotank_validation.core.model import load_model
+from twotank_validation.core.validate import validate
+from twotank_validation.online import COMMAND, Alarm, AlarmConfig, MonitorConfig, OnlineValidator
+from twotank_validation.online.alarm import AlarmState, update_alarm
+from twotank_validation.online.window import evidence_alarm
+
+MODEL_B = load_model("B")
+TS_NS = 800_000_000
+
+
+def events(stamps, u, y):
+    n = len(stamps)
+    kinds = np.concatenate([np.full(n, COMMAND), np.zeros(n, int), np.ones(n, int)])
+    st_ = np.concatenate([stamps, stamps, stamps])
+    v = np.full((3 * n, 2), np.nan)
+    v[:n], v[n : 2 * n, 0], v[2 * n :, 0] = u, y[:, 0], y[:, 1]
+    order = np.argsort(st_ + np.where(kinds == COMMAND, 0, 1), kind="stable")
+    return kinds[order].astype(np.int8), st_[order], v[order]
+
+
+@pytest.mark.parametrize("hop", [64, 32])
+def test_hop_windows_equal_a_fresh_validation_of_their_samples(hop) -> None:
+    stamps, u, y = streamfuzz.clean_record(5, 4)
+    cfg = MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=hop)
+    reports = OnlineValidator(cfg, [MODEL_B]).feed_many(*events(stamps, u, y))
+    judged = [r for r in reports if r.judged]
+    # every hop from the first whole span on: (5 periods - span of 3) / hop + 1 windows
+    assert len(judged) == (5 - 3) * 256 // hop + 1
+    n = cfg.window_samples
+    for r in judged:
+        s = int((r.start_ns - stamps[0]) // TS_NS)
+        assert s % hop == 0
+        datum = make_datum(u[s : s + n], y[s : s + n], ts_s=0.8, period_samples=256)
+        assert r.beta == validate(datum, MODEL_B).beta  # bit for bit
+        assert r.end_ns == stamps[s + n - 1]
+
+
+def test_hop_windows_in_batches_equal_event_by_event() -> None:
+    stamps, u, y = streamfuzz.clean_record(4, 5)
+    cfg = MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=64)
+    k, s, v = events(stamps, u, y)
+    batch = OnlineValidator(cfg, [MODEL_B]).feed_many(k, s, v)
+    one = OnlineValidator(cfg, [MODEL_B])
+    names = {COMMAND: "flow_cmd", 0: "height", 1: "temperature"}
+    want = []
+    for kind, t, row in zip(k.tolist(), s.tolist(), v.tolist(), strict=True):
+        value = (row[0], row[1]) if kind == COMMAND else row[0]
+        want += one.feed(names[kind], t, value)
+    assert [(r.start_ns, r.judged, r.alarm) for r in batch] == [
+        (r.start_ns, r.judged, r.alarm) for r in want
+    ]
+    assert [r.beta for r in batch if r.judged] == [r.beta for r in want if r.judged]
+
+
+def test_a_hop_that_does_not_divide_the_period_is_refused() -> None:
+    with pytest.raises(ValueError, match="hop_samples must divide period_samples = 256"):
+        MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=100)
+
+
+def test_evidence_alarm_scales_the_counts() -> None:
+    base = AlarmConfig(alarm_windows=2, clear_windows=3)
+    assert evidence_alarm(base, 1) is base
+    scaled = evidence_alarm(base, 4)
+    assert (scaled.alarm_windows, scaled.clear_windows) == (5, 9)
+
+
+def run_alarm(verdicts, cfg):
+    state, levels = AlarmState(), []
+    for bad in verdicts:
+        state = update_alarm(state, cfg, judged=True, invalidated=bad, beta=2.0 if bad else 0.5)
+        levels.append(state.level)
+    return levels
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    q=st.sampled_from([2, 4, 8]),
+    a=st.integers(1, 3),
+    bits=st.lists(st.booleans(), min_size=1, max_size=80),
+)
+def test_every_hop_alarm_is_a_period_rule_alarm_at_the_same_window(q, a, bits) -> None:
+    """Containment, by brute force: where the hop rule first raises ERROR at window j, the
+    period rule on windows j - (a-1) q, ..., j - q, j (a windows a period apart) raises it too."""
+    base = AlarmConfig(alarm_windows=a, clear_windows=1)
+    hop_levels = run_alarm(bits, evidence_alarm(base, q))
+    for j, level in enumerate(hop_levels):
+        if level is Alarm.ERROR and (j == 0 or hop_levels[j - 1] is not Alarm.ERROR):
+            stride = bits[j - (a - 1) * q : j + 1 : q]
+            assert len(stride) == a
+            assert run_alarm(stride, base)[-1] is Alarm.ERROR
+    # and a stretch of invalid windows shorter than the period rule's span never alarms
+    span = (a - 1) * q + 1
+    runs = [len(r) for r in "".join("1" if b else "0" for b in bits).split("0")]
+    if max(runs, default=0) < span:
+        assert Alarm.ERROR not in hop_levels
+    else:
+        assert Alarm.ERROR in hop_levels
