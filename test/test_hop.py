@@ -111,3 +111,86 @@ def test_every_hop_alarm_is_a_period_rule_alarm_at_the_same_window(q, a, bits) -
         assert Alarm.ERROR not in hop_levels
     else:
         assert Alarm.ERROR in hop_levels
+
+
+def cusum_reference(betas, weight, threshold, clear):
+    """Page's one-sided CUSUM written out plainly: levels after each window."""
+    s, in_error, valid, out = 0.0, False, 0, []
+    for b in betas:
+        s = max(0.0, s + (b - 1.0) * weight)
+        valid = valid + 1 if b <= 1.0 else 0
+        if b > 1.0 and s >= threshold:
+            in_error = True
+        elif in_error and valid >= clear:
+            in_error = False
+        out.append(in_error)
+    return out
+
+
+def run_sequential(betas, cfg, weight):
+    state, out = AlarmState(), []
+    for b in betas:
+        state = update_alarm(state, cfg, judged=True, invalidated=b > 1.0, beta=b, weight=weight)
+        out.append(state.level is Alarm.ERROR)
+    return out
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    betas=st.lists(st.floats(0.2, 3.0), min_size=1, max_size=60),
+    q=st.sampled_from([1, 2, 4]),
+    threshold=st.sampled_from([0.05, 0.1, 0.5]),
+)
+def test_the_sequential_rule_is_pages_cusum(betas, q, threshold) -> None:
+    cfg = evidence_alarm(AlarmConfig(debounce="sequential", evidence=threshold), q)
+    assert run_sequential(betas, cfg, 1.0 / q) == cusum_reference(
+        betas, 1.0 / q, threshold, cfg.clear_windows
+    )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    per_period=st.lists(st.floats(0.2, 3.0), min_size=1, max_size=30),
+    q=st.sampled_from([2, 4, 8]),
+)
+def test_the_sequential_evidence_does_not_depend_on_the_hop(per_period, q) -> None:
+    """A β path constant over each period: sampled once per period (weight 1) or q times
+    (weight 1/q), the evidence at each period's end is the same, and so is the decision."""
+    base = AlarmConfig(debounce="sequential", evidence=0.3)
+    coarse, fine = AlarmState(), AlarmState()
+    fine_cfg = evidence_alarm(base, q)
+    for b in per_period:
+        coarse = update_alarm(coarse, base, judged=True, invalidated=b > 1, beta=b)
+        for _ in range(q):
+            fine = update_alarm(
+                fine, fine_cfg, judged=True, invalidated=b > 1, beta=b, weight=1.0 / q
+            )
+        # linear within the period, floored at 0 by both where it reaches it
+        assert fine.evidence == pytest.approx(coarse.evidence, abs=1e-9)
+        assert fine.in_error == coarse.in_error
+
+
+def test_the_sequential_rule_fires_within_a_period_on_the_rig() -> None:
+    """A level sensor bias at its stated limit, windows every quarter period: ERROR within one
+    period of the onset, where the count rule at the same hop needs more."""
+    import dataclasses  # noqa: PLC0415
+
+    from twotank_validation.sim import scenario as sc  # noqa: PLC0415
+
+    scn = dataclasses.replace(
+        sc.load_scenario("nominal"),
+        ts_s=0.8,
+        period_samples=256,
+        duration_s=9 * 204.8,
+        faults=("leak=0.04@1100",),
+    )
+    stamps, u, y = sc.simulate_scenario(scn)
+    delays = {}
+    for rule in ("count", "sequential"):
+        cfg = MonitorConfig(
+            ts_s=0.8, period_samples=256, hop_samples=64, alarm=AlarmConfig(debounce=rule)
+        )
+        reports = OnlineValidator(cfg, [MODEL_B]).feed_many(*events(stamps, u, y))
+        first = next(r for r in reports if r.alarm is Alarm.ERROR)
+        delays[rule] = first.end_ns / 1e9 - 1100
+    assert delays["sequential"] <= 204.8 < delays["count"]

@@ -1,7 +1,16 @@
 """The debounced alarm: per-window raw verdicts in, an alarm level out.
 
 :func:`update_alarm` debounces the raw per-window verdicts into the alarm level; the levels
-equal diagnostic_msgs/DiagnosticStatus levels.
+equal diagnostic_msgs/DiagnosticStatus levels. Two rules (``AlarmConfig.debounce``):
+
+* ``"count"``: ERROR after ``alarm_windows`` invalidating windows in a row;
+* ``"sequential"``: a one-sided CUSUM (Page 1954) on the window's β: the evidence
+  ``S = max(0, S + (β − 1) w)`` grows by the excess of β over 1 and shrinks by its shortfall,
+  each window weighted by the share of a period it adds (``w = hop / period``), and ERROR
+  rises once ``S`` reaches ``evidence`` on an invalidating window. Weighted by time, the
+  evidence of a β path does not depend on how often it is sampled (docs/theory.md §9).
+
+Both clear after ``clear_windows`` valid windows in a row.
 """
 
 from __future__ import annotations
@@ -20,6 +29,10 @@ class Alarm(enum.IntEnum):
     STALE = 3
 
 
+DEBOUNCE_RULES = ("count", "sequential")
+"""The debounce rules of :class:`AlarmConfig`."""
+
+
 @dataclass(frozen=True)
 class AlarmConfig:
     """Debouncing of the raw verdicts.
@@ -29,12 +42,18 @@ class AlarmConfig:
         clear_windows: consecutive valid windows that clear ERROR.
         warn_beta: beta at or above which a valid window reports WARN.
         latch: keep ERROR until :func:`reset_alarm` even after valid windows.
+        debounce: ``"count"`` (``alarm_windows`` in a row) or ``"sequential"`` (the CUSUM
+            of the excess of β over 1 reaches ``evidence``).
+        evidence: the sequential rule's threshold, in periods times excess β (0.1: one
+            period's window at β 1.1, or a quarter period at β 1.4).
     """
 
     alarm_windows: int = 2
     clear_windows: int = 3
     warn_beta: float = 0.8
     latch: bool = False
+    debounce: str = "count"
+    evidence: float = 0.1
 
     def __post_init__(self) -> None:
         if self.alarm_windows < 1 or self.clear_windows < 1:
@@ -44,6 +63,10 @@ class AlarmConfig:
             )
         if not (math.isfinite(self.warn_beta) and self.warn_beta > 0):
             raise ValueError(f"warn_beta must be positive and finite, found {self.warn_beta}")
+        if self.debounce not in DEBOUNCE_RULES:
+            raise ValueError(f"debounce must be one of {DEBOUNCE_RULES}, found {self.debounce!r}")
+        if not (math.isfinite(self.evidence) and self.evidence > 0):
+            raise ValueError(f"evidence must be positive and finite, found {self.evidence}")
 
 
 @dataclass(frozen=True)
@@ -55,23 +78,40 @@ class AlarmState:
         in_error: an ERROR is active (raised and not yet cleared or reset).
         invalid_run: consecutive invalidating judged windows.
         valid_run: consecutive valid judged windows.
+        evidence: the sequential rule's CUSUM ``S`` (0 under the count rule).
     """
 
     level: Alarm = Alarm.OK
     in_error: bool = False
     invalid_run: int = 0
     valid_run: int = 0
+    evidence: float = 0.0
 
 
 def update_alarm(
-    state: AlarmState, config: AlarmConfig, *, judged: bool, invalidated: bool, beta: float
+    state: AlarmState,
+    config: AlarmConfig,
+    *,
+    judged: bool,
+    invalidated: bool,
+    beta: float,
+    weight: float = 1.0,
 ) -> AlarmState:
     """Next alarm state after one window.
 
     A window that was not judged leaves the counters alone and reports STALE. A judged window
     extends the run of its verdict; ERROR rises after ``alarm_windows`` invalidating windows in
-    a row and clears after ``clear_windows`` valid ones (never, while latched). Otherwise WARN
-    when ``beta >= warn_beta``, else OK.
+    a row (the count rule) or once the CUSUM of ``(beta - 1) weight`` reaches ``evidence`` on
+    an invalidating window (the sequential rule), and clears after ``clear_windows`` valid
+    ones (never, while latched). Otherwise WARN when ``beta >= warn_beta``, else OK.
+
+    Args:
+        state: the state after the previous window.
+        config: the debounce.
+        judged: the window was fit to judge.
+        invalidated: its raw verdict.
+        beta: its β (the one the verdict compares with 1).
+        weight: the share of a period the window adds to the evidence (hop / period).
     """
     if not judged:
         return replace(state, level=Alarm.STALE)
@@ -79,8 +119,15 @@ def update_alarm(
         invalid_run, valid_run = state.invalid_run + 1, 0
     else:
         invalid_run, valid_run = 0, state.valid_run + 1
+    evidence = 0.0
+    if config.debounce == "sequential":
+        excess = beta - 1.0 if math.isfinite(beta) else (1.0 if invalidated else -1.0)
+        evidence = max(0.0, state.evidence + excess * weight)
+        raise_now = invalidated and evidence >= config.evidence
+    else:
+        raise_now = invalid_run >= config.alarm_windows
     in_error = state.in_error
-    if invalid_run >= config.alarm_windows:
+    if raise_now:
         in_error = True
     elif in_error and not config.latch and valid_run >= config.clear_windows:
         in_error = False
@@ -90,7 +137,13 @@ def update_alarm(
         level = Alarm.WARN
     else:
         level = Alarm.OK
-    return AlarmState(level=level, in_error=in_error, invalid_run=invalid_run, valid_run=valid_run)
+    return AlarmState(
+        level=level,
+        in_error=in_error,
+        invalid_run=invalid_run,
+        valid_run=valid_run,
+        evidence=evidence,
+    )
 
 
 def reset_alarm(state: AlarmState) -> AlarmState:

@@ -297,6 +297,7 @@ class WindowMonitor:
         self._period = config.period_samples
         self._hop = config.hop
         self._alarm = evidence_alarm(config.alarm, config.period_samples // config.hop)
+        self._weight = config.hop / config.period_samples  # of a window, in the evidence
         self._window = config.window_samples
         self._u = np.zeros((cap, nu))
         self._y = np.zeros((cap, ny))
@@ -520,6 +521,7 @@ class WindowMonitor:
                 judged=True,
                 invalidated=total > 1.0,
                 beta=total,
+                weight=self._weight,
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness

@@ -72,6 +72,7 @@ from twotank_validation.online import (
     WindowReport,
 )
 from twotank_validation.online import streams as itf
+from twotank_validation.online.alarm import DEBOUNCE_RULES
 from twotank_validation.online.assembler import CommandAssembler
 from twotank_validation.online.interface import (
     OUTPUT,
@@ -128,6 +129,20 @@ VALIDATOR_PARAMS = (
     Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),
     Param("warn_beta", 0.8, "beta at or above which a valid window reports WARN", 1e-6, 1e6),
     Param("latch_alarm", False, "keep ERROR until the reset_alarm service is called"),
+    Param(
+        "debounce",
+        "count",
+        "count: ERROR after alarm_windows invalidating windows in a row; sequential: after "
+        "the CUSUM of the excess of beta over 1 (weighted by hop/period) reaches alarm_evidence",
+        choices=DEBOUNCE_RULES,
+    ),
+    Param(
+        "alarm_evidence",
+        0.1,
+        "the sequential debounce's threshold (periods times excess beta)",
+        1e-6,
+        1e6,
+    ),
     Param(
         "hop_samples",
         0,
@@ -329,6 +344,8 @@ def monitor_config(values: dict[str, Any]) -> MonitorConfig:
                 clear_windows=int(values["clear_windows"]),
                 warn_beta=float(values["warn_beta"]),
                 latch=bool(values["latch_alarm"]),
+                debounce=str(values["debounce"]),
+                evidence=float(values["alarm_evidence"]),
             ),
         )
     except ValueError as err:
