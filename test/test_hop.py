@@ -114,10 +114,10 @@ def test_every_hop_alarm_is_a_period_rule_alarm_at_the_same_window(q, a, bits) -
 
 
 def cusum_reference(betas, weight, threshold, clear):
-    """Page's one-sided CUSUM written out plainly: levels after each window."""
+    """Page's one-sided CUSUM (capped at its threshold) written out plainly."""
     s, in_error, valid, out = 0.0, False, 0, []
     for b in betas:
-        s = max(0.0, s + (b - 1.0) * weight)
+        s = min(threshold, max(0.0, s + (b - 1.0) * weight))
         valid = valid + 1 if b <= 1.0 else 0
         if b > 1.0 and s >= threshold:
             in_error = True

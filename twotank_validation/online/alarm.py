@@ -5,10 +5,11 @@ equal diagnostic_msgs/DiagnosticStatus levels. Two rules (``AlarmConfig.debounce
 
 * ``"count"``: ERROR after ``alarm_windows`` invalidating windows in a row;
 * ``"sequential"``: a one-sided CUSUM (Page 1954) on the window's β: the evidence
-  ``S = max(0, S + (β − 1) w)`` grows by the excess of β over 1 and shrinks by its shortfall,
-  each window weighted by the share of a period it adds (``w = hop / period``), and ERROR
-  rises once ``S`` reaches ``evidence`` on an invalidating window. Weighted by time, the
-  evidence of a β path does not depend on how often it is sampled (docs/theory.md §9).
+  ``S = min(A, max(0, S + (β − 1) w))`` grows by the excess of β over 1 and shrinks by its
+  shortfall, each window weighted by the share of a period it adds (``w = hop / period``)
+  and capped at the threshold ``A = evidence``; ERROR rises once ``S`` reaches ``A`` on an
+  invalidating window. Weighted by time, the evidence of a β path does not depend on how
+  often it is sampled (docs/theory.md §9).
 
 Both clear after ``clear_windows`` valid windows in a row.
 """
@@ -122,7 +123,9 @@ def update_alarm(
     evidence = 0.0
     if config.debounce == "sequential":
         excess = beta - 1.0 if math.isfinite(beta) else (1.0 if invalidated else -1.0)
-        evidence = max(0.0, state.evidence + excess * weight)
+        # capped at the threshold: evidence beyond it proves nothing more, and a CUSUM that
+        # grew through an hour-long fault would re-raise ERROR on one window hours later
+        evidence = min(config.evidence, max(0.0, state.evidence + excess * weight))
         raise_now = invalidated and evidence >= config.evidence
     else:
         raise_now = invalid_run >= config.alarm_windows
