@@ -194,3 +194,30 @@ def test_the_sequential_rule_fires_within_a_period_on_the_rig() -> None:
         first = next(r for r in reports if r.alarm is Alarm.ERROR)
         delays[rule] = first.end_ns / 1e9 - 1100
     assert delays["sequential"] <= 204.8 < delays["count"]
+
+
+def test_validate_takes_the_hop_and_the_debounce(tmp_path) -> None:
+    import dataclasses  # noqa: PLC0415
+    import json  # noqa: PLC0415
+
+    from twotank_validation import bags, cli  # noqa: PLC0415
+    from twotank_validation.sim import scenario as sc  # noqa: PLC0415
+
+    scn = dataclasses.replace(
+        sc.load_scenario("nominal"),
+        ts_s=0.8,
+        period_samples=256,
+        duration_s=9 * 204.8,
+        faults=("leak=0.04@1100",),
+    )
+    bag = bags.write_scenario_bag(scn, tmp_path / "leak")
+    first = {}
+    for name, extra in (("default", []), ("fast", ["--hop", "64", "--debounce", "sequential"])):
+        out = tmp_path / f"{name}.json"
+        assert cli.main(["validate", str(bag), "--model", "B", "--json", str(out), *extra]) == 0
+        windows = json.loads(out.read_text())["models"]["B"]["windows"]
+        first[name] = next(w["end"] for w in windows if w["alarm"] == "ERROR")
+        starts = [w["start"] for w in windows]
+        step = 64 * 0.8 if name == "fast" else 256 * 0.8
+        assert np.allclose(np.diff(starts), step)
+    assert first["fast"] - 1100 <= 204.8 < first["default"] - 1100

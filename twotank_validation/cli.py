@@ -18,6 +18,7 @@ from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import WindowReport
+from twotank_validation.online.alarm import DEBOUNCE_RULES
 from twotank_validation.online.window import verdict_text
 
 if TYPE_CHECKING:
@@ -210,7 +211,7 @@ def _replay_config(
                 settle_periods=args.settle_periods,
                 hop_samples=args.hop,
                 convention=NormConvention(args.norm),
-                alarm=AlarmConfig(),
+                alarm=AlarmConfig(debounce=args.debounce),
             ),
             topics=_topic_map(args.topic),
             units=RigUnits(
@@ -577,6 +578,13 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
     )
     val.add_argument(
         "--settle-periods", type=int, default=1, help="periods of settled input before a window"
+    )
+    val.add_argument(
+        "--debounce",
+        choices=DEBOUNCE_RULES,
+        default="count",
+        help="count: ERROR after 2 invalidating windows in a row; sequential: after the CUSUM "
+        "of beta's excess over 1 (weighted by hop/period) reaches 0.1",
     )
     val.add_argument(
         "--hop",
