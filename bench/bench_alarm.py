@@ -30,10 +30,9 @@ import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-import numpy as np
-
+from tools.records import record_events
 from twotank_validation.core.model import load_model
-from twotank_validation.online import COMMAND, Alarm, AlarmConfig, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, AlarmConfig, MonitorConfig, OnlineValidator
 from twotank_validation.online.oppoint import OpPointConfig
 from twotank_validation.sim import scenario as sc
 
@@ -60,16 +59,6 @@ CONFIGS = {
 SETPOINTS = ("height=0.52", "temperature=0.55", "height=0.44,temperature=0.47", "height=0.47")
 
 
-def events(stamps, u, y):
-    n = len(stamps)
-    kinds = np.concatenate([np.full(n, COMMAND), np.zeros(n, int), np.ones(n, int)])
-    st = np.concatenate([stamps, stamps, stamps])
-    v = np.full((3 * n, 2), np.nan)
-    v[:n], v[n : 2 * n, 0], v[2 * n :, 0] = u, y[:, 0], y[:, 1]
-    order = np.argsort(st + np.where(kinds == COMMAND, 0, 1), kind="stable")
-    return kinds[order].astype(np.int8), st[order], v[order]
-
-
 def one_run(job):
     """(spec, seed, phase) -> {config: (delay_s, in_error_share, clear_s)}."""
     spec, seed, phase = job
@@ -82,7 +71,7 @@ def one_run(job):
         seed=seed,
     )
     stamps, u, y = sc.simulate_scenario(scn)
-    ev = events(stamps, u, y)
+    ev = record_events(stamps, u, y)
     out = {}
     for name, cfg in CONFIGS.items():
         reports = OnlineValidator(cfg, [load_model("B")]).feed_many(*ev)
@@ -116,7 +105,7 @@ def nominal_run(seed: int, hours: float):
     )
     stamps, u, y = sc.simulate_scenario(scn)
     reports = OnlineValidator(CONFIGS["hop/seq + op"], [load_model("B")]).feed_many(
-        *events(stamps, u, y)
+        *record_events(stamps, u, y)
     )
     judged = [r for r in reports if r.judged]
     errors = sum(

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from tools.records import arrival_order
 from twotank_validation.core.model import load_model
 from twotank_validation.defaults import MAX_RECOVERED_FRACTION
 from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
@@ -63,9 +64,7 @@ def events(stamps, u, y, rng, *, loss=0.0, jitter_s=0.0, dup=0.0, half_rate=Fals
         v = np.full((len(reps), 2), np.nan)
         v[:, : values.shape[1]] = values[reps]
         vals.append(v)
-    k, s, v = np.concatenate(kinds), np.concatenate(st), np.concatenate(vals)
-    order = np.argsort(s + np.where(k == COMMAND, 0, 1), kind="stable")  # arrival by stamp
-    return k[order].astype(np.int8), s[order], v[order]
+    return arrival_order(np.concatenate(kinds), np.concatenate(st), np.concatenate(vals))
 
 
 def run(stamps, u, y, cfg, rng, **kw):

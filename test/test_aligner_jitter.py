@@ -16,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools import streamfuzz
+from tools.records import arrival_order
 from twotank_validation import online
 from twotank_validation.core.model import load_model
 from twotank_validation.online import COMMAND, MonitorConfig, OnlineValidator
@@ -37,9 +38,7 @@ def jittered_events(stamps, u, y, rng, jitter_ns, *, first_jitter=None, phase_ns
         v = np.full((n, 2), np.nan)
         v[:, : values.shape[1]] = values
         vals.append(v)
-    k, s, v = np.concatenate(kinds), np.concatenate(st_), np.concatenate(vals)
-    order = np.argsort(s + np.where(k == COMMAND, 0, 1), kind="stable")
-    return k[order].astype(np.int8), s[order].astype(np.int64), v[order]
+    return arrival_order(np.concatenate(kinds), np.concatenate(st_), np.concatenate(vals))
 
 
 def expand(pieces):

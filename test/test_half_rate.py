@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tools import streamfuzz
+from tools.records import arrival_order
 from twotank_validation import bags, cli, online, replay
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model
@@ -42,9 +43,7 @@ def half_rate_events(stamps, u, y, rng, *, jitter_ns=0, every=2):
         v = np.full((len(idx), 2), np.nan)
         v[:, : values.shape[1]] = values[idx]
         vals.append(v)
-    k, s, v = np.concatenate(kinds), np.concatenate(st_), np.concatenate(vals)
-    order = np.argsort(s + np.where(k == COMMAND, 0, 1), kind="stable")
-    return k[order].astype(np.int8), s[order].astype(np.int64), v[order]
+    return arrival_order(np.concatenate(kinds), np.concatenate(st_), np.concatenate(vals))
 
 
 @pytest.mark.parametrize(("every", "jitter"), [(2, 0), (2, 0.1), (3, 0.1), (2, 0.3)])

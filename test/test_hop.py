@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools import streamfuzz
+from tools.records import record_events
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model
 from twotank_validation.core.validate import validate
@@ -24,21 +25,11 @@ MODEL_B = load_model("B")
 TS_NS = 800_000_000
 
 
-def events(stamps, u, y):
-    n = len(stamps)
-    kinds = np.concatenate([np.full(n, COMMAND), np.zeros(n, int), np.ones(n, int)])
-    st_ = np.concatenate([stamps, stamps, stamps])
-    v = np.full((3 * n, 2), np.nan)
-    v[:n], v[n : 2 * n, 0], v[2 * n :, 0] = u, y[:, 0], y[:, 1]
-    order = np.argsort(st_ + np.where(kinds == COMMAND, 0, 1), kind="stable")
-    return kinds[order].astype(np.int8), st_[order], v[order]
-
-
 @pytest.mark.parametrize("hop", [64, 32])
 def test_hop_windows_equal_a_fresh_validation_of_their_samples(hop) -> None:
     stamps, u, y = streamfuzz.clean_record(5, 4)
     cfg = MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=hop)
-    reports = OnlineValidator(cfg, [MODEL_B]).feed_many(*events(stamps, u, y))
+    reports = OnlineValidator(cfg, [MODEL_B]).feed_many(*record_events(stamps, u, y))
     judged = [r for r in reports if r.judged]
     # every hop from the first whole span on: (5 periods - span of 3) / hop + 1 windows
     assert len(judged) == (5 - 3) * 256 // hop + 1
@@ -54,7 +45,7 @@ def test_hop_windows_equal_a_fresh_validation_of_their_samples(hop) -> None:
 def test_hop_windows_in_batches_equal_event_by_event() -> None:
     stamps, u, y = streamfuzz.clean_record(4, 5)
     cfg = MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=64)
-    k, s, v = events(stamps, u, y)
+    k, s, v = record_events(stamps, u, y)
     batch = OnlineValidator(cfg, [MODEL_B]).feed_many(k, s, v)
     one = OnlineValidator(cfg, [MODEL_B])
     names = {COMMAND: "flow_cmd", 0: "height", 1: "temperature"}
@@ -190,7 +181,7 @@ def test_the_sequential_rule_fires_within_a_period_on_the_rig() -> None:
         cfg = MonitorConfig(
             ts_s=0.8, period_samples=256, hop_samples=64, alarm=AlarmConfig(debounce=rule)
         )
-        reports = OnlineValidator(cfg, [MODEL_B]).feed_many(*events(stamps, u, y))
+        reports = OnlineValidator(cfg, [MODEL_B]).feed_many(*record_events(stamps, u, y))
         first = next(r for r in reports if r.alarm is Alarm.ERROR)
         delays[rule] = first.end_ns / 1e9 - 1100
     assert delays["sequential"] <= 204.8 < delays["count"]

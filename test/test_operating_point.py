@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from tools.records import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.core.oppoint import (
     OperatingPoint,
@@ -26,7 +27,7 @@ from twotank_validation.core.oppoint import (
     combined_beta,
     dead_band,
 )
-from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.online.oppoint import OpPointConfig, OpState
 from twotank_validation.sim import rig
 from twotank_validation.sim import scenario as sc
@@ -138,13 +139,7 @@ def run(scn: sc.Scenario, config: MonitorConfig | None = None, models=(MODEL_B,)
     stamps, u, y = sc.simulate_scenario(scn)
     cfg = config or MonitorConfig(ts_s=scn.ts_s, period_samples=scn.period_samples)
     core = OnlineValidator(cfg, list(models))
-    n = len(stamps)
-    kinds = np.concatenate([np.full(n, COMMAND), np.zeros(n, int), np.ones(n, int)])
-    st = np.concatenate([stamps, stamps, stamps])
-    v = np.full((3 * n, 2), np.nan)
-    v[:n], v[n : 2 * n, 0], v[2 * n :, 0] = u, y[:, 0], y[:, 1]
-    order = np.argsort(st + np.where(kinds == COMMAND, 0, 1), kind="stable")
-    return core, core.feed_many(kinds[order].astype(np.int8), st[order], v[order])
+    return core, core.feed_many(*record_events(stamps, u, y))
 
 
 ONSET, END = 5 * P_S, 13 * P_S
