@@ -1,8 +1,7 @@
 """The live validator node at 10 Hz: report latency, CPU and memory over simulated hours.
 
-Usage (DDS on loopback only; run it in a private network namespace):
-    ROS_DOMAIN_ID=93 scripts/run exec unshare -n sh -c \\
-        'ip link set lo up && exec python bench/bench_node.py [--hours 24]'
+Usage (DDS on loopback only: scripts/run bench runs it in a private network namespace):
+    ROS_DOMAIN_ID=93 bash scripts/run bench bench_node.py [--hours 24]
 
 The validator node runs alone in a child process, exactly as its entry point runs it
 (``ValidatorNode`` spun by ``rclpy.spin``, models A and B, default parameters: 10 Hz,

@@ -1,8 +1,7 @@
 """Long run: 24 simulated hours of the live composition with faults coming and going.
 
-Usage (DDS on loopback only; run it in a private network namespace):
-    ROS_DOMAIN_ID=41 bash scripts/run exec unshare -n sh -c \\
-        'ip link set lo up && exec python bench/long_run.py [--hours 24] [--ts 0.8 --period 256]'
+Usage (DDS on loopback only: scripts/run bench runs it in a private network namespace):
+    ROS_DOMAIN_ID=41 bash scripts/run bench long_run.py [--hours 24] [--ts 0.8 --period 256]
 
 Runs ``twotank_validation.ros.live.run_live`` (excitation, plant and validator nodes in one
 process, simulated ``/clock``, loopback DDS) at accelerated time, models A and B, default
