@@ -25,6 +25,7 @@ import contextlib
 import dataclasses
 import json
 import math
+import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -553,6 +554,16 @@ def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: Windo
             kept[r] = snap
 
 
+def warning_kind(text: str) -> str:
+    """A warning's kind: its text up to the first number (``"output mean drifts by up to"``).
+
+    The numbers differ from window to window; counting by kind keeps the per-model list short
+    on a long run (each window's exact texts stay in its own entry).
+    """
+    head = re.split(r"[-+]?\d", text, maxsplit=1)[0].strip()
+    return head.rstrip(" (:") or text
+
+
 def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[str, Any]:
     """The documented JSON (docs/cli.md, "validate JSON"): times in seconds of bag time.
 
@@ -590,7 +601,8 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
         if rep.warnings:
             entry["with_warnings"] += 1
             for text in rep.warnings:
-                entry["warnings"][text] = entry["warnings"].get(text, 0) + 1
+                kind = warning_kind(text)
+                entry["warnings"][kind] = entry["warnings"].get(kind, 0) + 1
         entry["windows"].append(
             {
                 "start": sec(rep.start_ns),
