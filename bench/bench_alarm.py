@@ -9,7 +9,7 @@ boundary, off the quarter-period hop grid). The same simulated samples go throug
 path) under two alarms:
 
 * ``period/count``: one window per period, ERROR after 2 invalidating windows in a row, no
-  operating-point check (the alarm before issue 16);
+  operating-point check (the alarm of the defaults without the check);
 * ``hop/seq + op``: a window every quarter period, the sequential debounce and the
   operating-point check.
 
