@@ -3,10 +3,11 @@
 Usage: scripts/run bench bench_alarm.py [--seeds 2] [--jobs 2] [--nominal-hours 24]
 
 Each rig fault at its stated limit (docs/detection.md, "Stated limits") and at twice it,
-persistent for one hour, at several onset phases and ``--seeds`` noise seeds, on the default scenario (Ts 0.1 s, period 2048, Model
-B). The onsets are at eight phases spread over a period (0.03 to 0.94 of it after a period
-boundary, off the quarter-period hop grid). The same simulated samples go through the online validator (the node's and replay's
-path) under two alarms:
+persistent for one hour, at several onset phases and ``--seeds`` noise seeds, on the default
+scenario (Ts 0.1 s, period 2048, Model B). The onsets are at eight phases spread over a
+period (0.03 to 0.94 of it after a period boundary, off the quarter-period hop grid). The
+same simulated samples go through the online validator (the node's and replay's path) under
+two alarms:
 
 * ``period/count``: one window per period, ERROR after 2 invalidating windows in a row, no
   operating-point check (the alarm of the defaults without the check);
