@@ -269,3 +269,41 @@ def test_the_report_message_carries_the_operating_point() -> None:
     assert (msg.raised_by, msg.operating_point) == ("operating point", rep.operating_point)
     assert msg.invalidated
     assert msg.beta == rep.beta < 1.0  # the dynamics alone do not invalidate it
+
+
+def test_the_fast_path_and_the_sdp_agree_for_a_structured_model(tmp_path) -> None:
+    """Model B with an input-multiplicative block on both valves: not output-decoupled, so
+    the zero-frequency bin goes the fast path; the per-bin SDP is the second solver."""
+    from importlib import resources  # noqa: PLC0415
+
+    import yaml  # noqa: PLC0415
+
+    from twotank_validation.core.oppoint import dc_response  # noqa: PLC0415
+    from twotank_validation.core.validate import takes_fast_path  # noqa: PLC0415
+    from twotank_validation.defaults import Method  # noqa: PLC0415
+
+    doc = yaml.safe_load(
+        resources.files("twotank_validation").joinpath("models/model_b.yaml").read_text()
+    )
+    doc["name"] = "B_valves"
+    doc["perturbations"].append(
+        {
+            "name": "valves",
+            "kind": "input_multiplicative",
+            "inputs": ["hot", "cold"],
+            "weight": {"gain": 0.05},
+        }
+    )
+    path = tmp_path / "b_valves.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    model = load_model(str(path))
+    assert takes_fast_path(dc_response(model, 0.1), Method.AUTO)
+    rng = np.random.default_rng(5)
+    ref = OperatingPoint(np.array([0.4, 0.4]), np.array([0.47, 0.5]))
+    for _ in range(6):
+        new = OperatingPoint(ref.u + rng.normal(0, 0.02, 2), ref.y + rng.normal(0, 0.03, 2))
+        fast = check_operating_point(model, 0.1, ref, new, n_samples=4096, allowance=0.001)
+        sdp = check_operating_point(
+            model, 0.1, ref, new, n_samples=4096, allowance=0.001, method="sdp"
+        )
+        assert fast.beta == pytest.approx(sdp.beta, rel=1e-5, abs=1e-7)
