@@ -303,7 +303,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         bar.close()
     summary = replay.summary_json(result, [m.name for m in models])
     summary["timing"] = timing.to_json()
-    _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7} {'beta_op':>7}  {'verdict':<12} alarm")
+    _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7} {'beta_op':>7}  {'verdict':<30} alarm")
     for name, entry in summary["models"].items():
         for w in entry["windows"]:
             verdict = (
@@ -318,7 +318,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             extra = f"  ({w['reason']})" if w["reason"] else ""
             extra += "".join(f"  (warning: {text})" for text in w["warnings"])
             _out(
-                f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<12} "
+                f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<30} "
                 f"{w['alarm']}{extra}"
             )
     for name, entry in summary["models"].items():
