@@ -1,4 +1,4 @@
-"""Stated detection limits of the default alarm (README, issue #7), each with its other side.
+"""Stated detection limits of the period/count alarm (README), each with its other side.
 
 The limits were found with ``bench/detection_matrix.py --limits`` (bisection of the fault size
 over onset phases and seeds, Model B): the smallest leak, sensor bias and valve loss that raise
@@ -6,8 +6,8 @@ ERROR within 3 windows of the onset on the default excitation. Here every run is
 ``Scenario`` (filtered noise 0.05/0.2 RMS, cutoff 0.006 Hz, mixing delay 15 s, noise
 0.003/0.01, Ts 0.1 s, 2048-sample periods) with one fault, simulated by ``rig.simulate`` with
 the scenario's settings (what ``simulate_scenario`` computes, sample by sample) and fed as the
-node's three streams into ``OnlineValidator`` with the default ``MonitorConfig`` and
-``AlarmConfig``.
+node's three streams into ``OnlineValidator`` with one window per period and the count rule
+(``CONFIG``; the operating-point check on, as by default).
 
 The reference is the injected fault: its onset decides which windows contain faulty samples
 (window 1 is the first whose last sample is at or after the onset sample), its size is on
@@ -22,12 +22,15 @@ import numpy as np
 import pytest
 
 from twotank_validation.core.model import load_model
-from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.defaults import PERIOD_SAMPLES
+from twotank_validation.online import COMMAND, Alarm, AlarmConfig, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig
 from twotank_validation.sim.faults import Fault, format_fault
 from twotank_validation.sim.scenario import Scenario
 
-CONFIG = MonitorConfig()  # the node's defaults: 2-period windows every period, ERROR after 2
+# the period/count alarm the limits are stated for (named, whatever the defaults): 2-period
+# windows every period, ERROR after 2 invalidating windows in a row
+CONFIG = MonitorConfig(hop_samples=PERIOD_SAMPLES, alarm=AlarmConfig(debounce="count"))
 TS = CONFIG.ts_s
 PERIOD = CONFIG.period_samples
 ONSET_PERIOD = 4  # as the bench: two judged nominal windows (ending 3P, 4P) before the onset
