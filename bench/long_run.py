@@ -62,6 +62,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--warmup-h", type=float, default=2.0, help="hours left out of the slopes")
     ap.add_argument("--trace-hour", type=int, default=12, help="hour traced (-1: none)")
     ap.add_argument("--seed", type=int, default=0, help="plant noise seed")
+    ap.add_argument("--hop", type=int, default=0, help="validator hop_samples (0: its default)")
+    ap.add_argument(
+        "--debounce",
+        choices=("count", "sequential"),
+        default=None,
+        help="validator debounce (default: the node's)",
+    )
     ap.add_argument("--json", help="also write the hourly samples and records to this file")
     ap.add_argument(
         "--rejudge",
@@ -90,13 +97,20 @@ def main(argv: list[str] | None = None) -> int:
         faults=faults,
         seed=args.seed,
         trace_hour=None if args.trace_hour < 0 else args.trace_hour,
+        validator={
+            **({"hop_samples": args.hop} if args.hop else {}),
+            **({"debounce": args.debounce} if args.debounce else {}),
+        },
     )
-    rule = lr.TimelineRule(settle_s=2 * period_s)
+    rule = lr.TimelineRule(
+        settle_s=2 * period_s, hops_per_period=cfg.period_samples // cfg.hop_samples
+    )
     tol = lr.FlatTolerance(warmup_h=args.warmup_h)
     print(
         f"long run: {cfg.hours:g} simulated h, Ts {cfg.ts_s:g} s, period {cfg.period_samples} "
-        f"samples ({period_s:g} s), windows of 2 periods every period, models "
+        f"samples ({period_s:g} s), windows of 2 periods every {cfg.hop_samples} samples, models "
         f"{', '.join(cfg.models)}, node defaults (alarm_windows 2, clear_windows 3, no latch)"
+        + (f" but {cfg.validator}" if cfg.validator else "")
     )
     print("faults:", *faults, sep="\n  ")
     print(

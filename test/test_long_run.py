@@ -264,3 +264,23 @@ def test_short_live_run_threads_do_not_grow(run) -> None:
     assert first.threads > 5  # the nodes and DDS were running
     assert last.threads <= first.threads
     assert last.py_threads <= first.py_threads
+
+
+@pytest.mark.parametrize("hop", [PERIOD, PERIOD // 2, PERIOD // 4])
+def test_expected_windows_every_hop_by_brute_force(hop) -> None:
+    """A window ends on every hop boundary once it is whole: enumerate the sample counts."""
+    n = 7 * PERIOD + 37
+    window = 2 * PERIOD
+    want = [
+        (count - window) * TS_NS
+        for count in range(1, n + 1)
+        if count % hop == 0 and count >= window
+    ]
+    assert lr.expected_window_starts_ns(n, PERIOD, 2, TS_NS, hop_samples=hop) == want
+
+
+def test_timeline_rule_counts_windows_a_period_apart_at_the_hop() -> None:
+    assert lr.TimelineRule().windows(3) == 3
+    assert lr.TimelineRule(hops_per_period=4).windows(3) == 9
+    assert lr.LongRunConfig(ts_s=0.8, period_samples=256).hop_samples == 256
+    assert lr.LongRunConfig(validator={"hop_samples": 64}).hop_samples == 64

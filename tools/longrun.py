@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
-from twotank_validation.online import Alarm, WindowReport
+from twotank_validation.online import Alarm, MonitorConfig, WindowReport
 from twotank_validation.sim.faults import parse_fault
 
 HOUR_S = 3600.0
@@ -126,17 +126,24 @@ def same_recs(a: Sequence[Rec], b: Sequence[Rec]) -> bool:
 # ------------------------------------------------------------------------ window accounting
 
 
-def expected_window_starts_ns(
-    n_samples: int, period_samples: int, periods_per_window: int, ts_ns: int, t0_ns: int = 0
+def expected_window_starts_ns(  # noqa: PLR0917 (the window settings, in their usual order)
+    n_samples: int,
+    period_samples: int,
+    periods_per_window: int,
+    ts_ns: int,
+    t0_ns: int = 0,
+    hop_samples: int | None = None,
 ) -> list[int]:
     """Start stamps (ns) of every window a validator must report for ``n_samples`` samples.
 
-    A window of ``periods_per_window`` periods ends at every period boundary once that many
-    periods were seen: ``max(0, n_samples // period_samples - periods_per_window + 1)``
-    windows, the j-th starting at sample ``j * period_samples``.
+    A window of ``periods_per_window`` periods ends at every hop boundary (``hop_samples``,
+    default one period) once that many periods were seen:
+    ``max(0, (n_samples - periods_per_window * period_samples) // hop + 1)`` windows, the j-th
+    starting at sample ``j * hop``.
     """
-    n = max(0, n_samples // period_samples - periods_per_window + 1)
-    return [t0_ns + j * period_samples * ts_ns for j in range(n)]
+    hop = hop_samples or period_samples
+    n = max(0, (n_samples - periods_per_window * period_samples) // hop + 1)
+    return [t0_ns + j * hop * ts_ns for j in range(n)]
 
 
 def reason_class(quality: str) -> str:
@@ -192,9 +199,12 @@ def account_windows(  # noqa: PLR0917 (the window settings, in their usual order
     period_samples: int,
     periods_per_window: int,
     ts_ns: int,
+    hop_samples: int | None = None,
 ) -> WindowAccount:
     """Check ``model``'s reports against the windows ``n_samples`` samples must give."""
-    starts = expected_window_starts_ns(n_samples, period_samples, periods_per_window, ts_ns)
+    starts = expected_window_starts_ns(
+        n_samples, period_samples, periods_per_window, ts_ns, hop_samples=hop_samples
+    )
     want = set(starts)
     mine = [r for r in recs if r.model == model]
     span_ns = (periods_per_window * period_samples - 1) * ts_ns
@@ -241,11 +251,19 @@ class TimelineRule:
         clear_windows: ERROR must be gone (OK or WARN) by the ``clear_windows``-th window
             starting at or after ``end + settle_s`` and stay gone until the next fault;
             the node's ``clear_windows`` (3 valid windows in a row) is the least possible.
+        hops_per_period: windows judged per period (period / hop). The two window counts
+            above are for one window per period; with ``q`` per period they mean the window
+            that ends as much later: ``(k - 1) q + 1``.
     """
 
     detect_windows: int = 3
     settle_s: float = 409.6
     clear_windows: int = 3
+    hops_per_period: int = 1
+
+    def windows(self, k: int) -> int:
+        """``k`` windows a period apart, as a count of windows at this rule's hop."""
+        return (k - 1) * self.hops_per_period + 1
 
 
 @dataclass
@@ -348,7 +366,7 @@ def alarm_timeline(
         if hit is not None:
             out.detect_window = hit - idx[0] + 1
             out.detect_delay_s = end[hit] - on
-            out.detected_ok = out.detect_window <= rule.detect_windows
+            out.detected_ok = out.detect_window <= rule.windows(rule.detect_windows)
         inside = [i for i in range(n) if start[i] >= on and end[i] < off]
         out.error_inside = (sum(error[i] for i in inside), len(inside))
         # the alarm must stay clear from some window on, up to the next fault's first window
@@ -365,7 +383,7 @@ def alarm_timeline(
             out.clear_window = clear
             out.clear_after_end_s = end[clear] - off
             out.clear_window_after_settle = clear - settled + 1
-            out.cleared_ok = out.clear_window_after_settle <= rule.clear_windows
+            out.cleared_ok = out.clear_window_after_settle <= rule.windows(rule.clear_windows)
     betas = []
     for i in range(n):
         if any(overlaps(i, a, b) for a, b in spans):
@@ -560,6 +578,15 @@ class LongRunConfig:
     def period_s(self) -> float:
         """Excitation period (s)."""
         return self.ts_s * self.period_samples
+
+    @property
+    def hop_samples(self) -> int:
+        """Samples between the validator's windows (its ``hop_samples`` parameter's meaning)."""
+        return MonitorConfig(
+            ts_s=self.ts_s,
+            period_samples=self.period_samples,
+            hop_samples=int(self.validator.get("hop_samples", 0)),
+        ).hop
 
 
 @dataclass
@@ -790,13 +817,19 @@ def evaluate(
     against ``cfg.faults``. Model A's alarm is not checked against the faults (the data
     invalidate A throughout); :func:`error_fraction` describes it.
     """
-    rule = rule or TimelineRule()
+    rule = rule or TimelineRule(hops_per_period=cfg.period_samples // cfg.hop_samples)
     tol = tol or FlatTolerance()
     ts_ns = round(cfg.ts_s * NS_PER_S)
     checks: list[Check] = []
     accounts = {
         m: account_windows(
-            res.dds_recs, m, res.n_samples, cfg.period_samples, periods_per_window, ts_ns
+            res.dds_recs,
+            m,
+            res.n_samples,
+            cfg.period_samples,
+            periods_per_window,
+            ts_ns,
+            hop_samples=cfg.hop_samples,
         )
         for m in cfg.models
     }
@@ -826,7 +859,8 @@ def evaluate(
         for f in tl.faults:
             checks.append(
                 Check(
-                    f"model {alarm_model} {f.spec}: ERROR within {rule.detect_windows} windows",
+                    f"model {alarm_model} {f.spec}: ERROR within "
+                    f"{rule.windows(rule.detect_windows)} windows",
                     f.detected_ok,
                     "no ERROR"
                     if f.detect_window is None
@@ -835,7 +869,8 @@ def evaluate(
             )
             checks.append(
                 Check(
-                    f"model {alarm_model} {f.spec}: OK again within {rule.clear_windows} windows "
+                    f"model {alarm_model} {f.spec}: OK again within "
+                    f"{rule.windows(rule.clear_windows)} windows "
                     f"once settled ({rule.settle_s:g} s after end)",
                     f.cleared_ok,
                     "never cleared"
