@@ -462,7 +462,8 @@ class FlatTolerance:
         warmup_h: hours left out (imports, first windows, allocator pools filling).
         rss_kib_per_h: largest accepted fitted RSS slope (KiB per simulated hour).
         gc_objects_per_h: largest accepted fitted slope of GC-tracked objects per hour (the
-            checker keeps one small tuple per report: about 35 per hour at 2 models).
+            checker keeps one small tuple per report: about 35 per hour at 2 models and one
+            window per period; the bench adds the report rate's excess at a shorter hop).
     """
 
     warmup_h: float = 2.0
