@@ -5,8 +5,9 @@ steady state feed it their input and output means; it answers with the zero-freq
 (:func:`~twotank_validation.core.oppoint.check_operating_point`) against its reference:
 
 1. **Commissioning.** Without a reference given in the settings, the first
-   ``commission_windows`` judged steady windows whose means agree (within the drift allowance
-   on the outputs and the input tolerance on the inputs) become the reference: their mean.
+   ``commission_windows`` judged steady windows, a period apart, whose means agree (within the
+   drift allowance on the outputs and the input tolerance on the inputs) become the
+   reference: their mean.
    Until then the operating point is not judged.
 2. **Checking.** Every later judged steady window is checked against the reference.
 3. **A setpoint change** is told apart from a fault by the rule: the commanded input means
@@ -123,16 +124,21 @@ class OperatingPointTracker:
     n_samples: int
     convention: NormConvention = NormConvention.POWER
     method: str = "auto"
+    spacing_ns: int = 0
+    """Windows collected to commission or refine the reference lie at least this far apart
+    (the monitor passes one period: windows every hop overlap, and two that share most of
+    their samples agree whether or not the plant has settled)."""
     reference: OperatingPoint | None = None
     state: OpState = OpState.COMMISSIONING
     _pending: list[OperatingPoint] = field(default_factory=list)
+    _last_end: int | None = None
 
     def __post_init__(self) -> None:
         self.reset()
 
     def reset(self) -> None:
         """Forget the reference: the given one again, or commission anew."""
-        self._pending = []
+        self._pending, self._last_end = [], None
         cfg = self.config
         if not cfg.enabled:
             self.reference, self.state = None, OpState.OFF
@@ -149,19 +155,22 @@ class OperatingPointTracker:
         else:
             self.reference, self.state = None, OpState.COMMISSIONING
 
-    def observe(self, means: OperatingPoint, *, steady: bool) -> OpVerdict:
+    def observe(
+        self, means: OperatingPoint, *, steady: bool, end_ns: int | None = None
+    ) -> OpVerdict:
         """One judged window's means in; the check of this window out.
 
         Args:
             means: the window's input and output means (model units).
             steady: the window is in steady state (no transient finding).
+            end_ns: the window's last stamp (spaces the windows collected; None: no spacing).
         """
         if self.state is OpState.OFF:
             return OpVerdict(self.state, None, "operating-point check off")
         if not steady:
             return OpVerdict(self.state, None, "not in steady state (outputs still drift)")
         if self.reference is None:
-            return self._commission(means)
+            return self._commission(means, end_ns)
         chk = check_operating_point(
             self.model,
             self.ts_s,
@@ -176,16 +185,26 @@ class OperatingPointTracker:
         if moved and chk.explained:
             self.reference, self.state = means, OpState.MOVED
             self._pending = [means]  # the next steady windows refine the new reference
+            self._last_end = end_ns
             return OpVerdict(
                 self.state,
                 chk,
                 f"inputs moved by {_fmt(chk.du)} and the outputs by {_fmt(chk.dy)}, as the "
                 f"model predicts (beta_op {chk.beta:.3g}): setpoint change, reference moved",
             )
+        return self._refine(means, chk, moved=moved, end_ns=end_ns)
+
+    def _refine(
+        self, means: OperatingPoint, chk: OperatingPointCheck, *, moved: bool, end_ns: int | None
+    ) -> OpVerdict:
+        """After a setpoint change: refine the new reference over the next steady windows."""
         if self._pending and not moved and chk.explained:
             # after a setpoint change the first window may still hold the end of the move:
             # the reference becomes the mean of the windows that follow it, once enough agree
+            if not self._spaced(end_ns):
+                return OpVerdict(self.state, chk, "")
             self._pending = [*self._agreeing(means), means][-self.config.commission_windows :]
+            self._last_end = end_ns
             if len(self._pending) == self.config.commission_windows:
                 self.reference = OperatingPoint(
                     np.mean([p.u for p in self._pending], axis=0),
@@ -211,9 +230,23 @@ class OperatingPointTracker:
             and np.all(np.abs(p.y - means.y) <= cfg.drift_allowance)
         ]
 
-    def _commission(self, means: OperatingPoint) -> OpVerdict:
+    def _spaced(self, end_ns: int | None) -> bool:
+        """Whether a window ending at ``end_ns`` is far enough from the last one collected."""
+        return (
+            end_ns is None or self._last_end is None or end_ns - self._last_end >= self.spacing_ns
+        )
+
+    def _commission(self, means: OperatingPoint, end_ns: int | None) -> OpVerdict:
         cfg = self.config
+        if self._pending and not self._spaced(end_ns):
+            return OpVerdict(
+                self.state,
+                None,
+                f"commissioning the operating point ({len(self._pending)} of "
+                f"{cfg.commission_windows} steady windows, a period apart)",
+            )
         self._pending = [*self._agreeing(means), means]
+        self._last_end = end_ns
         if len(self._pending) < cfg.commission_windows:
             return OpVerdict(
                 self.state,

@@ -327,6 +327,7 @@ class WindowMonitor:
                 config.window_samples,
                 convention=config.convention,
                 method=config.method,
+                spacing_ns=round(config.period_samples * config.ts_s * NS_PER_S),
             )
             for m in self.models
         }
@@ -512,6 +513,7 @@ class WindowMonitor:
             op = self.operating_points[model.name].observe(
                 OperatingPoint(datum.u_bias, datum.y_bias),
                 steady=not datum.periodicity.transient_suspected,
+                end_ns=end_ns,
             )
             elapsed = time.perf_counter() - t0
             total = combined_beta(res.beta, op.beta) if op.check is not None else res.beta
