@@ -88,7 +88,7 @@ def run_alarm(verdicts, cfg):
 def test_every_hop_alarm_is_a_period_rule_alarm_at_the_same_window(q, a, bits) -> None:
     """Containment, by brute force: where the hop rule first raises ERROR at window j, the
     period rule on windows j - (a-1) q, ..., j - q, j (a windows a period apart) raises it too."""
-    base = AlarmConfig(alarm_windows=a, clear_windows=1)
+    base = AlarmConfig(alarm_windows=a, clear_windows=1, debounce="count")
     hop_levels = run_alarm(bits, evidence_alarm(base, q))
     for j, level in enumerate(hop_levels):
         if level is Alarm.ERROR and (j == 0 or hop_levels[j - 1] is not Alarm.ERROR):
@@ -203,7 +203,11 @@ def test_validate_takes_the_hop_and_the_debounce(tmp_path) -> None:
     )
     bag = bags.write_scenario_bag(scn, tmp_path / "leak")
     first = {}
-    for name, extra in (("default", []), ("fast", ["--hop", "64", "--debounce", "sequential"])):
+    period_count = ["--hop", "256", "--debounce", "count"]
+    for name, extra in (
+        ("default", period_count),
+        ("fast", ["--hop", "64", "--debounce", "sequential"]),
+    ):
         out = tmp_path / f"{name}.json"
         assert cli.main(["validate", str(bag), "--model", "B", "--json", str(out), *extra]) == 0
         windows = json.loads(out.read_text())["models"]["B"]["windows"]

@@ -17,7 +17,7 @@ import pytest
 
 from tools import longrun as lr
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.online import Alarm
+from twotank_validation.online import Alarm, MonitorConfig
 
 TS = 0.8
 PERIOD = 256
@@ -207,7 +207,8 @@ def run() -> tuple[lr.LongRunConfig, lr.LongRunResult]:
 @pytest.mark.slow
 def test_short_live_run_passes_the_bench_checks(run) -> None:
     cfg, res = run
-    ev = lr.evaluate(cfg, res, rule=lr.TimelineRule(settle_s=2 * P), tol=lr.FlatTolerance(0.25))
+    rule = lr.TimelineRule(settle_s=2 * P, hops_per_period=PERIOD // cfg.hop_samples)
+    ev = lr.evaluate(cfg, res, rule=rule, tol=lr.FlatTolerance(0.25))
     # memory: too short a run for a slope to mean anything (the bench judges 24 hours)
     failed = [c for c in ev.checks if not c.ok and not c.name.startswith("memory")]
     assert not failed, failed
@@ -216,17 +217,19 @@ def test_short_live_run_passes_the_bench_checks(run) -> None:
 
 @pytest.mark.slow
 def test_short_live_run_reports_every_window_once(run) -> None:
-    _, res = run
+    cfg, res = run
+    hop = cfg.hop_samples  # the node's default: a quarter period
     n_samples = round(HOURS * 3600 / TS)  # 3600
-    n_windows = n_samples // PERIOD - 1  # windows end at periods 2 .. 14
+    n_windows = (n_samples - 2 * PERIOD) // hop + 1  # windows end every hop from 2 periods on
+    settling = PERIOD // hop  # those ending before the settling period and the window are in
     assert res.n_samples == n_samples
     for model in ("A", "B"):
         mine = [r for r in res.dds_recs if r.model == model]
-        assert [r.start_ns for r in mine] == [j * PERIOD * TS_NS for j in range(n_windows)]
+        assert [r.start_ns for r in mine] == [j * hop * TS_NS for j in range(n_windows)]
         assert all(r.end_ns == r.start_ns + (2 * PERIOD - 1) * TS_NS for r in mine)
-        assert [r.judged for r in mine] == [False] + [True] * (n_windows - 1)
-        assert mine[0].quality.startswith("settling")
-        assert all(math.isfinite(r.beta) for r in mine[1:])
+        assert [r.judged for r in mine] == [False] * settling + [True] * (n_windows - settling)
+        assert all(r.quality.startswith("settling") for r in mine[:settling])
+        assert all(math.isfinite(r.beta) for r in mine[settling:])
     # what a subscriber received is what the node produced, report for report
     assert lr.same_recs(res.dds_recs, res.listener_recs)
 
@@ -282,5 +285,7 @@ def test_expected_windows_every_hop_by_brute_force(hop) -> None:
 def test_timeline_rule_counts_windows_a_period_apart_at_the_hop() -> None:
     assert lr.TimelineRule().windows(3) == 3
     assert lr.TimelineRule(hops_per_period=4).windows(3) == 9
-    assert lr.LongRunConfig(ts_s=0.8, period_samples=256).hop_samples == 256
+    default = MonitorConfig(ts_s=0.8, period_samples=256).hop  # the validator's default hop
+    assert lr.LongRunConfig(ts_s=0.8, period_samples=256).hop_samples == default
+    assert lr.LongRunConfig(validator={"hop_samples": 2048}).hop_samples == 2048
     assert lr.LongRunConfig(validator={"hop_samples": 64}).hop_samples == 64

@@ -19,7 +19,7 @@ from twotank_validation.online import Alarm, AlarmConfig, AlarmState, update_ala
 
 
 def run_alarm(verdicts, cfg=None):
-    cfg = cfg or AlarmConfig()
+    cfg = cfg or AlarmConfig(debounce="count")  # the count rule, by hand
     state, levels = AlarmState(), []
     for v in verdicts:
         if v is None:
@@ -56,7 +56,7 @@ def test_latched_alarm_needs_reset() -> None:
 def test_alarm_matches_reference_definition(verdicts, n_alarm, n_clear) -> None:
     """ERROR iff, looking back over judged windows, the last run of >= n_alarm invalidating
     windows is not followed by >= n_clear valid ones."""
-    cfg = AlarmConfig(alarm_windows=n_alarm, clear_windows=n_clear)
+    cfg = AlarmConfig(alarm_windows=n_alarm, clear_windows=n_clear, debounce="count")
     levels = run_alarm(verdicts, cfg)
     for i, v in enumerate(verdicts):
         if v is None:
@@ -143,7 +143,11 @@ def test_aligner_restarts_on_clock_jump_backwards() -> None:
 
 # ------------------------------------------------------------------ monitor on the rig
 
-FAST = online.MonitorConfig(ts_s=0.8, period_samples=256)  # same 204.8 s period, 8x fewer samples
+# same 204.8 s period, 8x fewer samples; one window per period and the count rule, as these
+# tests count windows by period
+FAST = online.MonitorConfig(
+    ts_s=0.8, period_samples=256, hop_samples=256, alarm=AlarmConfig(debounce="count")
+)
 
 
 def rig_record(n_periods: int = 6, seed: int = 0):
