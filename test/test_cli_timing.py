@@ -17,6 +17,11 @@ from twotank_validation import cli
 SLOW = {"name": "slow", "duration_s": 2100, "ts_s": 0.5, "period_samples": 512}
 
 
+# the recordings give 6 whole windows a period apart; windows are judged every quarter period
+# (the default hop), 4 per period: (6 - 1) * 4 + 1
+JUDGED = (6 - 1) * 4 + 1
+
+
 @pytest.fixture(scope="module")
 def slow_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A scenario bag at Ts 0.5 s, period 512 (256 s), with the scenario in its metadata."""
@@ -57,8 +62,8 @@ def test_timing_from_the_bags_metadata(slow_bag: Path, tmp_path: Path, capsys) -
     assert (doc["timing"]["ts_from"], doc["timing"]["period_from"]) == ("bag metadata",) * 2
     for entry in doc["models"].values():
         # 2100 s = 8.2 periods: windows end at periods 2..8; the first is still settling
-        assert entry["judged"] == 6
-        assert entry["not_judged_reasons"] == {"settling": 1}
+        assert entry["judged"] == JUDGED
+        assert entry["not_judged_reasons"] == {"settling": 4}  # the first period's 4 windows
         assert entry["judged"] == sum(w["beta"] is not None for w in entry["windows"])
 
 
@@ -73,7 +78,7 @@ def test_timing_inferred_from_the_data(bare_bag: Path, tmp_path: Path, capsys) -
         "command stamps",
         "commands",
     )
-    assert all(e["judged"] == 6 for e in doc["models"].values())
+    assert all(e["judged"] == JUDGED for e in doc["models"].values())
 
 
 def test_a_wrong_ts_is_named_and_nothing_judged_is_an_error(bare_bag: Path, capsys) -> None:
@@ -144,4 +149,4 @@ def test_a_closed_pipe_ends_quietly_and_the_json_is_written(slow_bag: Path, tmp_
     assert proc.wait(timeout=120) == cli.EXIT_OK
     assert "Traceback" not in err
     assert "BrokenPipe" not in err
-    assert json.loads(out_json.read_text())["models"]["B"]["judged"] == 6
+    assert json.loads(out_json.read_text())["models"]["B"]["judged"] == JUDGED

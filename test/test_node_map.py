@@ -31,7 +31,7 @@ from twotank_validation.online import streams as itf
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.validator_node import ValidatorNode
 
-FAST = {"ts_s": 0.8, "period_samples": 256}
+FAST = {"ts_s": 0.8, "period_samples": 256, "hop_samples": 256}  # a window per period
 INPUTS = [
     "hot=/valves/hot:std_msgs/msg/Float64:data,stamp=receive",
     "cold=/valves/cold:std_msgs/msg/Float64:data,stamp=receive",
@@ -145,7 +145,7 @@ def test_the_node_reads_a_rigs_own_topics_through_the_map() -> None:
 def test_a_temperature_at_half_rate_is_judged_at_the_rate_it_supports() -> None:
     """Valves and level every 0.8 s, temperature every 1.6 s: ts_s 1.6 with oversampling."""
     stamps, u, y = streamfuzz.clean_record(4, 0)
-    slow = {"ts_s": 1.6, "period_samples": 128}
+    slow = {"ts_s": 1.6, "period_samples": 128, "hop_samples": 128}
     h = MapHarness(**slow, oversampling=["flow_cmd=2", "height=2"])
     try:
         for k in range(len(stamps)):

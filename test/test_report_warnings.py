@@ -32,7 +32,9 @@ from twotank_validation.online.streams import MEASUREMENTS, STREAM_KINDS
 from twotank_validation.online.window import with_warnings
 from twotank_validation.sim import excitation, rig
 
-FAST = MonitorConfig(ts_s=0.8, period_samples=256)  # the 204.8 s period, 8x fewer samples
+FAST = MonitorConfig(
+    ts_s=0.8, period_samples=256, hop_samples=256
+)  # the 204.8 s period, 8x fewer samples
 MODELS = [load_model("A"), load_model("B")]
 
 

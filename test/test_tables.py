@@ -47,7 +47,7 @@ from twotank_validation.sim import scenario as sc
 from twotank_validation.tables import TableError, is_table, read_table, table_columns
 
 UNITS = RigUnits()
-MONITOR = MonitorConfig(ts_s=0.8, period_samples=256)
+MONITOR = MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=256)  # a window per period
 EPOCH = pd.Timestamp("2024-05-01T12:00:00Z")
 DOC = Path(__file__).resolve().parent.parent / "docs" / "interface.md"
 
@@ -481,7 +481,7 @@ def test_cli_takes_the_columns_as_text(run, capsys) -> None:
         "--input", "cold=column:valve_cold_pct,scale=100",
         "--output", "level=column:level_mm,offset=12,scale=1000",
         "--output", "temperature=column:temp_c,offset=15,scale=50",
-        "--time", "stamp,unit=iso",
+        "--time", "stamp,unit=iso", "--hop", "256",
     ])  # fmt: skip
     out, err = capsys.readouterr()
     assert code == cli.EXIT_OK, err

@@ -582,7 +582,7 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
     val.add_argument(
         "--debounce",
         choices=DEBOUNCE_RULES,
-        default="count",
+        default="sequential",
         help="count: ERROR after 2 invalidating windows in a row; sequential: after the CUSUM "
         "of beta's excess over 1 (weighted by hop/period) reaches 0.1",
     )
@@ -590,7 +590,8 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
         "--hop",
         type=int,
         default=0,
-        help="samples between judged (overlapping) windows, dividing the period; 0: one period",
+        help="samples between judged (overlapping) windows, dividing the period; 0: a quarter "
+        "period",
     )
     val.add_argument(
         "--norm", choices=[c.value for c in NormConvention], default="power", help="norm of w"

@@ -53,7 +53,7 @@ class AlarmConfig:
     clear_windows: int = 3
     warn_beta: float = 0.8
     latch: bool = False
-    debounce: str = "count"
+    debounce: str = "sequential"
     evidence: float = 0.1
 
     def __post_init__(self) -> None:

@@ -67,7 +67,8 @@ class MonitorConfig:
             of the other periods (:mod:`~twotank_validation.online.recovery`); 0: a window with
             any unusable sample is not judged.
         op: the operating-point check (:mod:`~twotank_validation.online.oppoint`).
-        hop_samples: samples between two judged windows; 0: one period. A window spans
+        hop_samples: samples between two judged windows; 0: a quarter period (one period
+            where the period is not a multiple of 4). A window spans
             whole periods but may start at any sample, so a hop of a fraction of a period
             judges overlapping windows more often and a fault is seen sooner. The alarm's
             window counts are scaled to the hop so that they weigh the same span of data
@@ -122,7 +123,7 @@ class MonitorConfig:
                     and self.period_samples % self.hop_samples == 0
                 ),
                 f"hop_samples must divide period_samples = {self.period_samples} (e.g. "
-                f"{self.period_samples // 4} for a quarter period), or be 0 for one period; "
+                f"{self.period_samples // 4} for a quarter period), or be 0 for the default; "
                 f"found {self.hop_samples}",
             ),
         ]
@@ -137,8 +138,10 @@ class MonitorConfig:
 
     @property
     def hop(self) -> int:
-        """Samples between two judged windows (``hop_samples``, or one period)."""
-        return self.hop_samples or self.period_samples
+        """Samples between two judged windows (``hop_samples``, or a quarter period)."""
+        if self.hop_samples:
+            return self.hop_samples
+        return self.period_samples // 4 if self.period_samples % 4 == 0 else self.period_samples
 
     @property
     def span_samples(self) -> int:

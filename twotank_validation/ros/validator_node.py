@@ -131,7 +131,7 @@ VALIDATOR_PARAMS = (
     Param("latch_alarm", False, "keep ERROR until the reset_alarm service is called"),
     Param(
         "debounce",
-        "count",
+        "sequential",
         "count: ERROR after alarm_windows invalidating windows in a row; sequential: after "
         "the CUSUM of the excess of beta over 1 (weighted by hop/period) reaches alarm_evidence",
         choices=DEBOUNCE_RULES,
@@ -146,7 +146,8 @@ VALIDATOR_PARAMS = (
     Param(
         "hop_samples",
         0,
-        "samples between judged (overlapping) windows, dividing period_samples; 0: one period",
+        "samples between judged (overlapping) windows, dividing period_samples; 0: a quarter "
+        "period (one period if period_samples is not a multiple of 4)",
         0,
         1e9,
     ),
