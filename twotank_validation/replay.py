@@ -110,6 +110,15 @@ class ReplayConfig:
                 "(--topic STREAM=TOPIC)"
             )
 
+    def validator(self, models: Sequence[LFTModel]) -> OnlineValidator:
+        """The online validator these settings describe (the one path of every replay)."""
+        return OnlineValidator(
+            self.monitor,
+            models,
+            jitter_fraction=self.jitter_fraction,
+            oversampling=self.oversampling,
+        )
+
 
 class ReplayConfigError(TwotankError, ValueError):
     """A replay setting cannot be used as given (the message says what to change)."""
@@ -199,9 +208,7 @@ def replay_bag(
             f"bag; give a CSV or Parquet file ({', '.join(tables.TABLE_SUFFIXES)}), or a map "
             "of topics for a bag"
         )
-    core = OnlineValidator(
-        cfg.monitor, models, jitter_fraction=cfg.jitter_fraction, oversampling=cfg.oversampling
-    )
+    core = cfg.validator(models)
     result = ReplayResult(Path(path))
     on_report = _reporter(result, core, on_window)
     with bag_reader.open_bag(path) as bag:
@@ -267,12 +274,7 @@ def replay_table(
     imap = _table_map(config, path)
     t_start = time.perf_counter()
     table = tables.read_table(path, imap)
-    core = OnlineValidator(
-        config.monitor,
-        models,
-        jitter_fraction=config.jitter_fraction,
-        oversampling=config.oversampling,
-    )
+    core = config.validator(models)
     result = ReplayResult(Path(path), source="table", bag_start_ns=int(table.stamps_ns[0]))
     result.decode_s = time.perf_counter() - t_start
     t_start = time.perf_counter()
