@@ -1,4 +1,5 @@
-"""Stated detection limits of the period/count alarm (README), each with its other side.
+"""Stated detection limits of the default alarm and of the period/count alarm (docs), each with
+its other side.
 
 The limits were found with ``bench/detection_matrix.py --limits`` (bisection of the fault size
 over onset phases and seeds, Model B): the smallest leak, sensor bias and valve loss that raise
@@ -7,7 +8,10 @@ ERROR within 3 windows of the onset on the default excitation. Here every run is
 0.003/0.01, Ts 0.1 s, 2048-sample periods) with one fault, simulated by ``rig.simulate`` with
 the scenario's settings (what ``simulate_scenario`` computes, sample by sample) and fed as the
 node's three streams into ``OnlineValidator`` with one window per period and the count rule
-(``CONFIG``; the operating-point check on, as by default).
+(``CONFIG``; the operating-point check on, as by default). The default alarm's limits
+(``DEFAULT``: a window every quarter period, the sequential debounce) were found with
+``--limits --alarm default``: the smallest faults that raise ERROR on a window ending within 2
+periods of the onset (a time, as the alarm's hop does not fix a window count).
 
 The reference is the injected fault: its onset decides which windows contain faulty samples
 (window 1 is the first whose last sample is at or after the onset sample), its size is on
@@ -55,7 +59,7 @@ def onset_at(phase: float) -> float:
     return round((ONSET_PERIOD + phase) * PERIOD) * TS
 
 
-def run(faults: list[Fault], seed: int, windows_after: int = WITHIN):
+def run(faults: list[Fault], seed: int, windows_after: int = WITHIN, config=CONFIG):
     """Model B's reports of the default scenario with ``faults``, through the node's path."""
     n = (ONSET_PERIOD + windows_after) * PERIOD  # window k after the onset ends at (4 + k) P
     scenario = Scenario(
@@ -79,7 +83,7 @@ def run(faults: list[Fault], seed: int, windows_after: int = WITHIN):
     values[0::3] = sim.commands
     values[1::3, 0] = sim.measured[:, 0]
     values[2::3, 0] = sim.measured[:, 1]
-    validator = OnlineValidator(CONFIG, [load_model("B")])
+    validator = OnlineValidator(config, [load_model("B")])
     return validator.feed_many(kinds, np.repeat(stamps, 3), values)
 
 
@@ -206,3 +210,84 @@ def test_sensor_bias_starting_at_a_window_boundary_is_seen_by_one_window_only() 
         assert r.judged
         assert r.beta == pytest.approx(ref.beta, rel=1e-9)  # ... and then it is gone
     assert not any(r.alarm is Alarm.ERROR for r in after)
+
+
+# --- the default alarm ----------------------------------------------------------------------
+
+DEFAULT = MonitorConfig()  # a window every quarter period, the sequential debounce
+assert DEFAULT.hop_samples in (0, PERIOD // 4)
+HORIZON_P = 2  # "detected" = ERROR on a window ending within 2 periods of the onset
+# Stated limits of the default alarm (docs/detection.md "Stated limits").
+DEFAULT_LIMITS = {
+    # name: (kind, channel, size, [(phase, seed) at the limit: the hardest phases found],
+    #        phase for twice it, [(phase, seed) at a quarter])
+    "leak": ("leak", "", 0.03, [(0.3, 1), (0.6, 1), (0.0, 2)], 0.5, [(0.3, 0), (0.8, 1)]),
+    "bias_height": (
+        "sensor_bias",
+        "height",
+        0.025,
+        [(0.0, 0), (0.45, 1), (0.95, 2)],
+        0.5,
+        [(0.5, 0), (0.1, 1)],
+    ),
+    "bias_temperature": (
+        "sensor_bias",
+        "temperature",
+        0.08,
+        [(0.0, 0), (0.9, 1), (0.3, 2)],
+        0.5,
+        [(0.5, 0), (0.9, 1)],
+    ),
+    "valve_loss_hot": (
+        "valve_weak",
+        "hot",
+        0.07,
+        [(0.25, 0), (0.5, 1), (0.8, 2)],
+        0.5,
+        [(0.0, 0), (0.3, 1)],
+    ),
+    "valve_loss_cold": (
+        "valve_weak",
+        "cold",
+        0.07,
+        [(0.65, 1), (0.02, 0), (0.4, 2)],
+        0.5,
+        [(0.2, 0), (0.65, 1)],
+    ),
+}
+
+
+def check_default_detected(kind: str, channel: str, size: float, phase: float, seed: int) -> None:
+    onset = onset_at(phase)
+    reports = run([fault(kind, channel, size, onset)], seed, HORIZON_P + 1, DEFAULT)
+    before, after = split(reports, onset)
+    assert not any(r.alarm is Alarm.ERROR for r in before)
+    horizon_ns = round((onset + HORIZON_P * PERIOD * TS) * 1e9)
+    in_time = [r for r in after if r.end_ns <= horizon_ns]
+    assert len(in_time) >= 4 * HORIZON_P - 1  # a window every quarter period
+    betas = [round(r.beta_total, 3) for r in in_time]
+    assert any(r.alarm is Alarm.ERROR for r in in_time), (
+        f"{kind}:{channel}={size} at phase {phase}: no ERROR within {HORIZON_P} periods; "
+        f"beta_total {betas}"
+    )
+
+
+@pytest.mark.parametrize(
+    ("name", "phase", "seed"),
+    [
+        pytest.param(name, phase, seed, id=f"{name}-phase{phase}-seed{seed}")
+        for name, case in DEFAULT_LIMITS.items()
+        for phase, seed in case[3]
+    ],
+)
+def test_default_alarm_detects_its_stated_limit_within_2_periods(
+    name: str, phase: float, seed: int
+) -> None:
+    kind, channel, size, *_ = DEFAULT_LIMITS[name]
+    check_default_detected(kind, channel, size, phase, seed)
+
+
+@pytest.mark.parametrize("name", list(DEFAULT_LIMITS))
+def test_default_alarm_detects_twice_its_stated_limit_within_2_periods(name: str) -> None:
+    kind, channel, size, _, phase, _ = DEFAULT_LIMITS[name]
+    check_default_detected(kind, channel, 2 * size, phase, seed=3)
