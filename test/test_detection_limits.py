@@ -291,3 +291,25 @@ def test_default_alarm_detects_its_stated_limit_within_2_periods(
 def test_default_alarm_detects_twice_its_stated_limit_within_2_periods(name: str) -> None:
     kind, channel, size, _, phase, _ = DEFAULT_LIMITS[name]
     check_default_detected(kind, channel, 2 * size, phase, seed=3)
+
+
+@pytest.mark.parametrize(
+    ("name", "phase", "seed"),
+    [
+        pytest.param(name, phase, seed, id=f"{name}-phase{phase}-seed{seed}")
+        for name, case in DEFAULT_LIMITS.items()
+        for phase, seed in case[5]
+    ],
+)
+def test_default_alarm_does_not_alarm_on_a_quarter_of_its_stated_limit(
+    name: str, phase: float, seed: int
+) -> None:
+    """No false claim of sensitivity: a quarter of the limit raises no ERROR in 3 periods."""
+    kind, channel, size, *_ = DEFAULT_LIMITS[name]
+    onset = onset_at(phase)
+    reports = run([fault(kind, channel, size / 4, onset)], seed, HORIZON_P + 2, DEFAULT)
+    before, after = split(reports, onset)
+    assert len(after) >= 4 * (HORIZON_P + 1)
+    assert all(r.judged for r in after)  # judged and found valid, not refused
+    betas = [round(r.beta_total, 3) for r in after]
+    assert not any(r.alarm is Alarm.ERROR for r in before + after), betas
