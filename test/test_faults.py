@@ -44,6 +44,8 @@ def test_fault_kinds_and_defaults():
         "sensor_delay",
         "mixing_delay",
         "heat_loss",
+        "valve_saturation",
+        "hot_supply",
     )
     f = Fault("leak", 1000.0, 0.02)
     assert (f.kind, f.onset_s, f.magnitude, f.channel, f.end_s) == (

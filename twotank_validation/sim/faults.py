@@ -1,13 +1,15 @@
 """Faults and unmodelled effects of the simulated rig, and their text form.
 
-A :class:`Fault` switches on at a given simulated time: a leak, heat loss to ambient, a stuck or
-weak valve, a sensor bias or delay, a changed mixing delay (kinds in ``FAULT_KINDS``).
+A :class:`Fault` switches on at a given simulated time: a leak, heat loss to ambient, a stuck,
+weak or saturating valve, a sensor bias or delay, a changed mixing delay, a changed hot-supply
+temperature (kinds in ``FAULT_KINDS``).
 :class:`FaultEffects` sums the active faults into what the simulator's balances need.
 
 Text form, for ROS parameters and command lines:
 ``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``, for example ``leak=0.02@1000``,
 ``sensor_bias:height=0.05@500``, ``valve_stuck:hot@300``, ``valve_weak:cold=0.7@300-900``,
-``mixing_delay=25@0`` (:func:`parse_fault`, :func:`format_fault`).
+``mixing_delay=25@0``, ``valve_saturation:hot=0.45@1500``, ``hot_supply=-0.1@1500``
+(:func:`parse_fault`, :func:`format_fault`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ FAULT_KINDS: tuple[str, ...] = (
     "sensor_delay",
     "mixing_delay",
     "heat_loss",
+    "valve_saturation",
+    "hot_supply",
 )
 """Kinds of :class:`Fault` that TankSimulator implements."""
 
@@ -41,10 +45,16 @@ _CHANNELS: dict[str, tuple[str, ...]] = {
     "sensor_delay": SENSOR_CHANNELS,
     "mixing_delay": (),
     "heat_loss": (),
+    "valve_saturation": VALVE_CHANNELS,
+    "hot_supply": (),
 }
 
 MAX_FAULT_DELAY_S = 600.0
 """Largest ``sensor_delay`` or ``mixing_delay`` magnitude accepted, seconds."""
+
+MAX_HOT_SUPPLY_SHIFT = 0.5
+"""Largest size of a ``hot_supply`` change accepted (model temperature units; the nominal
+supplies are 1 and 0)."""
 
 # (low, high, low_inclusive, unit) of the magnitude of each kind; valve_stuck: any finite value.
 _MAGNITUDE_RANGES: dict[str, tuple[float, float, bool, str]] = {
@@ -54,6 +64,13 @@ _MAGNITUDE_RANGES: dict[str, tuple[float, float, bool, str]] = {
     "sensor_delay": (0.0, MAX_FAULT_DELAY_S, True, "extra transport delay, seconds"),
     "mixing_delay": (0.0, MAX_FAULT_DELAY_S, True, "mixing delay at mixing_ref_level, seconds"),
     "heat_loss": (0.0, 1.0, True, "heat-loss coefficient, model flow units"),
+    "valve_saturation": (0.0, 1.0, False, "largest command the valve follows, model units"),
+    "hot_supply": (
+        -MAX_HOT_SUPPLY_SHIFT,
+        MAX_HOT_SUPPLY_SHIFT,
+        True,
+        "change of the hot supply temperature, model temperature units",
+    ),
 }
 
 
@@ -83,10 +100,21 @@ class Fault:
       proportional to the level).
     * ``heat_loss``: heat lost to ambient, ``q (t1 - ambient_temperature)`` in the energy
       balance with q = ``magnitude`` in [0, 1] (model flow units, e.g. 0.05).
+    * ``valve_saturation``: the ``channel`` valve follows its command only up to
+      ``magnitude`` in (0, 1] (model units): it is driven by ``min(command, magnitude)``, so
+      commands above the limit are clipped (e.g. 0.45 on a valve operated at 0.4 clips the
+      peaks of the excitation around its operating point). Clipping is from above only; a
+      dead zone near closed is not modelled. The valve lag still applies.
+    * ``hot_supply``: the hot supply temperature becomes ``RigParams.hot_supply_temp +
+      magnitude``, ``magnitude`` in [-0.5, 0.5] (model temperature units; -0.1 is a supply
+      0.1 cooler). The rig acts exactly as with that ``hot_supply_temp``; the changed supply
+      must stay above ``cold_supply_temp`` (checked when the fault is added to a simulator).
 
-    Several faults combine: leaks, heat losses, biases and sensor delays of the same channel
-    add; weak-valve factors multiply; a stuck valve overrides a weak one; of several active
-    ``mixing_delay`` faults the one registered last applies.
+    Several faults combine: leaks, heat losses, hot-supply changes, biases and sensor delays of
+    the same channel add; weak-valve factors multiply; of several saturations of one valve the
+    lowest limit applies (the command is clipped before a weak valve scales it); a stuck valve
+    overrides a weak or saturating one; of several active ``mixing_delay`` faults the one
+    registered last applies.
 
     Attributes:
         kind: One of ``FAULT_KINDS``.
@@ -136,7 +164,7 @@ class Fault:
                 bracket = "[" if lo_inclusive else "("
                 raise ModelError(
                     f"{where}.magnitude={self.magnitude!r} is outside {bracket}{lo:g}, {hi:g}] "
-                    f"({unit})"
+                    f"({unit}); pass a magnitude inside that range"
                 )
         allowed = _CHANNELS[self.kind]
         if not isinstance(self.channel, str):
@@ -163,22 +191,27 @@ class FaultEffects(NamedTuple):
     bias: tuple[float, float] = (0.0, 0.0)
     sensor_delay_s: tuple[float, float] = (0.0, 0.0)
     mixing_delay_s: float | None = None
+    valve_limit: tuple[float, float] = (1.0, 1.0)
+    hot_supply_shift: float = 0.0
 
     @property
     def changes_dynamics(self) -> bool:
-        """Whether the state equations differ from the nominal ones."""
+        """Whether the state equations (or the valve inputs) differ from the nominal ones."""
         return (
             self.leak != 0.0
             or self.heat_loss != 0.0
             or self.valve_gain != (1.0, 1.0)
             or self.stuck != (False, False)
+            or self.valve_limit != (1.0, 1.0)
+            or self.hot_supply_shift != 0.0
         )
 
     @classmethod
     def of(cls, faults: Sequence[Fault]) -> FaultEffects:
         """Sum the effects of the active ``faults``."""
-        leak = heat_loss = 0.0
+        leak = heat_loss = hot_supply = 0.0
         gain = [1.0, 1.0]
+        limit = [1.0, 1.0]
         stuck = [False, False]
         bias = [0.0, 0.0]
         delay = [0.0, 0.0]
@@ -190,6 +223,11 @@ class FaultEffects(NamedTuple):
                 heat_loss += f.magnitude
             elif f.kind == "valve_weak":
                 gain[VALVE_CHANNELS.index(f.channel)] *= f.magnitude
+            elif f.kind == "valve_saturation":
+                i = VALVE_CHANNELS.index(f.channel)
+                limit[i] = min(limit[i], f.magnitude)
+            elif f.kind == "hot_supply":
+                hot_supply += f.magnitude
             elif f.kind == "valve_stuck":
                 stuck[VALVE_CHANNELS.index(f.channel)] = True
             elif f.kind == "sensor_bias":
@@ -206,6 +244,8 @@ class FaultEffects(NamedTuple):
             bias=(bias[0], bias[1]),
             sensor_delay_s=(delay[0], delay[1]),
             mixing_delay_s=mixing,
+            valve_limit=(limit[0], limit[1]),
+            hot_supply_shift=hot_supply,
         )
 
 

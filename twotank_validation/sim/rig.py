@@ -18,12 +18,15 @@ optional mixing lag) and white Gaussian sensor noise. Neither is in the linear m
 
 Faults and unmodelled effects (:class:`~twotank_validation.sim.faults.Fault`, kinds in
 ``FAULT_KINDS``) can be switched on at a given simulated time: a leak, heat loss to ambient, a
-stuck or weak valve, a sensor bias or delay, a changed mixing delay. With faults the balances become
+stuck, weak or saturating valve, a sensor bias or delay, a changed mixing delay, a changed hot
+supply temperature. With faults the balances become
 
 * ``A1 dh1/dt = f_h + f_c - f1 - leak``,
 * ``A1 dE1/dt = f_h t_h + f_c t_c - (f1 + leak) t1 - q (t1 - t_amb)``,
 
-with ``q`` the heat-loss coefficient and ``t_amb = RigParams.ambient_temperature``. Faults are
+with ``q`` the heat-loss coefficient, ``t_amb = RigParams.ambient_temperature`` and ``t_h``
+shifted by any ``hot_supply`` fault; a weak or saturating valve changes the command its lag
+follows (``g min(u, limit)``). Faults are
 not in the linearisations (:mod:`twotank_validation.sim.linearise`).
 """
 
@@ -336,7 +339,7 @@ class _FaultyCoefficients(NamedTuple):
             inv_area=1.0 / params.area,
             inv_alpha=1.0 / params.outlet_alpha,
             beta=params.outlet_beta,
-            hot_temp=params.hot_supply_temp,
+            hot_temp=params.hot_supply_temp + effects.hot_supply_shift,
             cold_temp=params.cold_supply_temp,
             leak=effects.leak,
             leak_per_level=params.leak_per_level,
@@ -348,9 +351,11 @@ class _FaultyCoefficients(NamedTuple):
 def _rhs_faulty(  # noqa: PLR0917 - same signature as nominal_rhs
     k: _FaultyCoefficients, fh: float, fc: float, h: float, e: float, uh: float, uc: float
 ) -> tuple[float, float, float, float]:
-    """Time derivative of [f_h, f_c, h1, E1] with a leak, heat loss and stuck valves.
+    """Time derivative of [f_h, f_c, h1, E1] under the dynamic faults in ``k``.
 
-    Weak valves are applied by the caller, which scales the commands [uh, uc].
+    ``k`` holds the leak, heat loss, stuck valves and the changed hot supply temperature. Weak
+    and saturating valves are applied by the caller, which clips and scales the commands
+    [uh, uc] once per sample.
     """
     out = (h + k.beta) * k.inv_alpha + k.leak_per_level * h + k.leak
     t = e / h
@@ -525,10 +530,22 @@ class TankSimulator:
             fault: The fault.
 
         Raises:
-            ModelError: If ``fault`` is not a Fault.
+            ModelError: If ``fault`` is not a Fault, or if the ``hot_supply`` faults registered
+                could together bring the hot supply down to the cold supply temperature.
         """
         if not isinstance(fault, Fault):
             raise ModelError(f"fault={fault!r} is not a Fault; build it with Fault(kind, ...)")
+        if fault.kind == "hot_supply":
+            params = self._params
+            coolest = params.hot_supply_temp + sum(
+                min(f.magnitude, 0.0) for f in (*self.faults, fault) if f.kind == "hot_supply"
+            )
+            if coolest <= params.cold_supply_temp:
+                raise ModelError(
+                    f"hot_supply fault {fault.magnitude:g} would bring the hot supply to "
+                    f"{coolest:g}, not above cold_supply_temp={params.cold_supply_temp:g}; "
+                    "choose a smaller cooling (the temperature could no longer be controlled)"
+                )
         tolerance = _FAULT_TIME_TOLERANCE
         first = float(math.ceil(fault.onset_s / self._ts - tolerance))
         stop = (
@@ -724,7 +741,8 @@ class TankSimulator:
             if self._faulty_k is not None:
                 k, rhs = self._faulty_k, _rhs_faulty
                 gain_hot, gain_cold = self._effects.valve_gain
-                uh, uc = uh * gain_hot, uc * gain_cold
+                limit_hot, limit_cold = self._effects.valve_limit
+                uh, uc = min(uh, limit_hot) * gain_hot, min(uc, limit_cold) * gain_cold
         sensor_h, sensor_t = self._sensor_history
         sensor_capacity = len(sensor_h)
         dt = self._dt
