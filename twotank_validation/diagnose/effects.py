@@ -44,7 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -53,8 +53,30 @@ from twotank_validation.core.lti import StateSpace
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.diagnose.inputs import DiagnosisError
 
-if TYPE_CHECKING:  # the evidence of an input effect reads the fit's bins (fit imports us)
-    from twotank_validation.diagnose.fit import BinData
+
+class Bins(Protocol):
+    """What an effect's evidence reads of the fit's bins (:class:`~.fit.BinData` has it)."""
+
+    @property
+    def theta(self) -> np.ndarray:
+        """(k,) rad/sample."""
+        ...
+
+    @property
+    def u(self) -> np.ndarray:
+        """(k, nu) complex input DFT."""
+        ...
+
+    @property
+    def y(self) -> np.ndarray:
+        """(k, ny) complex output DFT."""
+        ...
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(k, ny) the model's noise amplitude."""
+        ...
+
 
 EFFECT_KINDS = (
     "delay",
@@ -220,7 +242,7 @@ class EffectSpec:
     fixed: Mapping[str, float] = field(default_factory=dict)
     input: int | None = None
     input_name: str = ""
-    explain: Callable[[np.ndarray, Nominal, BinData, float, Sequence[str]], str] | None = field(
+    explain: Callable[[np.ndarray, Nominal, Bins, float, Sequence[str]], str] | None = field(
         default=None, repr=False, compare=False
     )
 
@@ -314,7 +336,7 @@ def input_lag_states(nom: Nominal, i: int) -> list[int]:
     return out
 
 
-def input_shares(nom: Nominal, data: BinData, ts_s: float, i: int) -> tuple[np.ndarray, np.ndarray]:
+def input_shares(nom: Nominal, data: Bins, ts_s: float, i: int) -> tuple[np.ndarray, np.ndarray]:
     """Measured/modelled factor of input ``i``'s share of each output, and its scatter.
 
     Per output c the least-squares factor ``r_c`` with ``Y_c - sum_{j != i} G_cj U_j ~ r_c
@@ -340,7 +362,7 @@ def _factors(r: np.ndarray, outputs: Sequence[str]) -> str:
 
 def _explain_input_gain(i: int, names: Sequence[str]) -> Callable[..., str]:
     def explain(
-        values: np.ndarray, before: Nominal, data: BinData, ts_s: float, outputs: Sequence[str]
+        values: np.ndarray, before: Nominal, data: Bins, ts_s: float, outputs: Sequence[str]
     ) -> str:
         r, scatter = input_shares(before, data, ts_s, i)
         after = _input_gain(i)(before, values)
@@ -363,7 +385,7 @@ def _explain_input_gain(i: int, names: Sequence[str]) -> Callable[..., str]:
 
 def _explain_hot_supply(hot: int, thermal_out: int, height_out: int) -> Callable[..., str]:
     def explain(
-        values: np.ndarray, before: Nominal, data: BinData, ts_s: float, outputs: Sequence[str]
+        values: np.ndarray, before: Nominal, data: Bins, ts_s: float, outputs: Sequence[str]
     ) -> str:
         r, _ = input_shares(before, data, ts_s, hot)
         t, h = r[thermal_out], r[height_out]
