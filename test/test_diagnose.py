@@ -141,8 +141,8 @@ def test_leak_and_heat_loss_need_named_states():
     specs, skipped = catalogue(
         nom, ("height", "temperature"), period_s=204.8, operating_point={"temperature": 0.5}
     )
-    assert {s.kind for s in specs} == {"delay", "lag", "gain", "coupling"}
-    assert {k for k, _ in skipped} == {"leak", "heat_loss"}
+    assert {s.kind for s in specs} == {"delay", "lag", "gain", "input_gain", "coupling"}
+    assert {k for k, _ in skipped} == {"leak", "heat_loss", "hot_supply"}
     assert all("states" in why for _, why in skipped)
 
 

@@ -16,6 +16,8 @@ import numpy as np
 
 from twotank_validation.core.datum import Datum, NormConvention, make_datum
 from twotank_validation.core.model import model_from_dict
+from twotank_validation.core.oppoint import OperatingPoint
+from twotank_validation.diagnose.distortion import finding_summary, reported_effects
 from twotank_validation.diagnose.effects import EffectSpec, Nominal, catalogue
 from twotank_validation.diagnose.evidence import evidence
 from twotank_validation.diagnose.fit import (
@@ -34,6 +36,7 @@ from twotank_validation.diagnose.inputs import (
     Window,
     split_windows,
 )
+from twotank_validation.diagnose.steady import Finding
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,7 @@ class FittedEffect:
         """The documented JSON entry of an effect."""
         out: dict[str, Any] = {
             "kind": self.spec.kind,
-            "channel": outputs[self.spec.channel],
+            "channel": self.spec.target(outputs),
             "parameters": {
                 **{n: float(v) for n, v in zip(self.spec.names, self.values, strict=True)},
                 **{n: float(v) for n, v in self.spec.fixed.items()},
@@ -114,6 +117,8 @@ class Diagnosis:
     fit_bins: BinData | None = field(default=None, repr=False)
     nominal_before: Nominal | None = field(default=None, repr=False)
     nominal_after: Nominal | None = field(default=None, repr=False)
+    findings: list[Finding] = field(default_factory=list)
+    distortion: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self, model_file: str | None = None) -> dict[str, Any]:
         """The documented JSON (docs/cli.md, "diagnose JSON")."""
@@ -137,6 +142,8 @@ class Diagnosis:
             "not_applicable": [
                 {"candidate": lab, "reason": why} for lab, why in self.not_applicable
             ],
+            "findings": [f.to_dict() for f in self.findings],
+            "distortion": self.distortion,
             "fit_windows_start_s": self.fit_windows,
             "heldout_windows_start_s": self.heldout_windows,
         }
@@ -182,6 +189,7 @@ def diagnose(
     *,
     source: str = "model",
     convention: NormConvention = NormConvention.POWER,
+    reference: OperatingPoint | None = None,
 ) -> Diagnosis:
     """Trace the residual of ``doc``'s model on ``windows`` to the effect it lacks.
 
@@ -191,6 +199,7 @@ def diagnose(
         config: settings.
         source: label of the model in messages.
         convention: norm convention of the validations.
+        reference: reference operating point of the offset check (default: the model's).
 
     Raises:
         DiagnosisError: too little data, no excitation, or a model that cannot be changed.
@@ -215,6 +224,7 @@ def diagnose(
         period_s=fit_w[0].period_samples * ts,
         operating_point=model.operating_point,
         max_time_fraction=cfg.max_time_fraction,
+        inputs=model.input_names,
     )
     before = assess(model, held_d, held_w, cfg)
     j0 = cost(nominal, held_data, ts)
@@ -255,6 +265,17 @@ def diagnose(
     changed = nominal
     for e in chosen:
         changed = e.spec.apply(changed, e.values)
+    # effects outside the state-space catalogue (input saturation, offset): distortion.py
+    k_chosen = sum(e.spec.n_params for e in chosen)
+    findings, replaces, reported_rejected, reported_extra = reported_effects(
+        fit_w, held_w, model, nominal, changed,
+        cost(changed, held_data, ts) * (1.0 + cfg.param_penalty * k_chosen) if chosen else j0,
+        fit_data, held_data, cfg, reference,
+        f"after adding {', '.join(e.spec.label(outputs) for e in chosen)}" if chosen
+        else "its dynamics are unchanged",
+    )  # fmt: skip
+    if replaces:  # the linear fit of a clipped input is its describing function
+        chosen, changed = [], nominal
     # evidence: each chosen effect against the model with the other chosen effects added, so
     # that its own signature shows; its reduction is what it removes on top of the others
     j_all = cost(changed, held_data, ts)
@@ -296,6 +317,7 @@ def diagnose(
         if at_bound and e.reduction > 0:
             why += f"; fitted {', '.join(at_bound)} at the search bound"
         rejected.append((label, float(e.reduction), why))
+    rejected += reported_rejected
     document = changed_document(doc, changed, chosen, outputs) if chosen else None
     if document is not None:
         after_model = model_from_dict(document, f"{source} (diagnosed)")
@@ -303,6 +325,8 @@ def diagnose(
     else:
         after = before
     summary = _summary(model.name, before, after, chosen, outputs)
+    if findings:
+        summary = finding_summary(model.name, findings, summary if chosen else "")
     return Diagnosis(
         model=model.name,
         before=before,
@@ -314,13 +338,15 @@ def diagnose(
         outputs=tuple(outputs),
         fit_windows=[w.start_s for w in fit_w],
         heldout_windows=[w.start_s for w in held_w],
-        adequate=not chosen,
+        adequate=not chosen and not findings,
         summary=summary,
         noise_ratio=j0 / floor if floor > 0 else math.inf,
         heldout=held_d,
         fit_bins=fit_data,
         nominal_before=nominal,
         nominal_after=changed,
+        findings=findings,
+        distortion=reported_extra["distortion"],
     )
 
 
@@ -347,7 +373,11 @@ def _best_pair(
     for first in firsts:
         for s in specs:
             key = frozenset((id(first.spec), id(s)))
-            same = s.kind == first.spec.kind and s.channel == first.spec.channel
+            same = (s.kind, s.channel, s.input) == (
+                first.spec.kind,
+                first.spec.channel,
+                first.spec.input,
+            )
             if same or key in seen:
                 continue
             seen.add(key)

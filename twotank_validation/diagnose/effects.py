@@ -4,7 +4,11 @@ Catalogue (parameters in SI units; rates in 1/s, times in s):
 
 * ``delay`` on an output: ``y_c(t) -> y_c(t - tau)`` (``output_delays_s`` in the YAML).
 * ``lag`` on an output: ``y_c -> y_c / (1 + T s)`` (an extra state).
-* ``gain`` on an output: ``y_c -> (1 + g) y_c``.
+* ``gain`` on an output: ``y_c -> (1 + g) y_c``: one output's response to every input.
+* ``input_gain`` on an input (a weak or partly blocked valve): ``u_i -> (1 + g) u_i``, the
+  nominal's ``B[:, i]`` and ``D[:, i]`` scaled: every output's response to that one input.
+  With two inputs both excited it differs from an output gain, which scales one output's
+  response to both inputs.
 * ``coupling`` from output a into output c: ``y_c += K(s) y_a`` with
   ``K(s) = (k0 + k_inf T s) / (1 + T s)`` (DC gain ``k0``, high-frequency gain ``k_inf``,
   time constant ``T``; an extra state). The paper's Model A lacks the level-to-temperature
@@ -14,17 +18,33 @@ Catalogue (parameters in SI units; rates in 1/s, times in s):
 * ``heat_loss``: heat lost to ambient, ``q (t - t_amb)``; the energy/temperature state decays
   faster by ``c`` and, for an energy state E = h t, the level feeds it with ``+c t0``
   (needs state names and the operating temperature).
-* ``offset``: a sensor drift, ``y_c += d (t - mean t)`` within each window. The mean is
-  removed before the DFT, so a constant offset is invisible to the validation by design;
-  a drift is not a property of an LTI model: it is reported (with its rate) but not added to
-  the model file, and the engineer is told to recalibrate the sensor.
+* ``hot_supply``: the hot supply temperature changed by ``delta`` (model temperature units):
+  only the hot input's entry into the thermal balance changes. For an energy state
+  ``E = h t`` the hot flow brings ``f_h t_h`` and the level balance ``f_h``, so the entry of
+  the hot input into ``E`` gains ``delta`` times its entry into ``height``; for a temperature
+  state (level held at ``h0``) ``delta / h0`` times. "Entry" is the hot input's column of
+  ``B`` and the columns of its valve-lag states (states driven by that input alone, with
+  no other dynamics). Needs state names, an input named ``hot`` and, for a temperature
+  state, the operating height.
+
+Outside the state-space catalogue (they cannot be written into an LTI model file; reported
+with a recommendation, :data:`REPORTED_KINDS`):
+
+* ``offset``: a constant sensor bias ``y_c += b``. The mean is removed before the DFT, so it
+  is invisible to the dynamic fit; it is judged on the windows' means against a reference
+  operating point (:mod:`twotank_validation.diagnose.steady`).
+* ``saturation``: an input clipped, ``u_i -> min(u_i, hi)`` or ``max(u_i, lo)``, judged with a
+  harmonic-distortion test and a fit of the level (:mod:`twotank_validation.diagnose.distortion`).
+
+A ``drift`` (a slowly moving sensor reading, ``y_c += d t``) is not diagnosed: it is not a
+property of an LTI model, and the datum's transient check flags the windows it spoils.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -33,8 +53,45 @@ from twotank_validation.core.lti import StateSpace
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.diagnose.inputs import DiagnosisError
 
-EFFECT_KINDS = ("delay", "lag", "gain", "coupling", "offset", "leak", "heat_loss")
-"""Kinds of effect in the catalogue, in the order they are tried."""
+
+class Bins(Protocol):
+    """What an effect's evidence reads of the fit's bins (:class:`~.fit.BinData` has it)."""
+
+    @property
+    def theta(self) -> np.ndarray:
+        """(k,) rad/sample."""
+        ...
+
+    @property
+    def u(self) -> np.ndarray:
+        """(k, nu) complex input DFT."""
+        ...
+
+    @property
+    def y(self) -> np.ndarray:
+        """(k, ny) complex output DFT."""
+        ...
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(k, ny) the model's noise amplitude."""
+        ...
+
+
+EFFECT_KINDS = (
+    "delay",
+    "lag",
+    "gain",
+    "input_gain",
+    "coupling",
+    "leak",
+    "heat_loss",
+    "hot_supply",
+)
+"""Kinds of state-space effect in the catalogue, in the order they are tried."""
+
+REPORTED_KINDS = ("offset", "saturation")
+"""Kinds of effect judged outside the state-space fit and reported, not written to a model."""
 
 THERMAL_STATES = ("energy", "temperature")
 """State names that the leak and heat-loss effects recognise as the thermal state."""
@@ -165,6 +222,12 @@ class EffectSpec:
         defaults: starting values of the other parameters.
         apply: ``(nominal, values) -> nominal``.
         fixed: parameters taken from the model, not fitted (reported with the fitted ones).
+        input: index of the input an input effect changes (``None`` for output effects;
+            ``channel`` is then the output that carries most of the change, for figures).
+        input_name: that input's name.
+        explain: the effect's own evidence in words, ``(values, before, data, ts_s,
+            outputs) -> str`` (``None``: the generic evidence of
+            :mod:`twotank_validation.diagnose.evidence`).
     """
 
     kind: str
@@ -177,6 +240,15 @@ class EffectSpec:
     defaults: tuple[float, ...]
     apply: Callable[[Nominal, np.ndarray], Nominal] = field(repr=False, compare=False)
     fixed: Mapping[str, float] = field(default_factory=dict)
+    input: int | None = None
+    input_name: str = ""
+    explain: Callable[[np.ndarray, Nominal, Bins, float, Sequence[str]], str] | None = field(
+        default=None, repr=False, compare=False
+    )
+
+    def target(self, outputs: Sequence[str]) -> str:
+        """What the effect acts on: the input's name for an input effect, else the output's."""
+        return self.input_name if self.input is not None else outputs[self.channel]
 
     @property
     def n_params(self) -> int:
@@ -191,6 +263,10 @@ class EffectSpec:
             return f"coupling {outputs[self.source]} -> {outputs[self.channel]}{via}"
         if self.kind in ("leak", "heat_loss"):
             return self.kind.replace("_", " ")
+        if self.kind == "hot_supply":
+            return "hot supply temperature"
+        if self.input is not None:
+            return f"input gain on {self.input_name}"
         return f"{self.kind} on {outputs[self.channel]}"
 
 
@@ -224,6 +300,103 @@ def _gain(ch: int) -> Callable[[Nominal, np.ndarray], Nominal]:
         return replace(nom, c=c, d=d)
 
     return apply
+
+
+def _input_gain(i: int) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        b, d = nom.b.copy(), nom.d.copy()
+        b[:, i] *= 1.0 + p[0]
+        d[:, i] *= 1.0 + p[0]
+        return replace(nom, b=b, d=d)
+
+    return apply
+
+
+def _hot_supply(
+    thermal: int, height: int, hot: int, lags: Sequence[int], factor: float
+) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        a, b = nom.a.copy(), nom.b.copy()
+        for j in lags:
+            a[thermal, j] += factor * p[0] * nom.a[height, j]
+        b[thermal, hot] += factor * p[0] * nom.b[height, hot]
+        return replace(nom, a=a, b=b)
+
+    return apply
+
+
+def input_lag_states(nom: Nominal, i: int) -> list[int]:
+    """States that are a pure lag of input ``i`` (a valve): driven by it alone, no coupling."""
+    out = []
+    for j in range(nom.a.shape[0]):
+        others = np.delete(nom.b[j], i)
+        row = np.delete(nom.a[j], j)
+        if nom.b[j, i] != 0.0 and not np.any(others) and not np.any(row):
+            out.append(j)
+    return out
+
+
+def input_shares(nom: Nominal, data: Bins, ts_s: float, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Measured/modelled factor of input ``i``'s share of each output, and its scatter.
+
+    Per output c the least-squares factor ``r_c`` with ``Y_c - sum_{j != i} G_cj U_j ~ r_c
+    G_ci U_i`` over the bins (scaled by the noise weight), and the scatter: the RMS of what
+    ``r_c`` leaves, relative to the share. Shapes (ny,) complex and (ny,) float.
+    """
+    g = nom.hold_response(data.theta, ts_s)
+    parts = g * data.u[:, None, :]  # (k, ny, nu): each input's share of each output
+    share = parts[:, :, i] / data.scale
+    rest = (data.y - (np.sum(parts, axis=2) - parts[:, :, i])) / data.scale
+    den = np.maximum(np.sum(np.abs(share) ** 2, axis=0), 1e-300)
+    r = np.sum(np.conj(share) * rest, axis=0) / den
+    scatter = np.sqrt(np.sum(np.abs(rest - r * share) ** 2, axis=0) / den)
+    return r, scatter
+
+
+def _factors(r: np.ndarray, outputs: Sequence[str]) -> str:
+    return ", ".join(
+        f"{o} {abs(x):.3f} ({np.degrees(np.angle(x)):+.1f} deg)"
+        for o, x in zip(outputs, r, strict=True)
+    )
+
+
+def _explain_input_gain(i: int, names: Sequence[str]) -> Callable[..., str]:
+    def explain(
+        values: np.ndarray, before: Nominal, data: Bins, ts_s: float, outputs: Sequence[str]
+    ) -> str:
+        r, scatter = input_shares(before, data, ts_s, i)
+        after = _input_gain(i)(before, values)
+        others = [
+            f"the {names[j]} input's stays at "
+            + _factors(input_shares(after, data, ts_s, j)[0], outputs)
+            for j in range(len(names))
+            if j != i
+        ]
+        return (
+            f"the {names[i]} input's share of every output is scaled by one nearly real "
+            f"factor at every excited bin ({_factors(r, outputs)}; scatter per bin "
+            f"{float(np.max(scatter)):.2f}){'; ' if others else ''}{'; '.join(others)}: the "
+            f"{names[i]} path is weaker or stronger than modelled, not an output gain (which "
+            f"scales one output's response to every input); fitted gain error {values[0]:+.1%}"
+        )
+
+    return explain
+
+
+def _explain_hot_supply(hot: int, thermal_out: int, height_out: int) -> Callable[..., str]:
+    def explain(
+        values: np.ndarray, before: Nominal, data: Bins, ts_s: float, outputs: Sequence[str]
+    ) -> str:
+        r, _ = input_shares(before, data, ts_s, hot)
+        t, h = r[thermal_out], r[height_out]
+        return (
+            f"the {outputs[thermal_out]}'s share of the hot input is {abs(t):.3f} of the "
+            f"model's ({np.degrees(np.angle(t)):+.1f} deg) while the {outputs[height_out]}'s "
+            f"stays at {abs(h):.3f}: the hot flow is right but brings a different heat, as "
+            f"with the hot supply temperature changed by {values[0]:+.3g} (model units)"
+        )
+
+    return explain
 
 
 def _coupling(src: int, ch: int, name: str, t_s: float) -> Callable[[Nominal, np.ndarray], Nominal]:
@@ -280,6 +453,7 @@ def catalogue(
     period_s: float,
     operating_point: Mapping[str, float],
     max_time_fraction: float = 0.25,
+    inputs: Sequence[str] = (),
 ) -> tuple[list[EffectSpec], list[tuple[str, str]]]:
     """The candidate effects that apply to this model, and those that do not (with why).
 
@@ -289,6 +463,8 @@ def catalogue(
         period_s: excitation period (s): bounds delays and time constants.
         operating_point: operating output values (the heat loss needs the temperature).
         max_time_fraction: delays and time constants up to this fraction of the period.
+        inputs: input names (``hot``/``cold``; the hot-supply change needs ``hot``);
+            default ``input 0``, ``input 1``, ...
     """
     t_max = max_time_fraction * period_s
     times = tuple(float(x) for x in np.geomspace(0.5, t_max, 16))
@@ -326,6 +502,20 @@ def catalogue(
                 _gain(ch),
             )
         )
+    nu = nominal.b.shape[1]
+    in_names = list(inputs) if len(inputs) == nu else [f"input {i}" for i in range(nu)]
+    w0 = 2.0 * np.pi / period_s  # the first harmonic: which output carries most of an input
+    eye = np.eye(nominal.a.shape[0])
+    g0 = np.abs(nominal.c @ np.linalg.solve(1j * w0 * eye - nominal.a, nominal.b) + nominal.d)
+    share = g0 / np.maximum(np.sum(g0, axis=1, keepdims=True), 1e-300)
+    for i, name in enumerate(in_names):
+        specs.append(
+            EffectSpec(
+                "input_gain", int(np.argmax(share[:, i])), None, ("gain_error",), (-0.9,), (1.0,),
+                (-0.5, -0.2, 0.0, 0.2, 0.5), (), _input_gain(i), input=i, input_name=name,
+                explain=_explain_input_gain(i, in_names),
+            )
+        )  # fmt: skip
     for ch, out in enumerate(outputs):
         for t_c in channel_time_constants(nominal, ch, min_s=1.0):
             for src, src_name in enumerate(outputs):
@@ -354,6 +544,7 @@ def catalogue(
             "add `states:` to the nominal `ss`"
         )
         skipped += [("leak", why.format("leak")), ("heat_loss", why.format("heat loss"))]
+        skipped.append(("hot_supply", why.format("hot-supply change")))
         return specs, skipped
     ih, it = names.index("height"), names.index(thermal)
     base = max(abs(nominal.a[ih, ih]), abs(nominal.a[it, it]), 1e-6)
@@ -365,6 +556,9 @@ def catalogue(
             _state_rate([(ih, ih, -1.0), (it, it, -1.0)]),
         )
     )  # fmt: skip
+    specs_hot, why_hot = _hot_supply_spec(nominal, outputs, in_names, operating_point, ih, it)
+    specs += specs_hot
+    skipped += [("hot_supply", why_hot)] if why_hot else []
     heat_rows = [(it, it, -1.0)]
     if thermal == "energy":
         t0 = operating_point.get("temperature")
@@ -380,3 +574,32 @@ def catalogue(
         )
     )  # fmt: skip
     return specs, skipped
+
+
+def _hot_supply_spec(  # noqa: PLR0917 - the catalogue's context
+    nominal: Nominal,
+    outputs: Sequence[str],
+    inputs: Sequence[str],
+    operating_point: Mapping[str, float],
+    ih: int,
+    it: int,
+) -> tuple[list[EffectSpec], str]:
+    """The hot-supply change of a model with height and thermal states, or why it does not apply."""
+    if "hot" not in inputs:
+        return [], "not applicable: the model has no input named 'hot'"
+    hot = list(inputs).index("hot")
+    factor = 1.0
+    if nominal.states[it] == "temperature":
+        h0 = operating_point.get("height")
+        if h0 is None or h0 <= 0:
+            return [], "not applicable: a temperature state needs the model's operating height"
+        factor = 1.0 / float(h0)
+    lags = input_lag_states(nominal, hot)
+    t_ch = outputs.index("temperature") if "temperature" in outputs else it
+    h_ch = outputs.index("height") if "height" in outputs else 0
+    spec = EffectSpec(
+        "hot_supply", t_ch, None, ("delta_temperature",), (-1.0,), (1.0,),
+        (-0.3, -0.1, 0.0, 0.1, 0.3), (), _hot_supply(it, ih, hot, lags, factor),
+        input=hot, input_name="hot", explain=_explain_hot_supply(hot, t_ch, h_ch),
+    )  # fmt: skip
+    return [spec], ""

@@ -33,7 +33,7 @@ def _phase_slope(omega: np.ndarray, ratio: np.ndarray, w: np.ndarray) -> tuple[f
     return slope, 1.0 - float(np.sum(ww * resid**2)) / tot if tot > 0 else 0.0
 
 
-def evidence(  # noqa: PLR0917 - the fitted effect and where it was fitted
+def evidence(  # noqa: PLR0911, PLR0917 - one text per kind; the effect and where it was fitted
     spec: EffectSpec,
     values: np.ndarray,
     before: Nominal,
@@ -49,6 +49,8 @@ def evidence(  # noqa: PLR0917 - the fitted effect and where it was fitted
     band = f"{f_lo:.4f}-{f_hi:.4f} Hz"
     mag = float(np.sum(w * np.abs(ratio)) / max(np.sum(w), 1e-300))
     tail = f"; it removes {reduction:.0%} of the held-out error left without it"
+    if spec.explain is not None:  # an effect that states its own evidence (effects.py)
+        return spec.explain(values, before, data, ts_s, outputs) + tail
     if spec.kind == "delay":
         slope, r2 = _phase_slope(omega, ratio, w)
         return (
