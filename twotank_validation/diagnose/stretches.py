@@ -76,7 +76,7 @@ class ChangeConfig:
         alpha: probability of a false change in a stationary recording (Bonferroni over the
             splits of each segment), in (0, 1).
         beta_floor: smallest noise assumed for the window beta.
-        energy_floor: the same for the log10 residual energy (0.05: a 12 % change of the
+        energy_floor: the same for the log10 residual energy (0.1: a 26 % change of the
             residual power is noise).
         delay_floor_s: the same for the residual group delay (s).
         gain_floor: the same for the mean log gain of the residual ratio.
@@ -89,7 +89,7 @@ class ChangeConfig:
 
     alpha: float = 1e-3
     beta_floor: float = 0.02
-    energy_floor: float = 0.05
+    energy_floor: float = 0.1
     delay_floor_s: float = 0.5
     gain_floor: float = 0.01
     level_floor: float = 0.002
@@ -151,6 +151,8 @@ class WindowFeatures:
             units).
         transient: why the window carries a transient (the validator's finding or the
             periodicity test of its datum), or ``""``.
+        drift: (ny,) output mean of the window's last period minus its first's (model
+            units; 0 for a window of one period).
     """
 
     start_s: float
@@ -162,6 +164,7 @@ class WindowFeatures:
     log_gain: np.ndarray
     level: np.ndarray
     transient: str = ""
+    drift: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def vector(self) -> np.ndarray:
         """(1 + 4 ny,) float: beta, energy, delay, log gain, level (the segmented features)."""
@@ -258,6 +261,7 @@ def window_features(
                 log_gain=log_gain,
                 level=level,
                 transient=transient,
+                drift=w.y[-w.period_samples :].mean(axis=0) - w.y[: w.period_samples].mean(axis=0),
             )
         )
     return out
@@ -354,9 +358,11 @@ class Stretch:
             transient, the window holding the change).
         start_s, end_s: time span (s) from the first window (skipped or not) to the last.
         change_at_s: start (s) of the first window holding changed data (the change lies in
-            that window, or at the latest at its end); None for the first stretch unless its
-            first windows carry a transient (then the plant changed at or before them).
-        evidence: what changed, in words (empty for the first stretch without a change).
+            that window, or at the latest at its end); None for the first stretch. A
+            transient in the first windows is skipped but is not a change: the response to
+            the excitation's own start looks the same as a plant that changed just before
+            the recording (what such a plant does after it settled is the diagnosis's job).
+        evidence: what changed, in words (empty for the first stretch).
     """
 
     windows: list[int]
@@ -427,13 +433,6 @@ def find_stretches(
         if k > 0 and sigma is not None:
             change_at = features[first].start_s
             evidence = _evidence(x[groups[k - 1]], x[used or g], sigma, outputs)
-        elif skip and skip[0][0] == first:
-            change_at = features[first].start_s
-            evidence = (
-                f"the first {sum(1 for i, _ in skip if i < (used or [n])[0])} window(s) carry a "
-                "transient: the plant changed at or before the start of the recording's "
-                "windows"
-            )
         stretches.append(
             Stretch(
                 windows=used,
