@@ -377,26 +377,44 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from twotank_validation import diagnose as dg  # noqa: PLC0415
     from twotank_validation import replay, report  # noqa: PLC0415
     from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
+    from twotank_validation.diagnose import stretches  # noqa: PLC0415
 
     doc, source = load_model_document(args.model)
     model = model_from_dict(doc, source)
     cfg, timing = _timed_config(args)
     assert isinstance(cfg, replay.ReplayConfig)
     assert isinstance(timing, replay.Timing)
-    windows, replayed = replay.windows_from_recording(args.bag, model, cfg)
+    windows, findings, replayed = replay.windows_with_findings(
+        args.bag, model, cfg, start=args.start, end=args.end
+    )
     for problem in replayed.problems:
         print(f"WARNING: {problem}", file=sys.stderr)
     summary = replay.summary_json(replayed, [model.name])
     if unjudged := replay.unjudged_models(summary, timing, cfg):
         return _exit_code(replayed.complete, unjudged, timing)
-    _out(f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}")
-    diag = dg.diagnose(
+    ranged = args.start is not None or args.end is not None
+    split = args.segment or not ranged
+    _out(
+        f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}"
+        + (f" ({windows[0].start_s:.1f} .. {windows[-1].start_s:.1f} s)" if ranged else "")
+    )
+    recording = stretches.diagnose_stretches(
         windows,
         doc,
+        findings,
         dg.DiagnosisConfig(max_effects=args.max_effects),
+        split=split,
         source=source,
         convention=NormConvention(args.norm),
     )
+    current = recording.current
+    if current is None or current.relative_to_model is None:
+        why = "; ".join(
+            f"{s.stretch.start_s:.1f}-{s.stretch.end_s:.1f} s: {s.not_diagnosed}"
+            for s in recording.stretches
+        )
+        raise dg.DiagnosisError(f"no stretch of the recording could be diagnosed ({why})")
+    diag = current.relative_to_model
     model_file = None
     if diag.document is not None and args.out_model:
         Path(args.out_model).write_text(
@@ -405,7 +423,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         )
         model_file = str(args.out_model)
     out = diag.to_json(model_file)
+    out.update(recording.to_json())
+    out["stretch"] = recording.stretches.index(current)
     out["timing"] = timing.to_json()
+    _out(_stretches_text(recording))
     _out(report.diagnosis_text(diag, model_file))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2))
@@ -413,6 +434,37 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         report.write_diagnosis_report(diag, Path(args.report))
         _out(f"figures in {args.report}")
     return EXIT_OK if replayed.complete else EXIT_INCOMPLETE
+
+
+def _stretches_text(recording: object) -> str:
+    """One block per stretch: its span, the change that starts it, skipped windows, answers."""
+    from twotank_validation.diagnose import stretches  # noqa: PLC0415
+
+    assert isinstance(recording, stretches.RecordingDiagnosis)
+    lines = []
+    if not recording.segmented:
+        lines.append("the range is taken as one stretch (no change search inside it)")
+    elif len(recording.stretches) == 1 and not recording.changes:
+        lines.append("no change found: the recording is one stationary stretch")
+    for k, st in enumerate(recording.stretches):
+        head = f"stretch {k + 1}: {st.stretch.start_s:.1f}-{st.stretch.end_s:.1f} s"
+        if st.stretch.change_at_s is not None:
+            head += (
+                f", changed at {st.stretch.change_at_s:.1f} s (in the window starting "
+                f"then): {st.stretch.evidence}"
+            )
+        lines.append(head)
+        lines.append(f"  {len(st.window_starts_s)} window(s) diagnosed")
+        lines += [f"  skipped {t:.1f} s: {why}" for t, why in st.skipped]
+        if st.not_diagnosed:
+            lines.append(f"  not diagnosed: {st.not_diagnosed}")
+        if st.relative_to_model is not None:
+            lines.append(f"  relative to the model: {st.relative_to_model.summary}")
+        if st.relative_to_previous is not None:
+            same = st.relative_to_previous is st.relative_to_model
+            text = "the same (it needed nothing)" if same else st.relative_to_previous.summary
+            lines.append(f"  relative to the stretch before: {text}")
+    return "\n".join(lines)
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -522,6 +574,20 @@ def build_parser() -> argparse.ArgumentParser:
     dia.add_argument("--out-model", help="write the changed model (YAML) to this file")
     dia.add_argument(
         "--max-effects", type=int, choices=[0, 1, 2], default=2, help="effects combined"
+    )
+    dia.add_argument(
+        "--start",
+        help="diagnose only the windows from this time: seconds from the recording start, or "
+        "an ISO 8601 time (UTC unless it has a zone); None: from the start",
+    )
+    dia.add_argument(
+        "--end", help="diagnose only the windows up to this time, as --start; None: to the end"
+    )
+    dia.add_argument(
+        "--segment",
+        action="store_true",
+        help="search for changes inside the --start/--end range too (without a range the "
+        "whole recording is always searched)",
     )
     _add_bag_options(dia)
     dia.set_defaults(func=_cmd_diagnose)

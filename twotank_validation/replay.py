@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import datetime
 import json
 import math
 import re
@@ -39,6 +40,7 @@ from twotank_validation import tables
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import JITTER_FRACTION, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.diagnose import Window
+from twotank_validation.diagnose.stretches import WindowFindings
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
@@ -152,6 +154,7 @@ class ReplayResult:
             relative to it in JSON).
         snapshots: windows of interest per model.
         source: ``"bag"`` or ``"table"``.
+        end_ns: last log time in the bag, or a table's last time (0: not known).
     """
 
     path: Path
@@ -165,6 +168,7 @@ class ReplayResult:
     bag_start_ns: int = 0
     snapshots: dict[str, dict[str, WindowSnapshot]] = field(default_factory=dict)
     source: str = "bag"
+    end_ns: int = 0
 
 
 _BATCH = 4096  # messages decoded and validated at a time
@@ -213,6 +217,7 @@ def replay_bag(
     on_report = _reporter(result, core, on_window)
     with bag_reader.open_bag(path) as bag:
         result.bag_start_ns = bag.info.start_ns or 0
+        result.end_ns = bag.info.end_ns or 0
         if cfg.interface is not None:
             _feed_mapped(bag, core, cfg, result, on_report)
         else:
@@ -275,7 +280,12 @@ def replay_table(
     t_start = time.perf_counter()
     table = tables.read_table(path, imap)
     core = config.validator(models)
-    result = ReplayResult(Path(path), source="table", bag_start_ns=int(table.stamps_ns[0]))
+    result = ReplayResult(
+        Path(path),
+        source="table",
+        bag_start_ns=int(table.stamps_ns[0]),
+        end_ns=int(table.stamps_ns[-1]),
+    )
     result.decode_s = time.perf_counter() - t_start
     t_start = time.perf_counter()
     feed = _MappedFeed(
@@ -1094,7 +1104,8 @@ def windows_from_bag(
     Raises:
         BagError subclasses: the path is not a readable bag.
     """
-    return _windows(replay_bag, path, model, config)
+    windows, _, result = _windows(replay_bag, path, model, config)
+    return windows, result
 
 
 def windows_from_recording(
@@ -1107,7 +1118,105 @@ def windows_from_recording(
     Raises:
         BagError subclasses, TableError, ReplayConfigError: as :func:`replay_recording`.
     """
-    return _windows(replay_recording, path, model, config)
+    windows, _, result = _windows(replay_recording, path, model, config)
+    return windows, result
+
+
+def windows_with_findings(
+    path: str | Path,
+    model: LFTModel,
+    config: ReplayConfig | None = None,
+    *,
+    start: float | str | None = None,
+    end: float | str | None = None,
+) -> tuple[list[Window], list[WindowFindings], ReplayResult]:
+    """As :func:`windows_from_recording`, with what the validator found in each window.
+
+    Args:
+        path: the bag or table, as :func:`windows_from_recording`.
+        model: the model.
+        config: topics, units, window settings.
+        start: keep only the windows wholly inside ``start`` .. ``end``: seconds from the
+            recording start, or an ISO 8601 time (:func:`range_time_s`); None: from the
+            first window.
+        end: the end of the range, as ``start``; None: to the last window.
+
+    Returns:
+        ``(windows, findings, replay_result)``: one
+        :class:`~twotank_validation.diagnose.stretches.WindowFindings` per window (its beta,
+        beta_op, data quality and warnings: a transient still decaying, ...).
+
+    Raises:
+        ReplayConfigError: a range that ends before it starts, lies outside the recording,
+            or holds no whole window; and as :func:`windows_from_recording`.
+    """
+    windows, reports, result = _windows(replay_recording, path, model, config)
+    start_s = None if start is None else range_time_s(start, result.bag_start_ns)
+    end_s = None if end is None else range_time_s(end, result.bag_start_ns)
+    if start_s is not None and end_s is not None and end_s <= start_s:
+        raise ReplayConfigError(
+            f"the range ends ({end_s:g} s) before it starts ({start_s:g} s): give --end "
+            "after --start"
+        )
+    length = (result.end_ns - result.bag_start_ns) / NS_PER_S if result.end_ns else math.inf
+    for name, t in (("start", start_s), ("end", end_s)):
+        if t is not None and not (0.0 <= t <= length):
+            raise ReplayConfigError(
+                f"--{name} {t:g} s lies outside the recording (0 to {length:.1f} s from its start)"
+            )
+    lo = -math.inf if start_s is None else start_s
+    hi = math.inf if end_s is None else end_s
+    keep = [
+        i
+        for i, w in enumerate(windows)
+        if w.start_s >= lo - 1e-9 and w.start_s + w.u.shape[0] * w.ts_s <= hi + 1e-9
+    ]
+    if windows and not keep:
+        spans = ", ".join(
+            f"{w.start_s:.1f}-{w.start_s + w.u.shape[0] * w.ts_s:.1f}" for w in windows[:6]
+        )
+        raise ReplayConfigError(
+            f"no whole judged window lies inside {lo:g} .. {hi:g} s; the judged windows span "
+            f"{spans}{' ...' if len(windows) > 6 else ''} s: widen the range"
+        )
+    findings = [
+        WindowFindings(
+            beta=float(reports[i].beta),
+            beta_op=float(reports[i].beta_op),
+            data_quality=reports[i].data_quality,
+            warnings=tuple(reports[i].warnings),
+        )
+        for i in keep
+    ]
+    return [windows[i] for i in keep], findings, result
+
+
+def range_time_s(value: float | str, start_ns: int) -> float:
+    """A range limit in s from the recording start: a number of seconds, or an ISO 8601 time.
+
+    An ISO time without a zone is UTC (``2024-05-01T12:30:00``, ``...+02:00``, ``...Z``).
+
+    Raises:
+        ReplayConfigError: neither a number nor an ISO time.
+    """
+    if not isinstance(value, str):
+        return float(value)
+    try:
+        return float(value)
+    except ValueError:
+        pass
+    try:
+        when = datetime.datetime.fromisoformat(value)
+    except ValueError:
+        raise ReplayConfigError(
+            f"{value!r} is neither seconds from the recording start nor an ISO 8601 time "
+            "(e.g. 1500 or 2024-05-01T12:30:00+00:00)"
+        ) from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=datetime.UTC)
+    epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.UTC)
+    ns = (when - epoch) // datetime.timedelta(microseconds=1) * 1000
+    return (ns - start_ns) / NS_PER_S
 
 
 def _windows(
@@ -1115,7 +1224,7 @@ def _windows(
     path: str | Path,
     model: LFTModel,
     config: ReplayConfig | None,
-) -> tuple[list[Window], ReplayResult]:
+) -> tuple[list[Window], list[WindowReport], ReplayResult]:
     cfg = config or ReplayConfig()
     kept: list[tuple[int, WindowSnapshot]] = []
 
@@ -1131,4 +1240,4 @@ def _windows(
         Window(snap.u, snap.y, mon.ts_s, mon.period_samples, (start - t0) * 1e-9)
         for start, snap in kept
     ]
-    return windows, result
+    return windows, [snap.report for _, snap in kept], result
