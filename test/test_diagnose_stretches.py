@@ -178,8 +178,49 @@ def test_leak_mid_recording_is_found_after_the_change_only():
     (leak,) = second.relative_to_model.effects
     assert leak.spec.kind == "leak"
     assert leak.values[0] == pytest.approx(lam / A1, rel=0.15)
-    # the stretch before needed nothing: both answers coincide
-    assert second.relative_to_previous.to_json() == second.relative_to_model.to_json()
+    # the stretch before needed nothing: both answers name the same leak, and the leak's own
+    # shift of the operating point is not taken for a sensor offset
+    changed = second.relative_to_previous
+    assert [e.spec.kind for e in changed.effects] == ["leak"]
+    assert changed.effects[0].values[0] == pytest.approx(leak.values[0], rel=1e-9)
+    assert not changed.findings
+
+
+def test_valve_loss_mid_recording_is_an_input_gain_relative_to_the_stretch_before():
+    """``valve_weak:hot=0.9``: the hot valve delivers 90 % of its flow after the onset.
+
+    Relative to the stretch before (the rig's 15 s mixing delay already in it), what changed
+    is the hot input's gain, g = 0.9 - 1 = -0.1, and nothing else: the level falls by 0.05
+    at the same commands, which the input gain explains at steady state (no offset). The
+    tolerance, 0.02, allows for the linear model read 0.05 away from its operating point
+    (measured -0.087).
+    """
+    rec = diagnose_stretches(sim_windows(("valve_weak:hot=0.9@1300",)), DOC, source=SOURCE)
+    first, second = rec.stretches
+    assert abs(second.stretch.change_at_s - 1300.0) <= WINDOW_S
+    changed = second.relative_to_previous
+    (gain,) = changed.effects
+    assert (gain.spec.kind, gain.to_dict(changed.outputs)["channel"]) == ("input_gain", "hot")
+    assert gain.values[0] == pytest.approx(-0.1, abs=0.02)
+    assert not changed.findings  # the level's fall is the valve's, not a sensor offset
+    assert not any(e.spec.kind == "input_gain" for e in first.relative_to_model.effects)
+
+
+def test_sensor_bias_mid_recording_is_an_offset_relative_to_the_stretch_before():
+    """``sensor_bias:height=0.02``: the level reads 0.02 high after the onset.
+
+    A constant offset leaves the de-biased dynamics as they were; relative to the stretch
+    before (its steady means as the reference operating point) it is an output offset of
+    0.02 on the level (tolerance 0.002, test_diagnose_catalogue's).
+    """
+    rec = diagnose_stretches(sim_windows(("sensor_bias:height=0.02@1800",)), DOC, source=SOURCE)
+    first, second = rec.stretches
+    changed = second.relative_to_previous
+    offsets = [f for f in changed.findings if f.kind == "offset"]
+    assert [f.target for f in offsets] == ["height"], changed.summary
+    assert offsets[0].parameters["offset"] == pytest.approx(0.02, abs=0.002)
+    assert not changed.effects  # the dynamics did not change
+    assert not [f for f in first.relative_to_model.findings if f.kind == "offset"]
 
 
 def test_leak_from_the_first_window_skips_its_transient_and_is_not_adequate():

@@ -38,6 +38,11 @@ from twotank_validation.diagnose.inputs import (
 )
 from twotank_validation.diagnose.steady import Finding
 
+MOVES_OPERATING_POINT = ("leak", "heat_loss", "hot_supply")
+"""Effects that shift the plant's equilibrium by themselves (a term on an absolute level,
+temperature or supply the deviation model does not hold): beside them a constant output
+offset cannot be judged on the operating point."""
+
 
 @dataclass(frozen=True)
 class FittedEffect:
@@ -273,6 +278,9 @@ def diagnose(
         fit_data, held_data, cfg, reference,
         f"after adding {', '.join(e.spec.label(outputs) for e in chosen)}" if chosen
         else "its dynamics are unchanged",
+        {e.spec.input: float(e.values[0]) for e in chosen
+         if e.spec.kind == "input_gain" and e.spec.input is not None},
+        [e.spec.label(outputs) for e in chosen if e.spec.kind in MOVES_OPERATING_POINT],
     )  # fmt: skip
     if replaces:  # the linear fit of a clipped input is its describing function
         chosen, changed = [], nominal

@@ -30,7 +30,7 @@ LTI model file: it is reported with a recommendation.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +44,12 @@ from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose.effects import Nominal
 from twotank_validation.diagnose.fit import BinData, excited_bins, noise_floor, noise_scale
 from twotank_validation.diagnose.inputs import DiagnosisConfig, Window
-from twotank_validation.diagnose.steady import Finding, fit_offsets, resolve_reference
+from twotank_validation.diagnose.steady import (
+    Finding,
+    fit_offsets,
+    resolve_reference,
+    window_means,
+)
 
 MIN_LINES = 4
 """Fewer detection lines than this (over all windows) leave the test without power."""
@@ -221,6 +226,8 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
     cfg: DiagnosisConfig,
     reference: OperatingPoint | None = None,
     dynamics: str = "its dynamics are unchanged",
+    input_gains: Mapping[int, float] | None = None,
+    moves_operating_point: Sequence[str] = (),
 ) -> tuple[list[Finding], bool, list[tuple[str, float, str]], dict[str, Any]]:
     """Run the effects outside the state-space catalogue: input saturation, then offset.
 
@@ -236,6 +243,14 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
         cfg: settings.
         reference: the reference operating point for the offset (default: the model's).
         dynamics: what the dynamic diagnosis found, for the offset's evidence.
+        input_gains: the chosen input gains, ``{input index: g}``. An input gain scales the
+            delivered input itself, so at steady state it also moves the outputs by
+            ``G(0)[:, i] g u_ref_i`` beyond what the changed nominal gives for the deviation
+            ``ū − u_ref``; that part is not an offset. (Assumes the input's model units are
+            zero at no flow, as the shipped models' valve commands are.)
+        moves_operating_point: labels of chosen effects that shift the equilibrium by
+            themselves (a leak, a heat loss, a hot-supply change): beside them the offset is
+            not judged, since the deviation model cannot say how far they move it.
 
     Returns:
         ``(findings, replaces, rejected, extra)``: the reported effects; whether a saturation
@@ -303,13 +318,25 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
             _, u_eff = _clipped_bins([*fit_w, *held_w], _stack(fit_data, held_data), s.input,
                                      s.level, s.side)  # fmt: skip
     ref, how = resolve_reference([*fit_w, *held_w], outputs, model.operating_point, reference)
-    if ref is None:
+    if ref is not None and moves_operating_point and not replaces:
+        rejected.append(("offset", 0.0, (
+            f"not judged: {' and '.join(moves_operating_point)} moves the operating point by "
+            "itself, by an amount the linear model does not give, so a constant sensor offset "
+            "cannot be told apart from it on the window means"
+        )))  # fmt: skip
+    elif ref is None:
         rejected.append(("offset", 0.0, (
             "not applicable: no reference operating point (the model file has no "
             "operating_point for every output, and none was given)"
         )))  # fmt: skip
     else:
         noise_dc = noise_scale(model, np.zeros(1), ts, np.ones(len(outputs)))[0]
+        if input_gains and not replaces:
+            # with the changed nominal's column (1 + g) G0_i, the means ū_i + g/(1+g) u_ref_i
+            # give G0_i ((1 + g) ū_i − u_ref_i): the delivered input's deviation
+            u_eff, _ = window_means([*fit_w, *held_w])
+            for i, g in input_gains.items():
+                u_eff[:, i] += g / (1.0 + g) * ref.u[i]
         off, why_not = fit_offsets(
             fit_w, held_w, nominal if replaces else changed, outputs, ref, noise_dc, cfg, how,
             "with the input clipped as found" if replaces else dynamics, u_eff,

@@ -55,6 +55,7 @@ import scipy.stats
 
 from twotank_validation.core.datum import NormConvention, make_datum
 from twotank_validation.core.model import model_from_dict
+from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.core.validate import validate
 from twotank_validation.diagnose.diagnosis import Diagnosis, diagnose
 from twotank_validation.diagnose.effects import Nominal
@@ -661,6 +662,7 @@ def diagnose_stretches(
     stretches = find_stretches(feats, model.output_names, change_config, split=split)
     out: list[StretchDiagnosis] = []
     prev: Diagnosis | None = None
+    prev_windows: list[Window] = []
     for st in stretches:
         ws = [windows[i] for i in st.windows]
         why = too_few(ws)
@@ -671,16 +673,17 @@ def diagnose_stretches(
             except DiagnosisError as err:
                 why = str(err)
         if rel_model is not None and prev is not None:
-            if prev.document is None:
-                rel_prev = rel_model  # the previous stretch needed nothing: the same answer
-            else:
-                rel_prev = diagnose(
-                    ws,
-                    prev.document,
-                    cfg,
-                    source=f"{source} with the previous stretch's effects",
-                    convention=convention,
-                )
+            # "what changed": the model with the previous stretch's effects, and the previous
+            # stretch's steady means as the reference operating point (a sensor bias or a
+            # leak shows there, not in the de-biased dynamics)
+            rel_prev = diagnose(
+                ws,
+                prev.document if prev.document is not None else doc,
+                cfg,
+                source=f"{source} with the previous stretch's effects",
+                convention=convention,
+                reference=steady_means(prev_windows),
+            )
         out.append(
             StretchDiagnosis(
                 stretch=st,
@@ -691,5 +694,14 @@ def diagnose_stretches(
                 not_diagnosed=why,
             )
         )
-        prev = rel_model
+        if rel_model is not None:
+            prev, prev_windows = rel_model, ws
     return RecordingDiagnosis(out, feats, split)
+
+
+def steady_means(windows: Sequence[Window]) -> OperatingPoint:
+    """The operating point of a stretch: its windows' input and output means (model units)."""
+    return OperatingPoint(
+        u=np.mean([w.u.mean(axis=0) for w in windows], axis=0),
+        y=np.mean([w.y.mean(axis=0) for w in windows], axis=0),
+    )
