@@ -557,9 +557,11 @@ def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
     fig, axes = plt.subplots(2, len(panels), figsize=(5.5 * len(panels), 6.5), squeeze=False)
     for col, (e, p) in enumerate(panels):
         mag, ph = axes[0, col], axes[1, col]
+        m_abs = np.abs(p.measured)
+        below = np.minimum(p.noise, 0.9 * m_abs)  # a log axis: the bar stops above 0
         mag.errorbar(
-            p.f_hz, np.abs(p.measured), yerr=np.minimum(p.noise, 10.0), fmt="o", ms=3.5,
-            lw=0.6, capsize=0, label=f"measured / model ({p.f_hz.size} fit bins, ±1σ noise)",
+            p.f_hz, m_abs, yerr=np.vstack([below, p.noise]), fmt="o", ms=3.5, lw=0.6,
+            capsize=0, label=f"measured / model ({p.f_hz.size} fit bins, ±1σ noise)",
         )  # fmt: skip
         ph.errorbar(
             p.f_hz, p.phase_measured_deg, yerr=p.phase_band_deg, fmt="o", ms=3.5, lw=0.6,
@@ -576,6 +578,7 @@ def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
             ph_c = np.degrees(np.unwrap(np.angle(curve)))
             ph.plot(p.dense_f_hz, ph_c, "-", lw=1.0, color=f"C{1 + j}")
         mag.set_xscale("log")
+        mag.set_yscale("log")
         ph.set_xscale("log")
         what = "phase line" if p.r2_kind == "phase line" else "fitted effect vs measured"
         mag.set_title(

@@ -70,7 +70,7 @@ class DiagnosisConfig:
     max_time_fraction: float = 0.25
     alpha: float = 0.01
     max_lag: int = 25
-    unexplained_factor: float = 10.0
+    unexplained_factor: float = 25.0
     unexplained_fraction: float = 0.2
     confidence: float = 0.95
     runners_up: int = 3
