@@ -569,11 +569,12 @@ def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
         )  # fmt: skip
         mag.plot(p.f_hz, np.abs(p.fitted), "x", ms=4, color="C1", label="fitted, at the bins")
         ph.plot(p.f_hz, p.phase_fitted_deg, "x", ms=4, color="C1")
-        many = p.dense_fitted.shape[1] > 1
         for j in range(p.dense_fitted.shape[1]):
             curve = p.dense_fitted[:, j]
-            name = diag.inputs[j] if many and j < len(diag.inputs) else str(j)
-            lab = f"fitted effect (input {name} alone)" if many else "fitted effect"
+            lab = "fitted effect"
+            if p.dense_inputs:
+                k = p.dense_inputs[j]
+                lab += f" (input {diag.inputs[k] if k < len(diag.inputs) else k} alone)"
             mag.plot(p.dense_f_hz, np.abs(curve), "-", lw=1.0, color=f"C{1 + j}", label=lab)
             ph_c = np.degrees(np.unwrap(np.angle(curve)))
             ph.plot(p.dense_f_hz, ph_c, "-", lw=1.0, color=f"C{1 + j}")

@@ -217,9 +217,11 @@ class Diagnosis:
             "explained_fraction_raw": ex.fraction_raw if ex else None,
             "noise_ratio": self.noise_ratio,
             "remaining_noise_ratio": ex.noise_ratio_after if ex else None,
-            "residual_white": all(ex.white.values()) if ex else None,
+            "residual_white": all(ex.white.values()) if ex and ex.white else None,
             "residual_independent": (
-                all(v for d in ex.independent.values() for v in d.values()) if ex else None
+                all(v for d in ex.independent.values() for v in d.values())
+                if ex and ex.independent
+                else None
             ),
             "unexplained_reasons": ex.reasons if ex else [],
             "per_output": ex.per_output if ex else {},

@@ -36,6 +36,8 @@ class EvidencePoints:
         dense_f_hz: (n,) float, a log-spaced grid over the fitted band.
         dense_fitted: (n, c) complex, the fitted ratio on that grid, one column per input
             (one column when the ratio does not depend on the input: output effects).
+        dense_inputs: the input index of each column of ``dense_fitted`` (empty for one
+            column that holds for every input).
         r2: the R^2 the text quotes (see ``r2_kind``).
         r2_kind: ``"phase line"`` (a delay: the weighted fit of a line through 0 to the
             measured phase against frequency) or ``"effect"`` (``1 - sum w |m - f|^2 /
@@ -54,6 +56,7 @@ class EvidencePoints:
     phase_band_deg: np.ndarray
     dense_f_hz: np.ndarray
     dense_fitted: np.ndarray
+    dense_inputs: tuple[int, ...]
     r2: float
     r2_kind: str
     slope_s: float
@@ -96,8 +99,9 @@ def evidence_points(
     dense = np.where(
         np.abs(g0[:, live]) > 0, g1[:, live] / np.where(g0[:, live] == 0, 1, g0[:, live]), 1
     )
+    dense_inputs = tuple(int(j) for j in np.flatnonzero(live))
     if dense.shape[1] > 1 and np.allclose(dense, dense[:, :1], rtol=1e-9, atol=1e-12):
-        dense = dense[:, :1]
+        dense, dense_inputs = dense[:, :1], ()
     omega = 2 * math.pi * f_hz
     slope = float(np.sum(weight * omega * ph_meas) / max(np.sum(weight * omega**2), 1e-300))
     if spec.kind == "delay":
@@ -119,6 +123,7 @@ def evidence_points(
         phase_band_deg=np.degrees(band),
         dense_f_hz=dense_f,
         dense_fitted=dense,
+        dense_inputs=dense_inputs,
         r2=r2,
         r2_kind=kind,
         slope_s=slope,
