@@ -331,6 +331,11 @@ def test_diagnose_command_on_a_bag(tmp_path: Path, capsys):
     delay = next(e for e in doc["effects"] if e["kind"] == "delay")
     assert delay["channel"] == "temperature"
     assert delay["parameters"]["delay_s"] == pytest.approx(10.0, rel=0.15)
+    lo, hi = delay["uncertainty"]["delay_s"]["ci95"]
+    assert lo < delay["parameters"]["delay_s"] < hi
+    assert doc["unexplained"] is False
+    assert doc["explained_fraction"] > 0.9
+    assert set(doc["per_output"]) == {"height", "temperature"}
     assert doc["before"]["beta"] > doc["after"]["beta"]
     assert set(doc["before"]["rms"]) == {"height", "temperature"}
     assert doc["model_file"] == str(out_model)

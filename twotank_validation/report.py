@@ -18,7 +18,7 @@ from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.core.validate import ValidationResult, inverse_dft
-from twotank_validation.diagnose import Diagnosis, excited_bins
+from twotank_validation.diagnose import Diagnosis, EvidencePoints, FittedEffect, excited_bins
 from twotank_validation.experiment import ExperimentResult
 
 PAPER_BETA = {"A": 1.32, "B": 0.53}
@@ -288,7 +288,8 @@ def _diagnosis_markdown(diag: Diagnosis, model_file: str | None) -> str:
         "",
         "Figures: `diagnosis_spectra.png` (residual spectra before/after), "
         "`diagnosis_outputs.png` (measured output against both models), "
-        "`diagnosis_effect.png` (the fitted effect against the measured/modelled ratio).",
+        "`diagnosis_effect.png` (the fitted effect against the measured/modelled ratio at "
+        "every bin the fit used, with the noise band and the R² the text quotes).",
     ]
     return "\n".join(lines) + "\n"
 
@@ -383,16 +384,43 @@ def diagnosis_text(diag: Diagnosis, model_file: str | None = None) -> str:
             white = tests.get("whiteness", {})
             parts = [f"{o} p={white[o]['p_value']:.2g}" for o in diag.outputs if o in white]
             lines.append(f"residual whiteness {name}: " + ", ".join(parts))
+    ex = diag.explained
+    if ex is not None:
+        for o in diag.outputs:
+            po = ex.per_output[o]
+            frac = po["explained_fraction"]
+            share = "nothing material" if frac is None else f"{frac:.0%} explained"
+            white = "" if o not in ex.white else ", white" if ex.white[o] else ", not white"
+            lines.append(
+                f"left on {o}: {po['noise_ratio_after']:.1f} x the noise floor "
+                f"(before {po['noise_ratio_before']:.1f}; {share}{white})"
+            )
+        for why in ex.reasons:
+            lines.append(f"unexplained: {why}")
     lines.append("")
     if diag.effects:
-        lines.append("Added:")
+        partial = diag.unexplained
+        lines.append(
+            "Partial fit (not the answer; the changed model is partial):" if partial else "Added:"
+        )
         for e in diag.effects:
             entry = e.to_dict(diag.outputs)
             params = ", ".join(f"{k} = {v:.4g}" for k, v in entry["parameters"].items())
             lines.append(f"  + {e.spec.label(diag.outputs)} ({params})")
+            lines.extend(f"    {t}" for t in _uncertainty_lines(e))
             lines.append(f"    why: {e.evidence}")
+    elif diag.unexplained:
+        lines.append("Nothing added: no effect of the catalogue explains the error.")
     else:
         lines.append("Nothing added: the model is adequate for this datum.")
+    if diag.runners_up:
+        lines.append("Runners-up (held-out score, penalised):")
+        for r in diag.runners_up:
+            close = " - close call" if r.close_call else ""
+            lines.append(
+                f"  ~ {r.label}: removes {max(r.reduction, 0.0):.0%} "
+                f"(score {r.heldout_cost:.4g}){close}"
+            )
     lines.append("Rejected:")
     for label, _, why in diag.rejected:
         lines.append(f"  - {label}: {why}")
@@ -401,6 +429,34 @@ def diagnosis_text(diag: Diagnosis, model_file: str | None = None) -> str:
     if model_file:
         lines.append(f"Changed model written to {model_file}")
     return "\n".join(lines)
+
+
+def _uncertainty_lines(e: FittedEffect) -> list[str]:
+    """``delay_s 20.3 ± 0.8 (95 %: 18.7 – 21.9)`` per parameter of a fitted effect."""
+    u = e.uncertainty
+    if u is None:
+        return []
+    level = f"{100 * u.level:.0f} %"
+    out = []
+    for i, name in enumerate(e.spec.names):
+        v, se = float(e.values[i]), float(u.stderr[i])
+        if not np.isfinite(se):
+            out.append(f"{name} {v:.4g}: not determined by the data (no finite error)")
+            continue
+        line = f"{name} {v:.4g} ± {se:.2g} ({level}: {u.low[i]:.4g} – {u.high[i]:.4g})"
+        if u.at_bound[i]:
+            line += f"; at the {u.at_bound[i]} search bound: one-sided interval"
+        out.append(line)
+    return out
+
+
+def diagnosis_effect_data(diag: Diagnosis) -> list[tuple[FittedEffect, EvidencePoints]]:
+    """The points each evidence panel draws: every chosen effect with its evidence points.
+
+    These are the very objects the evidence text was written from (``FittedEffect.points``),
+    so the figure and the text cannot disagree.
+    """
+    return [(e, e.points) for e in diag.effects if e.points is not None]
 
 
 def _periodic_output(d: Datum, err: np.ndarray) -> np.ndarray:
@@ -486,40 +542,56 @@ def plot_diagnosis_outputs(diag: Diagnosis, path: Path) -> None:
 
 
 def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
-    """Measured/modelled ratio at the fit bins and the fitted effect's ratio, per channel.
+    """Measured/modelled ratio at every bin the fit used, the fitted effect and the noise band.
 
-    Only bins where the modelled output exceeds five times the noise amplitude are shown.
+    One column per chosen effect, against the model with the other chosen effects in (as its
+    evidence text): magnitude and phase of ``Y / (G U)`` at all fit windows' excited bins,
+    with the measurement-noise band of each point (the non-harmonic-bin noise propagated to
+    the ratio; in phase ``arcsin(noise / |ratio|)``), the fitted effect's ratio at the
+    bins and on a dense log-frequency grid (one line per input when it depends on the
+    input), and the R^2 the text quotes, from these very points.
     """
-    data, before, after = diag.fit_bins, diag.nominal_before, diag.nominal_after
-    if data is None or before is None or after is None or not diag.effects:
+    panels = diagnosis_effect_data(diag)
+    if not panels:
         return
-    ts = diag.heldout[0].ts_s
-    channels = sorted({e.spec.channel for e in diag.effects})
-    fig, axes = plt.subplots(2, len(channels), figsize=(5 * len(channels), 6), squeeze=False)
-    order = np.argsort(data.theta)
-    f = data.theta[order] / ts / (2 * np.pi)
-    g0 = before.response(data.theta, ts)
-    g1 = after.response(data.theta, ts)
-    yb = np.einsum("kij,kj->ki", g0, data.u)[order]
-    ya = np.einsum("kij,kj->ki", g1, data.u)[order]
-    ym = data.y[order]
-    noise_amp = np.sqrt(data.noise[order]) * data.scale[order]
-    for col, ch in enumerate(channels):
-        # bins where the modelled output stands clear of the noise (ratios elsewhere are noise)
-        ok = np.abs(yb[:, ch]) > 5.0 * noise_amp[:, ch]
-        meas = ym[ok, ch] / yb[ok, ch]
-        fit = ya[ok, ch] / yb[ok, ch]
-        axes[0, col].semilogx(f[ok], np.abs(meas), "o", ms=4, label="measured / model")
-        axes[0, col].semilogx(f[ok], np.abs(fit), "-", label="fitted effect")
-        axes[1, col].semilogx(f[ok], np.degrees(np.unwrap(np.angle(meas))), "o", ms=4)
-        axes[1, col].semilogx(f[ok], np.degrees(np.unwrap(np.angle(fit))), "-")
-        labels = ", ".join(e.spec.label(diag.outputs) for e in diag.effects if e.spec.channel == ch)
-        axes[0, col].set_title(f"{diag.outputs[ch]}: {labels}")
-        axes[0, col].set_ylabel("magnitude ratio")
-        axes[1, col].set_ylabel("phase (deg)")
-        axes[1, col].set_xlabel("frequency (Hz)")
-        axes[0, col].legend(fontsize=8)
-        for ax in axes[:, col]:
+    fig, axes = plt.subplots(2, len(panels), figsize=(5.5 * len(panels), 6.5), squeeze=False)
+    for col, (e, p) in enumerate(panels):
+        mag, ph = axes[0, col], axes[1, col]
+        m_abs = np.abs(p.measured)
+        below = np.minimum(p.noise, 0.9 * m_abs)  # a log axis: the bar stops above 0
+        mag.errorbar(
+            p.f_hz, m_abs, yerr=np.vstack([below, p.noise]), fmt="o", ms=3.5, lw=0.6,
+            capsize=0, label=f"measured / model ({p.f_hz.size} fit bins, ±1σ noise)",
+        )  # fmt: skip
+        ph.errorbar(
+            p.f_hz, p.phase_measured_deg, yerr=p.phase_band_deg, fmt="o", ms=3.5, lw=0.6,
+            capsize=0,
+        )  # fmt: skip
+        mag.plot(p.f_hz, np.abs(p.fitted), "x", ms=4, color="C1", label="fitted, at the bins")
+        ph.plot(p.f_hz, p.phase_fitted_deg, "x", ms=4, color="C1")
+        for j in range(p.dense_fitted.shape[1]):
+            curve = p.dense_fitted[:, j]
+            lab = "fitted effect"
+            if p.dense_inputs:
+                k = p.dense_inputs[j]
+                lab += f" (input {diag.inputs[k] if k < len(diag.inputs) else k} alone)"
+            mag.plot(p.dense_f_hz, np.abs(curve), "-", lw=1.0, color=f"C{1 + j}", label=lab)
+            ph_c = np.degrees(np.unwrap(np.angle(curve)))
+            ph.plot(p.dense_f_hz, ph_c, "-", lw=1.0, color=f"C{1 + j}")
+        mag.set_xscale("log")
+        mag.set_yscale("log")
+        ph.set_xscale("log")
+        what = "phase line" if p.r2_kind == "phase line" else "fitted effect vs measured"
+        mag.set_title(
+            f"{diag.outputs[e.spec.channel]}: {e.spec.label(diag.outputs)}\n"
+            f"R² {p.r2:.2f} ({what}, these {p.f_hz.size} points)",
+            fontsize=9,
+        )
+        mag.set_ylabel("magnitude ratio")
+        ph.set_ylabel("phase (deg)")
+        ph.set_xlabel("frequency (Hz, log)")
+        mag.legend(fontsize=7)
+        for ax in (mag, ph):
             ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

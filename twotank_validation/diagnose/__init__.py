@@ -29,9 +29,11 @@ Modules (each imports only those above it):
 * :mod:`~twotank_validation.diagnose.effects`: :class:`Nominal` (the nominal plant of a model
   file), :class:`EffectSpec` and :func:`catalogue` (the candidate effects of a model).
 * :mod:`~twotank_validation.diagnose.fit`: :class:`BinData` (the excited bins, step 1), the
-  scaled error and :func:`cost`, :func:`fit_effects` (step 2), :class:`Assessment` and
-  :func:`assess` (a model judged on held-out windows).
-* :mod:`~twotank_validation.diagnose.evidence`: why the data point at a fitted effect, in words.
+  scaled error and :func:`cost`, :func:`fit_effects` (step 2), :func:`fit_uncertainty` (how
+  sure the fitted parameters are), :class:`Assessment` and :func:`assess` (a model judged on
+  held-out windows).
+* :mod:`~twotank_validation.diagnose.evidence`: why the data point at a fitted effect, in words,
+  and :func:`evidence_points`, the points, curve and R^2 that the text and figure share.
 * :mod:`~twotank_validation.diagnose.diagnosis`: :func:`diagnose` (steps 2-4: selection,
   evidence, the changed document) and its outcome :class:`Diagnosis`.
 
@@ -45,7 +47,9 @@ model-structure diagnosis of LFT models).
 
 from twotank_validation.diagnose.diagnosis import (
     Diagnosis,
+    Explained,
     FittedEffect,
+    RunnerUp,
     changed_document,
     diagnose,
 )
@@ -57,16 +61,21 @@ from twotank_validation.diagnose.effects import (
     catalogue,
     channel_time_constants,
 )
+from twotank_validation.diagnose.evidence import EvidencePoints, evidence_points
 from twotank_validation.diagnose.fit import (
     Assessment,
     BinData,
+    Uncertainty,
     assess,
     bin_data,
     cost,
     excited_bins,
     fit_effects,
+    fit_uncertainty,
     noise_floor,
     noise_scale,
+    output_costs,
+    output_noise_floors,
     scaled_error,
 )
 from twotank_validation.diagnose.inputs import (
@@ -85,8 +94,12 @@ __all__ = [
     "DiagnosisConfig",
     "DiagnosisError",
     "EffectSpec",
+    "EvidencePoints",
+    "Explained",
     "FittedEffect",
     "Nominal",
+    "RunnerUp",
+    "Uncertainty",
     "Window",
     "assess",
     "bin_data",
@@ -95,10 +108,14 @@ __all__ = [
     "channel_time_constants",
     "cost",
     "diagnose",
+    "evidence_points",
     "excited_bins",
     "fit_effects",
+    "fit_uncertainty",
     "noise_floor",
     "noise_scale",
+    "output_costs",
+    "output_noise_floors",
     "scaled_error",
     "split_windows",
 ]

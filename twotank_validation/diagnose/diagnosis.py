@@ -19,16 +19,20 @@ from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose.distortion import finding_summary, reported_effects
 from twotank_validation.diagnose.effects import EffectSpec, Nominal, catalogue
-from twotank_validation.diagnose.evidence import evidence
+from twotank_validation.diagnose.evidence import EvidencePoints, evidence, evidence_points
 from twotank_validation.diagnose.fit import (
     Assessment,
     BinData,
+    Uncertainty,
     _apply_all,
     assess,
     bin_data,
     cost,
     fit_effects,
+    fit_uncertainty,
     noise_floor,
+    output_costs,
+    output_noise_floors,
 )
 from twotank_validation.diagnose.inputs import (
     DiagnosisConfig,
@@ -56,6 +60,9 @@ class FittedEffect:
         reduction: fraction of the held-out error (penalised) removed, relative to the model
             it was added to.
         evidence: why the data point at it (or, for a rejected one, why not).
+        uncertainty: standard errors and confidence intervals of ``values`` (chosen effects).
+        points: the bins, curve and R^2 the evidence text quotes (chosen effects; the
+            evidence figure draws exactly these).
     """
 
     spec: EffectSpec
@@ -64,6 +71,8 @@ class FittedEffect:
     heldout_cost: float
     reduction: float
     evidence: str = ""
+    uncertainty: Uncertainty | None = None
+    points: EvidencePoints | None = field(default=None, repr=False)
 
     def to_dict(self, outputs: Sequence[str]) -> dict[str, Any]:
         """The documented JSON entry of an effect."""
@@ -77,9 +86,76 @@ class FittedEffect:
             "evidence": self.evidence,
             "heldout_reduction": self.reduction,
         }
+        if self.uncertainty is not None:
+            out["uncertainty"] = self.uncertainty.to_dict(self.spec.names)
         if self.spec.source is not None:
             out["source"] = outputs[self.spec.source]
         return out
+
+
+@dataclass(frozen=True)
+class RunnerUp:
+    """A candidate (single effect or pair) that was not chosen, by its held-out score.
+
+    Attributes:
+        label: the effect, or the two effects joined by ``" + "``.
+        n_params: fitted parameters.
+        heldout_cost: penalised held-out cost (the selection score, lower is better).
+        reduction: fraction of the model's held-out error it removes (penalised).
+        close_call: its score is within ``DiagnosisConfig.parsimony`` of the chosen
+            effects' (``None`` when nothing was chosen).
+    """
+
+    label: str
+    n_params: int
+    heldout_cost: float
+    reduction: float
+    close_call: bool | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON entry."""
+        return {
+            "candidate": self.label,
+            "n_params": self.n_params,
+            "heldout_reduction": self.reduction,
+            "heldout_cost_penalised": self.heldout_cost,
+            "close_call": self.close_call,
+        }
+
+
+@dataclass(frozen=True)
+class Explained:
+    """How much of the held-out error the chosen effects leave, and whether it is noise.
+
+    Costs are the scaled squared error at the held-out excited bins (the fit criterion);
+    the noise floor is the cost the measurement noise alone gives there (non-harmonic bins).
+
+    Attributes:
+        fraction: share of the error above the noise floor that the effects remove,
+            ``1 - (J_after - F)+ / (J_before - F)``, in [0, 1] (0 when nothing was added);
+            ``None`` when the model's error is not material (``J_before < material F``):
+            nothing to explain.
+        fraction_raw: ``1 - J_after / J_before`` (noise included).
+        noise_ratio_after: ``J_after / F``.
+        per_output: per output name, ``{"explained_fraction", "noise_ratio_before",
+            "noise_ratio_after", "material_left"}``.
+        white: per output, the residual after passes the whiteness test on most held-out
+            windows (more than half).
+        independent: per (output, input), the residual after passes the cross-correlation
+            test on most held-out windows.
+        unexplained: a material part is left on some output, or the residual after is
+            correlated with an input.
+        reasons: why ``unexplained``, in words.
+    """
+
+    fraction: float | None
+    fraction_raw: float
+    noise_ratio_after: float
+    per_output: dict[str, dict[str, Any]]
+    white: dict[str, bool]
+    independent: dict[str, dict[str, bool]]
+    unexplained: bool
+    reasons: list[str]
 
 
 @dataclass(frozen=True)
@@ -103,6 +179,9 @@ class Diagnosis:
         heldout: the held-out datums (for figures).
         fit_bins: the fit windows' excited bins (for figures).
         nominal_before, nominal_after: the nominal plants before and after.
+        explained: how much of the held-out error is left, and whether it is noise.
+        runners_up: the best candidates not chosen, by held-out score.
+        inputs: input names.
     """
 
     model: str
@@ -124,6 +203,14 @@ class Diagnosis:
     nominal_after: Nominal | None = field(default=None, repr=False)
     findings: list[Finding] = field(default_factory=list)
     distortion: dict[str, Any] = field(default_factory=dict)
+    explained: Explained | None = None
+    runners_up: list[RunnerUp] = field(default_factory=list)
+    inputs: tuple[str, ...] = ()
+
+    @property
+    def unexplained(self) -> bool:
+        """A material part of the held-out error is left, or the residual is not independent."""
+        return self.explained is not None and self.explained.unexplained
 
     def to_json(self, model_file: str | None = None) -> dict[str, Any]:
         """The documented JSON (docs/cli.md, "diagnose JSON")."""
@@ -131,10 +218,23 @@ class Diagnosis:
         def side(a: Assessment) -> dict[str, Any]:
             return a.to_dict()
 
+        ex = self.explained
         return {
             "model": self.model,
             "adequate": self.adequate,
+            "unexplained": self.unexplained,
+            "explained_fraction": ex.fraction if ex else None,
+            "explained_fraction_raw": ex.fraction_raw if ex else None,
             "noise_ratio": self.noise_ratio,
+            "remaining_noise_ratio": ex.noise_ratio_after if ex else None,
+            "residual_white": all(ex.white.values()) if ex and ex.white else None,
+            "residual_independent": (
+                all(v for d in ex.independent.values() for v in d.values())
+                if ex and ex.independent
+                else None
+            ),
+            "unexplained_reasons": ex.reasons if ex else [],
+            "per_output": ex.per_output if ex else {},
             "summary": self.summary,
             "before": side(self.before),
             "effects": [e.to_dict(self.outputs) for e in self.effects],
@@ -147,6 +247,7 @@ class Diagnosis:
             "not_applicable": [
                 {"candidate": lab, "reason": why} for lab, why in self.not_applicable
             ],
+            "runners_up": [r.to_dict() for r in self.runners_up],
             "findings": [f.to_dict() for f in self.findings],
             "distortion": self.distortion,
             "fit_windows_start_s": self.fit_windows,
@@ -249,6 +350,7 @@ def diagnose(
     singles.sort(key=lambda e: -e.reduction)
     singles = _prefer_parsimonious(singles, cfg.parsimony)
     chosen: list[FittedEffect] = []
+    pairs: list[tuple[float, FittedEffect, FittedEffect]] = []
     best = singles[0] if singles else None
     floor = noise_floor(held_data)
     material = j0 >= cfg.material * floor
@@ -260,7 +362,7 @@ def diagnose(
             # a pair when one effect alone does not explain the data: it must remove
             # min_reduction of the error, and min_second_reduction of what the best single
             # effect leaves
-            pair = _best_pair(singles, specs, judged, cfg)
+            pair, pairs = _best_pair(singles, specs, judged, cfg)
             if (
                 pair is not None
                 and pair[0] <= (1.0 - cfg.min_second_reduction) * best.heldout_cost
@@ -284,6 +386,20 @@ def diagnose(
     )  # fmt: skip
     if replaces:  # the linear fit of a clipped input is its describing function
         chosen, changed = [], nominal
+    if chosen:  # how sure: jointly, on the bins the effects were fitted on
+        sure = fit_uncertainty(
+            nominal,
+            [e.spec for e in chosen],
+            fit_data,
+            ts,
+            np.concatenate([e.values for e in chosen]),
+            cfg.confidence,
+        )
+        chosen = [
+            replace(e, uncertainty=part)
+            for e, part in zip(chosen, _split(sure, chosen), strict=True)
+        ]
+    runners = _runners_up(singles, pairs, chosen, j0, outputs, cfg)
     # evidence: each chosen effect against the model with the other chosen effects added, so
     # that its own signature shows; its reduction is what it removes on top of the others
     j_all = cost(changed, held_data, ts)
@@ -293,8 +409,9 @@ def diagnose(
         for other in chosen[:i] + chosen[i + 1 :]:
             base = other.spec.apply(base, other.values)
         red = 1.0 - j_all / max(cost(base, held_data, ts), 1e-300)
-        text = evidence(e.spec, e.values, base, fit_data, ts, outputs, red)
-        with_evidence.append(replace(e, reduction=red, evidence=text))
+        pts = evidence_points(e.spec, e.values, base, fit_data, ts)
+        text = evidence(e.spec, e.values, base, fit_data, ts, outputs, red, pts)
+        with_evidence.append(replace(e, reduction=red, evidence=text, points=pts))
     chosen = with_evidence
     chosen_specs = {id(e.spec) for e in chosen}
     rejected = []
@@ -332,7 +449,15 @@ def diagnose(
         after = assess(after_model, held_d, held_w, cfg)
     else:
         after = before
-    summary = _summary(model.name, before, after, chosen, outputs)
+    explained = _explained(
+        output_costs(nominal, held_data, ts),
+        output_costs(changed, held_data, ts),
+        output_noise_floors(held_data),
+        after,
+        outputs,
+        cfg,
+    )
+    summary = _summary(model.name, before, after, chosen, outputs, explained)
     if findings:
         summary = finding_summary(model.name, findings, summary if chosen else "")
     return Diagnosis(
@@ -346,7 +471,7 @@ def diagnose(
         outputs=tuple(outputs),
         fit_windows=[w.start_s for w in fit_w],
         heldout_windows=[w.start_s for w in held_w],
-        adequate=not chosen and not findings,
+        adequate=not chosen and not findings and not explained.unexplained,
         summary=summary,
         noise_ratio=j0 / floor if floor > 0 else math.inf,
         heldout=held_d,
@@ -355,6 +480,134 @@ def diagnose(
         nominal_after=changed,
         findings=findings,
         distortion=reported_extra["distortion"],
+        explained=explained,
+        runners_up=runners,
+        inputs=tuple(model.input_names),
+    )
+
+
+def _split(sure: Uncertainty, effects: Sequence[FittedEffect]) -> list[Uncertainty]:
+    """The joint uncertainty of several effects, cut into one per effect."""
+    out, i = [], 0
+    for e in effects:
+        k = e.spec.n_params
+        out.append(
+            replace(
+                sure,
+                stderr=sure.stderr[i : i + k],
+                low=sure.low[i : i + k],
+                high=sure.high[i : i + k],
+                at_bound=sure.at_bound[i : i + k],
+            )
+        )
+        i += k
+    return out
+
+
+def _runners_up(  # noqa: PLR0917 - every candidate and the choice
+    singles: Sequence[FittedEffect],
+    pairs: Sequence[tuple[float, FittedEffect, FittedEffect]],
+    chosen: Sequence[FittedEffect],
+    j0: float,
+    outputs: Sequence[str],
+    cfg: DiagnosisConfig,
+) -> list[RunnerUp]:
+    """The best candidates other than the chosen effects, by penalised held-out cost."""
+    cands: list[tuple[float, tuple[str, ...], int]] = [
+        (e.heldout_cost, (e.spec.label(outputs),), e.spec.n_params) for e in singles
+    ]
+    cands += [
+        (adj, (a.spec.label(outputs), b.spec.label(outputs)), a.spec.n_params + b.spec.n_params)
+        for adj, a, b in pairs
+    ]
+    mine = frozenset(e.spec.label(outputs) for e in chosen)
+    scores = [c for c, labels, _ in cands if frozenset(labels) == mine]
+    score = min(scores) if chosen and scores else None
+    out: list[RunnerUp] = []
+    for c, labels, n in sorted(cands, key=lambda t: t[0]):
+        if len(out) >= cfg.runners_up:
+            break
+        if frozenset(labels) == mine:
+            continue
+        close = None if score is None else bool(c <= cfg.parsimony * score)
+        out.append(
+            RunnerUp(" + ".join(labels), n, float(c), float(1.0 - c / max(j0, 1e-300)), close)
+        )
+    return out
+
+
+def _explained(  # noqa: PLR0917 - the costs and the tests
+    before: np.ndarray,
+    after: np.ndarray,
+    floor: np.ndarray,
+    tests_after: Assessment,
+    outputs: Sequence[str],
+    cfg: DiagnosisConfig,
+) -> Explained:
+    """How much of the held-out error is left, per output and in all, and whether it is noise.
+
+    Args:
+        before: (ny,) held-out cost per output of the model.
+        after: (ny,) the same of the changed model.
+        floor: (ny,) the cost the measurement noise alone gives, per output.
+        tests_after: the changed model judged on the held-out windows (residual tests).
+        outputs: output names.
+        cfg: settings (``unexplained_factor``, ``unexplained_fraction``).
+    """
+
+    def fraction(jb: float, ja: float, f: float) -> float | None:
+        if jb < cfg.material * f or jb <= f:  # nothing material to explain
+            return None
+        return float(np.clip(1.0 - max(ja - f, 0.0) / (jb - f), 0.0, 1.0))
+
+    reasons: list[str] = []
+    per: dict[str, dict[str, Any]] = {}
+    for o, jb, ja, f in zip(outputs, before, after, floor, strict=True):
+        frac = fraction(float(jb), float(ja), float(f))
+        ratio_a = float(ja / f) if f > 0 else math.inf
+        left = (
+            ratio_a >= cfg.unexplained_factor
+            and frac is not None
+            and 1.0 - frac >= cfg.unexplained_fraction
+        )
+        per[o] = {
+            "explained_fraction": frac,
+            "noise_ratio_before": float(jb / f) if f > 0 else math.inf,
+            "noise_ratio_after": ratio_a,
+            "material_left": bool(left),
+        }
+        if left:
+            reasons.append(
+                f"{1.0 - (frac or 0.0):.0%} of the {o} error above the noise floor is left "
+                f"({ratio_a:.1f} times the noise, material from {cfg.unexplained_factor:g})"
+            )
+    white: dict[str, bool] = {}
+    independent: dict[str, dict[str, bool]] = {}
+    tests = [t for t in tests_after.residual_tests_windows if isinstance(t, Mapping)]
+    if tests:
+        for o in outputs:
+            fails = sum(not t["whiteness"][o]["passed"] for t in tests if o in t["whiteness"])
+            white[o] = fails * 2 <= len(tests)
+            cross = tests[0]["cross_correlation"].get(o, {})
+            independent[o] = {}
+            for i in cross:
+                fails = sum(not t["cross_correlation"][o][i]["passed"] for t in tests)
+                independent[o][i] = fails * 2 <= len(tests)
+                if not independent[o][i]:
+                    reasons.append(
+                        f"the {o} residual is correlated with the input {i} "
+                        f"({fails} of {len(tests)} held-out windows)"
+                    )
+    jb, ja, f = float(np.sum(before)), float(np.sum(after)), float(np.sum(floor))
+    return Explained(
+        fraction=fraction(jb, ja, f),
+        fraction_raw=float(1.0 - ja / jb) if jb > 0 else 1.0,
+        noise_ratio_after=ja / f if f > 0 else math.inf,
+        per_output=per,
+        white=white,
+        independent=independent,
+        unexplained=bool(reasons),
+        reasons=reasons,
     )
 
 
@@ -365,7 +618,9 @@ def _best_pair(
         [Sequence[EffectSpec], Sequence[np.ndarray] | None], tuple[np.ndarray, float, float]
     ],
     cfg: DiagnosisConfig,
-) -> tuple[float, FittedEffect, FittedEffect] | None:
+) -> tuple[
+    tuple[float, FittedEffect, FittedEffect] | None, list[tuple[float, FittedEffect, FittedEffect]]
+]:
     """The best pair of effects, fitted jointly, each of the leading singles as the first.
 
     Not greedy: a first effect that fits best alone can be the wrong one when a second
@@ -373,7 +628,8 @@ def _best_pair(
     the ``pair_candidates`` best singles is fitted and judged on the held-out windows.
 
     Returns:
-        ``(penalised held-out cost, first, second)`` or ``None``.
+        The best ``(penalised held-out cost, first, second)`` (or ``None``), and every pair
+        tried, best first.
     """
     results: list[tuple[float, FittedEffect, FittedEffect]] = []
     seen: set[frozenset[int]] = set()
@@ -394,10 +650,10 @@ def _best_pair(
             second = FittedEffect(s, values[n1:], fit_cost, adj, 1.0 - adj / first.heldout_cost)
             results.append((adj, replace(first, values=values[:n1]), second))
     if not results:
-        return None
+        return None, results
     results.sort(key=lambda t: t[0])
     close = [t for t in results if t[0] <= cfg.parsimony * results[0][0]]
-    return min(close, key=lambda t: (t[1].spec.n_params + t[2].spec.n_params, t[0]))
+    return min(close, key=lambda t: (t[1].spec.n_params + t[2].spec.n_params, t[0])), results
 
 
 def _prefer_parsimonious(ranked: list[FittedEffect], factor: float) -> list[FittedEffect]:
@@ -414,13 +670,45 @@ def _prefer_parsimonious(ranked: list[FittedEffect], factor: float) -> list[Fitt
     return [ranked[pick], *ranked[:pick], *ranked[pick + 1 :]]
 
 
-def _summary(
+def _summary(  # noqa: PLR0917 - everything the paragraph says
     name: str,
     before: Assessment,
     after: Assessment,
     chosen: Sequence[FittedEffect],
     outputs: Sequence[str],
+    explained: Explained,
 ) -> str:
+    not_white = [o for o, ok in explained.white.items() if not ok]
+    if explained.unexplained:
+        worst = max(
+            outputs,
+            key=lambda o: (
+                explained.per_output[o]["material_left"],
+                1.0 - (explained.per_output[o]["explained_fraction"] or 0.0),
+            ),
+        )
+        frac = explained.per_output[worst]["explained_fraction"] or 0.0
+        left = (
+            f"{1.0 - (explained.fraction or 0.0):.0%} of the held-out error above the noise "
+            f"remains ({worst}: {1.0 - frac:.0%}, "
+            f"{explained.per_output[worst]['noise_ratio_after']:.1f} times the noise)"
+        )
+        white = f", not white on {', '.join(not_white)}" if not_white else ""
+        head = "partly explained" if chosen else "not explained"
+        text = f"Model {name}: {head}; {left}{white}: an effect outside the catalogue"
+        if not chosen:
+            return (
+                text + " (or a change inside the recording); no effect of the catalogue "
+                f"removes enough of it (held-out beta {before.beta:.3f}). "
+                + "; ".join(explained.reasons).capitalize()
+                + "."
+            )
+        added = " and ".join(e.spec.label(outputs) for e in chosen)
+        return (
+            f"{text}. The best partial fit is {added}, not the answer: "
+            + "; ".join(explained.reasons)
+            + f". On held-out data beta {before.beta:.3f} -> {after.beta:.3f}."
+        )
     if not chosen:
         return (
             f"Model {name} is adequate for this datum: no effect of the catalogue removes enough "
@@ -430,5 +718,6 @@ def _summary(
     rms = ", ".join(f"{o} {before.rms[o]:.4g} -> {after.rms[o]:.4g}" for o in outputs)
     return (
         f"Model {name} lacks {added}. On held-out data beta {before.beta:.3f} -> "
-        f"{after.beta:.3f}; RMS simulation error {rms} (model units)."
+        f"{after.beta:.3f}; RMS simulation error {rms} (model units); "
+        f"{explained.fraction or 0.0:.0%} of the held-out error above the noise explained."
     )

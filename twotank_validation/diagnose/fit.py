@@ -8,12 +8,13 @@ held-out windows.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import scipy.optimize
+import scipy.stats
 
 from twotank_validation.core import stats
 from twotank_validation.core.datum import Datum
@@ -121,6 +122,16 @@ def noise_floor(data: BinData) -> float:
     return float(np.sum(data.noise))
 
 
+def output_costs(nom: Nominal, data: BinData, ts_s: float) -> np.ndarray:
+    """(ny,) float: :func:`cost` split per output (the sum over the bins of each output)."""
+    return np.asarray(np.sum(np.abs(scaled_error(nom, data, ts_s)) ** 2, axis=0), dtype=float)
+
+
+def output_noise_floors(data: BinData) -> np.ndarray:
+    """(ny,) float: :func:`noise_floor` split per output."""
+    return np.asarray(np.sum(data.noise, axis=0), dtype=float)
+
+
 # --------------------------------------------------------------------------- fitting
 
 
@@ -130,6 +141,21 @@ def _apply_all(nom: Nominal, specs: Sequence[EffectSpec], x: np.ndarray) -> Nomi
         nom = s.apply(nom, x[i : i + s.n_params])
         i += s.n_params
     return nom
+
+
+def _residual_function(
+    nominal: Nominal, specs: Sequence[EffectSpec], data: BinData, ts_s: float
+) -> Callable[[np.ndarray], np.ndarray]:
+    """``x -> (2 k ny,)`` the scaled error with ``specs`` at ``x``, real parts then imaginary."""
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        try:
+            e = scaled_error(_apply_all(nominal, specs, x), data, ts_s)
+        except ModelError:  # an unstable intermediate: a large, finite penalty
+            return np.full(2 * data.y.size, 1e6)
+        return np.concatenate([e.real.ravel(), e.imag.ravel()])
+
+    return residual
 
 
 def fit_effects(
@@ -150,13 +176,7 @@ def fit_effects(
     """
     lower = np.concatenate([s.lower for s in specs]).astype(float)
     upper = np.concatenate([s.upper for s in specs]).astype(float)
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        try:
-            e = scaled_error(_apply_all(nominal, specs, x), data, ts_s)
-        except ModelError:  # an unstable intermediate: a large, finite penalty
-            return np.full(2 * data.y.size, 1e6)
-        return np.concatenate([e.real.ravel(), e.imag.ravel()])
+    residual = _residual_function(nominal, specs, data, ts_s)
 
     last = specs[-1]
     offset = sum(s.n_params for s in specs[:-1])
@@ -191,6 +211,156 @@ def fit_effects(
     return np.asarray(best_x, dtype=float), best_c
 
 
+# --------------------------------------------------------------------------- how sure
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """How sure the fitted parameters are: standard errors and confidence intervals.
+
+    Attributes:
+        stderr: (p,) float, standard error per parameter (SI units); ``inf`` when the data
+            carry no information on it (its column of the Jacobian is zero or degenerate).
+        low, high: (p,) float, the confidence interval per parameter, clipped to the search
+            bounds; one-sided (from the bound) for a parameter at a bound.
+        at_bound: per parameter ``"lower"``, ``"upper"`` or ``""``.
+        inflation: factor applied to the covariance for model error: the fit's residual cost
+            over what the noise alone gives (at least 1).
+        level: confidence level of the interval.
+    """
+
+    stderr: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    at_bound: tuple[str, ...]
+    inflation: float
+    level: float
+
+    def to_dict(self, names: Sequence[str]) -> dict[str, dict[str, Any]]:
+        """``{name: {"stderr", "ci95": [lo, hi], "at_bound"}}`` (JSON-ready; inf as None)."""
+
+        def num(x: float) -> float | None:
+            return float(x) if np.isfinite(x) else None
+
+        return {
+            n: {
+                "stderr": num(self.stderr[i]),
+                "ci95": [num(self.low[i]), num(self.high[i])],
+                "at_bound": self.at_bound[i] or None,
+            }
+            for i, n in enumerate(names)
+        }
+
+
+def _jacobian(
+    residual: Callable[[np.ndarray], np.ndarray],
+    x: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+) -> np.ndarray:
+    """(m, p) float: finite-difference Jacobian of ``residual`` at ``x``, inside the bounds.
+
+    Central differences, one-sided at a bound.
+    """
+    r0 = residual(x)
+    jac = np.zeros((r0.size, x.size))
+    for i in range(x.size):
+        h = 1e-6 * max(abs(x[i]), 1e-3 * (upper[i] - lower[i]), 1e-12)
+        up, dn = x.copy(), x.copy()
+        if x[i] + h <= upper[i]:
+            up[i] += h
+        if x[i] - h >= lower[i]:
+            dn[i] -= h
+        jac[:, i] = (residual(up) - residual(dn)) / (up[i] - dn[i])
+    return jac
+
+
+def fit_uncertainty(  # noqa: PLR0917 - the fit and where it was made
+    nominal: Nominal,
+    specs: Sequence[EffectSpec],
+    data: BinData,
+    ts_s: float,
+    values: np.ndarray,
+    level: float = 0.95,
+) -> Uncertainty:
+    """Standard errors and confidence intervals of the parameters fitted on ``data``.
+
+    Linearised least squares at the optimum ``values``: with ``J`` the Jacobian of the
+    stacked residual (real parts, then imaginary parts, of the scaled error at every bin and
+    output) and ``V`` the noise variance of each component, ``BinData.noise / 2`` (the noise
+    power of a bin is split equally between its real and imaginary parts), the covariance is
+    the sandwich ``(J^T J)^-1 J^T V J (J^T J)^-1`` (the fit is unweighted, the noise
+    differs from bin to bin). The same sandwich with ``V = r^2 m / (m - p)`` (the residual
+    at the optimum, White's estimator) gives the spread the model error shows where it
+    is; each parameter takes the larger of the two standard errors, times
+    ``sqrt(max(1, J_fit / ((1 - p/m) F)))``, the fit's residual cost over the cost the noise
+    alone gives (``F``, :func:`noise_floor`; ``m`` residual components, ``p`` parameters):
+    a residual above the noise is model error (the plant's nonlinearity, an effect outside
+    the catalogue), and the part of it the parameters absorb is not in the residual. Without
+    a noise estimate (windows of one period) the residual variance ``J_fit / (m - p)`` is
+    used for every component. Coverage on the simulated rig: docs/diagnosis.md.
+
+    Args:
+        nominal: the plant the effects are added to.
+        specs: the effects, in the order of ``values``.
+        data: the bins they were fitted on.
+        ts_s: sample period, s.
+        values: fitted parameters (concatenated in spec order).
+        level: confidence level of the interval, in (0, 1).
+    """
+    lower = np.concatenate([s.lower for s in specs]).astype(float)
+    upper = np.concatenate([s.upper for s in specs]).astype(float)
+    x = np.asarray(values, dtype=float)
+    residual = _residual_function(nominal, specs, data, ts_s)
+    r = residual(x)
+    jac = _jacobian(residual, x, lower, upper)
+    m, p = jac.shape
+    fit_cost = float(r @ r)
+    floor = noise_floor(data)
+    if floor > 0.0:
+        var = np.concatenate([data.noise.ravel(), data.noise.ravel()]) / 2.0
+        inflation = max(1.0, fit_cost / max((1.0 - p / m) * floor, 1e-300))
+    else:
+        var = np.full(m, fit_cost / max(m - p, 1))
+        inflation = 1.0
+    # column scaling (parameters differ by orders of magnitude), then the sandwiches
+    norms = np.linalg.norm(jac, axis=0)
+    live = norms > 0.0
+    stderr = np.full(p, np.inf)
+    if np.any(live):
+        js = jac[:, live] / norms[live]
+        eig, vec = np.linalg.eigh(js.T @ js)
+        ok = eig > 1e-10 * float(np.max(eig))
+        bread = (vec[:, ok] / eig[ok]) @ vec[:, ok].T
+
+        def spread(v: np.ndarray) -> np.ndarray:
+            cov = bread @ (js.T @ (v[:, None] * js)) @ bread
+            return np.asarray(np.sqrt(np.maximum(np.diag(cov), 0.0)), dtype=float)
+
+        # the noise's spread, and the spread the residual itself shows (model error is
+        # not spread like the noise over the bins); the larger, times the excess cost
+        robust = r**2 * m / max(m - p, 1)
+        se = np.sqrt(inflation) * np.maximum(spread(var), spread(robust)) / norms[live]
+        # a parameter in a direction the data do not fix has no finite error
+        blind = np.any(np.abs(vec[:, ~ok]) > 0.1, axis=1)
+        stderr[live] = np.where(blind, np.inf, se)
+    span = upper - lower
+    at_bound = tuple(
+        "lower" if v - lo <= 1e-6 * sp else "upper" if hi - v <= 1e-6 * sp else ""
+        for v, lo, hi, sp in zip(x, lower, upper, span, strict=True)
+    )
+    z2 = float(scipy.stats.norm.ppf(0.5 + level / 2.0))
+    z1 = float(scipy.stats.norm.ppf(level))
+    low = np.maximum(x - z2 * stderr, lower)
+    high = np.minimum(x + z2 * stderr, upper)
+    for i, b in enumerate(at_bound):
+        if b == "lower":
+            low[i], high[i] = lower[i], min(x[i] + z1 * stderr[i], upper[i])
+        elif b == "upper":
+            low[i], high[i] = max(x[i] - z1 * stderr[i], lower[i]), upper[i]
+    return Uncertainty(stderr, low, high, at_bound, inflation, level)
+
+
 # --------------------------------------------------------------------------- judging
 
 
@@ -208,6 +378,7 @@ class Assessment:
         residual_tests: the paper's Sec. 2.1 statistics on the held-out window of largest
             beta (``stats.ResidualTests.to_dict()``), or an error string.
         results: the validations, one per held-out window.
+        residual_tests_windows: the same statistics on every held-out window, in order.
     """
 
     beta: float
@@ -217,6 +388,7 @@ class Assessment:
     cost: float
     residual_tests: dict[str, Any] | str
     results: list[ValidationResult] = field(repr=False, default_factory=list)
+    residual_tests_windows: list[dict[str, Any] | str] = field(repr=False, default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
@@ -246,21 +418,22 @@ def assess(
         raw += np.sum(d.bin_weights[1:, None] * np.abs(e[1:]) ** 2, axis=0)
     band, raw = np.sqrt(band / len(datums)), np.sqrt(raw / len(datums))
     worst = int(np.argmax(betas))
-    tests: dict[str, Any] | str
-    try:
-        residual = inverse_dft(
-            results[worst].error, datums[worst].n_samples, datums[worst].convention
-        )
-        tests = stats.residual_tests(
-            residual,
-            windows[worst].u,
-            output_names=names,
-            input_names=list(model.input_names),
-            max_lag=config.max_lag,
-            alpha=config.alpha,
-        ).to_dict()
-    except DatumError as err:
-        tests = f"not computed: {err}"
+    every: list[dict[str, Any] | str] = []
+    for d, r, w in zip(datums, results, windows, strict=True):
+        try:
+            every.append(
+                stats.residual_tests(
+                    inverse_dft(r.error, d.n_samples, d.convention),
+                    w.u,
+                    output_names=names,
+                    input_names=list(model.input_names),
+                    max_lag=config.max_lag,
+                    alpha=config.alpha,
+                ).to_dict()
+            )
+        except DatumError as err:
+            every.append(f"not computed: {err}")
+    tests = every[worst]
     data = bin_data(datums, model, config.excitation_floor)
     nominal_cost = float(np.sum(np.abs(_model_scaled_error(model, data, datums[0].ts_s)) ** 2))
     return Assessment(
@@ -271,6 +444,7 @@ def assess(
         cost=nominal_cost,
         residual_tests=tests,
         results=results,
+        residual_tests_windows=every,
     )
 
 

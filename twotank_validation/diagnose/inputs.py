@@ -48,6 +48,15 @@ class DiagnosisConfig:
             the excitation period.
         alpha: level of the residual statistics.
         max_lag: lags of the residual statistics.
+        unexplained_factor: after the chosen effects, an output's held-out error is a
+            material part left unexplained when it is at least this multiple of what the
+            measurement noise alone gives ...
+        unexplained_fraction: ... and at least this fraction of its error above the noise
+            floor is left, in (0, 1). The factor is above ``material``: a linear model
+            of a nonlinear plant leaves an error above the measurement noise at the excited
+            bins even when nothing is missing (docs/diagnosis.md, "How much is left").
+        confidence: level of the confidence intervals of the fitted parameters, in (0, 1).
+        runners_up: how many runner-up candidates (single effects or pairs) are reported.
     """
 
     min_reduction: float = 0.5
@@ -61,6 +70,10 @@ class DiagnosisConfig:
     max_time_fraction: float = 0.25
     alpha: float = 0.01
     max_lag: int = 25
+    unexplained_factor: float = 25.0
+    unexplained_fraction: float = 0.2
+    confidence: float = 0.95
+    runners_up: int = 3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_reduction < 1.0:
@@ -71,6 +84,16 @@ class DiagnosisConfig:
             raise DiagnosisError(f"max_effects={self.max_effects} must be 0, 1 or 2")
         if not 0.0 < self.excitation_floor < 1.0:
             raise DiagnosisError(f"excitation_floor={self.excitation_floor} must be in (0, 1)")
+        if not self.unexplained_factor > 0.0:
+            raise DiagnosisError(f"unexplained_factor={self.unexplained_factor} must be > 0")
+        if not 0.0 < self.unexplained_fraction < 1.0:
+            raise DiagnosisError(
+                f"unexplained_fraction={self.unexplained_fraction} must be in (0, 1)"
+            )
+        if not 0.0 < self.confidence < 1.0:
+            raise DiagnosisError(f"confidence={self.confidence} must be in (0, 1)")
+        if self.runners_up < 0:
+            raise DiagnosisError(f"runners_up={self.runners_up} must be >= 0")
 
 
 @dataclass(frozen=True)
