@@ -5,7 +5,7 @@ Usage (DDS on loopback only: scripts/run bench runs it in a private network name
 
 The validator node runs alone in a child process, exactly as its entry point runs it
 (``ValidatorNode`` spun by ``rclpy.spin``, models A and B, default parameters: 10 Hz,
-2048-sample period, 2-period windows) with ``use_sim_time``. This process is the rig: it
+2048-sample period, 2-period windows judged every quarter period) with ``use_sim_time``. This process is the rig: it
 publishes ``/clock`` and the three input topics over loopback DDS for every 0.1 s sample of
 the nominal scenario (its steady-state period, repeated), as fast as the node takes them (in
 lockstep, never sleeping simulated time), and subscribes to the reports.
@@ -222,6 +222,7 @@ def main() -> None:
     from rosgraph_msgs.msg import Clock  # noqa: PLC0415
     from sensor_msgs.msg import FluidPressure, Temperature  # noqa: PLC0415
 
+    from twotank_validation.online import MonitorConfig  # noqa: PLC0415
     from twotank_validation.online import streams as itf  # noqa: PLC0415
     from twotank_validation.ros import messages  # noqa: PLC0415
     from twotank_validation.ros.validator_node import VALIDATOR_PARAMS  # noqa: PLC0415
@@ -230,6 +231,8 @@ def main() -> None:
     ts_ns = round(float(defaults["ts_s"]) * NS)
     period = int(defaults["period_samples"])
     window = period * int(defaults["periods_per_window"])
+    # a window closes every hop (the node's default: a quarter period), as MonitorConfig says
+    hop = MonitorConfig(period_samples=period, hop_samples=int(defaults["hop_samples"])).hop
     models = list(defaults["models"])
     n = round(args.hours * HOUR_S * NS / ts_ns)
     u, y = steady_period()
@@ -306,7 +309,7 @@ def main() -> None:
     stats_at = [0]
     wall0 = time.perf_counter()
     for k in range(n):
-        closes = (k + 1) % period == 0 and k + 1 >= window
+        closes = (k + 1) % hop == 0 and k + 1 >= window
         if closes or (k and k % args.sync_every == 0):
             lost = node_proc.sync(k)
         if k and k % hour == 0:

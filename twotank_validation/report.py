@@ -395,8 +395,14 @@ def diagnosis_text(diag: Diagnosis, model_file: str | None = None) -> str:
                 f"left on {o}: {po['noise_ratio_after']:.1f} x the noise floor "
                 f"(before {po['noise_ratio_before']:.1f}; {share}{white})"
             )
+        sat = [f for f in diag.findings if f.kind == "saturation"]
+        label = (
+            f"unexplained by the linear model (the {sat[0].target} saturation below is outside it)"
+            if sat
+            else "unexplained"
+        )
         for why in ex.reasons:
-            lines.append(f"unexplained: {why}")
+            lines.append(f"{label}: {why}")
     lines.append("")
     if diag.effects:
         partial = diag.unexplained
@@ -409,10 +415,19 @@ def diagnosis_text(diag: Diagnosis, model_file: str | None = None) -> str:
             lines.append(f"  + {e.spec.label(diag.outputs)} ({params})")
             lines.extend(f"    {t}" for t in _uncertainty_lines(e))
             lines.append(f"    why: {e.evidence}")
+    elif diag.findings:
+        lines.append("Nothing added to the model file.")
     elif diag.unexplained:
         lines.append("Nothing added: no effect of the catalogue explains the error.")
     else:
         lines.append("Nothing added: the model is adequate for this datum.")
+    if diag.findings:
+        lines.append("Found (outside the model file):")
+        for f in diag.findings:
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in f.parameters.items())
+            lines.append(f"  ! {f.kind} on {f.target} ({params})")
+            lines.append(f"    why: {f.evidence}")
+            lines.append(f"    what to do: {f.recommendation}")
     if diag.runners_up:
         lines.append("Runners-up (held-out score, penalised):")
         for r in diag.runners_up:
@@ -563,12 +578,19 @@ def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
             p.f_hz, m_abs, yerr=np.vstack([below, p.noise]), fmt="o", ms=3.5, lw=0.6,
             capsize=0, label=f"measured / model ({p.f_hz.size} fit bins, ±1σ noise)",
         )  # fmt: skip
+        # a bin's phase is known modulo 360 deg: draw each bin (measured and fitted alike, so
+        # their difference and the R^2 are untouched) on the branch of the dense curve
+        wrap = np.zeros_like(p.phase_fitted_deg)
+        if p.dense_fitted.shape[1]:
+            dense_deg = np.degrees(np.unwrap(np.angle(p.dense_fitted[:, 0])))
+            at = np.interp(p.f_hz, p.dense_f_hz, dense_deg)
+            wrap = 360.0 * np.round((at - p.phase_fitted_deg) / 360.0)
         ph.errorbar(
-            p.f_hz, p.phase_measured_deg, yerr=p.phase_band_deg, fmt="o", ms=3.5, lw=0.6,
-            capsize=0,
+            p.f_hz, p.phase_measured_deg + wrap, yerr=p.phase_band_deg, fmt="o", ms=3.5,
+            lw=0.6, capsize=0,
         )  # fmt: skip
         mag.plot(p.f_hz, np.abs(p.fitted), "x", ms=4, color="C1", label="fitted, at the bins")
-        ph.plot(p.f_hz, p.phase_fitted_deg, "x", ms=4, color="C1")
+        ph.plot(p.f_hz, p.phase_fitted_deg + wrap, "x", ms=4, color="C1")
         for j in range(p.dense_fitted.shape[1]):
             curve = p.dense_fitted[:, j]
             lab = "fitted effect"
@@ -593,6 +615,10 @@ def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
         mag.legend(fontsize=7)
         for ax in (mag, ph):
             ax.grid(True, which="both", alpha=0.3)
+            # plain numbers at 1-2-5 steps: matplotlib's default minor labels overlap here
+            ax.xaxis.set_major_locator(mpl.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_major_formatter(mpl.ticker.FormatStrFormatter("%g"))
+            ax.xaxis.set_minor_formatter(mpl.ticker.NullFormatter())
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

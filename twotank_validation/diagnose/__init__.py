@@ -34,8 +34,15 @@ Modules (each imports only those above it):
   held-out windows).
 * :mod:`~twotank_validation.diagnose.evidence`: why the data point at a fitted effect, in words,
   and :func:`evidence_points`, the points, curve and R^2 that the text and figure share.
+* :mod:`~twotank_validation.diagnose.steady`: the sensor offset judged on the window means
+  against a reference operating point (:class:`Finding`: an effect outside the model file).
+* :mod:`~twotank_validation.diagnose.distortion`: the harmonic-distortion test
+  (:func:`distortion_test`) and the input saturation fit, run beside the catalogue.
 * :mod:`~twotank_validation.diagnose.diagnosis`: :func:`diagnose` (steps 2-4: selection,
   evidence, the changed document) and its outcome :class:`Diagnosis`.
+* :mod:`~twotank_validation.diagnose.stretches`: changes inside a recording: the stationary
+  stretches (:func:`find_stretches`), transient windows skipped, and each stretch diagnosed
+  against the model and against the stretch before (:func:`diagnose_stretches`).
 
 Bags are not read here: :func:`twotank_validation.replay.windows_from_bag` gives the judged
 windows of a recorded bag.
@@ -53,8 +60,10 @@ from twotank_validation.diagnose.diagnosis import (
     changed_document,
     diagnose,
 )
+from twotank_validation.diagnose.distortion import DistortionTest, distortion_test
 from twotank_validation.diagnose.effects import (
     EFFECT_KINDS,
+    REPORTED_KINDS,
     THERMAL_STATES,
     EffectSpec,
     Nominal,
@@ -84,23 +93,41 @@ from twotank_validation.diagnose.inputs import (
     Window,
     split_windows,
 )
+from twotank_validation.diagnose.steady import Finding
+from twotank_validation.diagnose.stretches import (
+    ChangeConfig,
+    RecordingDiagnosis,
+    Stretch,
+    StretchDiagnosis,
+    WindowFindings,
+    diagnose_stretches,
+    find_stretches,
+)
 
 __all__ = [
     "EFFECT_KINDS",
+    "REPORTED_KINDS",
     "THERMAL_STATES",
     "Assessment",
     "BinData",
+    "ChangeConfig",
     "Diagnosis",
     "DiagnosisConfig",
     "DiagnosisError",
+    "DistortionTest",
     "EffectSpec",
     "EvidencePoints",
     "Explained",
+    "Finding",
     "FittedEffect",
     "Nominal",
+    "RecordingDiagnosis",
     "RunnerUp",
+    "Stretch",
+    "StretchDiagnosis",
     "Uncertainty",
     "Window",
+    "WindowFindings",
     "assess",
     "bin_data",
     "catalogue",
@@ -108,8 +135,11 @@ __all__ = [
     "channel_time_constants",
     "cost",
     "diagnose",
+    "diagnose_stretches",
+    "distortion_test",
     "evidence_points",
     "excited_bins",
+    "find_stretches",
     "fit_effects",
     "fit_uncertainty",
     "noise_floor",

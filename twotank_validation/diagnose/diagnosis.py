@@ -670,6 +670,16 @@ def _prefer_parsimonious(ranked: list[FittedEffect], factor: float) -> list[Fitt
     return [ranked[pick], *ranked[:pick], *ranked[pick + 1 :]]
 
 
+def _values_text(e: FittedEffect) -> str:
+    """``delay_s 35.6 ± 2.6`` for each fitted parameter (± the standard error when known)."""
+    parts = []
+    for k, (n, v) in enumerate(zip(e.spec.names, e.values, strict=True)):
+        se = None if e.uncertainty is None else e.uncertainty.stderr[k]
+        pm = f" ± {se:.2g}" if se is not None and math.isfinite(se) else ""
+        parts.append(f"{n} {v:.4g}{pm}")
+    return ", ".join(parts)
+
+
 def _summary(  # noqa: PLR0917 - everything the paragraph says
     name: str,
     before: Assessment,
@@ -714,7 +724,7 @@ def _summary(  # noqa: PLR0917 - everything the paragraph says
             f"Model {name} is adequate for this datum: no effect of the catalogue removes enough "
             f"of the held-out error to be worth its parameters (held-out beta {before.beta:.3f})."
         )
-    added = " and ".join(e.spec.label(outputs) for e in chosen)
+    added = " and ".join(f"{e.spec.label(outputs)} ({_values_text(e)})" for e in chosen)
     rms = ", ".join(f"{o} {before.rms[o]:.4g} -> {after.rms[o]:.4g}" for o in outputs)
     return (
         f"Model {name} lacks {added}. On held-out data beta {before.beta:.3f} -> "

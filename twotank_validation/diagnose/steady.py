@@ -76,6 +76,16 @@ class Finding:
         }
 
 
+PLANT_CAUSES = {
+    "height": "; a constant extra outflow (a leak) moves the level the same way at steady state",
+    "temperature": (
+        "; a changed supply temperature or heat loss moves the temperature the same way at "
+        "steady state"
+    ),
+}
+"""What else shifts each two-tank output at steady state, for the offset's recommendation."""
+
+
 def window_means(windows: Sequence[Window]) -> tuple[np.ndarray, np.ndarray]:
     """Input and output means per window: (n_windows, nu) and (n_windows, ny), model units."""
     return (
@@ -233,6 +243,7 @@ def fit_offsets(  # noqa: PLR0917 - the diagnosis context
                 recommendation=(
                     f"recalibrate the {out} sensor (it reads {b:+.3g} off), or correct the "
                     "reference operating point if the plant itself moved"
+                    + PLANT_CAUSES.get(out, "")
                 ),
                 heldout_reduction=red,
             )
