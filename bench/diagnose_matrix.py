@@ -5,10 +5,11 @@ Usage: scripts/run bench diagnose_matrix.py [--seeds 10] [--rms 0.1,0.1] [--cuto
 
 For every case (an undeclared effect in the simulated rig, or none) and seed, simulates
 `windows` windows of two periods after five periods of settling, runs `diagnose` and
-prints, per case: the share of runs that added exactly the right effect(s) (the negative
-control: nothing), the median and worst relative error of each true parameter, the median
-beta before/after on the held-out windows and the median ratio of the held-out RMS error
-(after / before) on the affected output. The true parameters come from the rig's physics:
+prints, per case: the share of runs that added exactly the right effect(s) or findings
+(offset, saturation; the negative control: nothing), the median and worst relative error of
+each true parameter, the median beta before/after on the held-out windows, the median ratio
+of the held-out RMS error (after / before) on the affected output, the runs reported
+unexplained, and how often each parameter's 95 % interval covers the true value. The true parameters come from the rig's physics:
 delay = the sensor delay; leak rate = leak_per_level / A1; heat-loss rate = q / (h0 A1);
 coupling = Model B's level-to-temperature terms (k_inf = -t0/h0, k0 from the Jacobian).
 """
@@ -55,6 +56,14 @@ CASES = [
     ("heat 0.6 + delay 15", "B", {"heat_loss_coeff": 0.6}, [sensor_delay(15.0)],
      {("heat_loss", "temperature"): {"rate_per_s": 0.6 / (H0 * A1)},
       ("delay", "temperature"): {"delay_s": 15.0}}),
+    ("valve loss 15 % (hot)", "B", {}, [Fault("valve_weak", 0.0, 0.85, "hot")],
+     {("input_gain", "hot"): {"gain_error": -0.15}}),
+    ("hot supply -0.15", "B", {"hot_supply_temp": 0.85}, [],
+     {("hot_supply", "hot"): {"delta_temperature": -0.15}}),
+    ("level bias 0.05", "B", {}, [Fault("sensor_bias", 0.0, 0.05, "height")],
+     {("offset", "height"): {"offset": 0.05}}),
+    ("hot valve saturates 0.45", "B", {}, [Fault("valve_saturation", 0.0, 0.45, "hot")],
+     {("saturation", "hot"): {"level": 0.45}}),
     ("none (B, clean rig)", "B", {}, [], {}),
 ]  # fmt: skip
 
@@ -82,40 +91,52 @@ def main() -> None:
         f"{args.windows} windows "
         "(half fit, half held out), sensor noise 0.003 / 0.01"
     )
-    print(f"{'case':<24}{'right':>7}  {'parameter error: median / worst':<44}"
-          f"{'beta before->after':>20}{'RMS after/before':>18}{'s/run':>7}")  # fmt: skip
+    print(f"{'case':<26}{'right':>7}  {'parameter error: median / worst':<44}"
+          f"{'beta before->after':>20}{'RMS after/before':>18}{'s/run':>7}"
+          f"{'unexpl':>7}   95 % interval covers the truth")  # fmt: skip
     for name, model, extra, faults, truth in CASES:
         if args.cases and not any(c in name for c in args.cases):
             continue
         doc, src = load_model_document(model)
         right, errs, b0, b1, ratio, secs = 0, {}, [], [], [], []
+        unexplained, covered = 0, {}
         for seed in range(args.seeds):
             params = rig.RigParams(**noise, **extra)
             ws = windows(params, faults, seed, rms, args.windows, args.cutoff)
             t0 = time.perf_counter()
             d = diagnose(ws, doc, source=src)
             secs.append(time.perf_counter() - t0)
-            got = {
-                (e.spec.kind, d.outputs[e.spec.channel]): e.to_dict(d.outputs)["parameters"]
-                for e in d.effects
-            }
+            entries = [e.to_dict(d.outputs) for e in d.effects]
+            got = {(e["kind"], e["channel"]): e["parameters"] for e in entries}
+            got |= {(f.kind, f.target): dict(f.parameters) for f in d.findings}
             right += set(got) == set(truth)
+            unexplained += d.unexplained
             for key, params in truth.items():
                 for p, v in params.items():
                     if key in got:
                         errs.setdefault(p, []).append(abs(got[key][p] / v - 1.0))
+                ci = next(
+                    (e.get("uncertainty", {}) for e in entries if (e["kind"], e["channel"]) == key),
+                    {},
+                )
+                for p, v in params.items():
+                    if p in ci and ci[p]["ci95"][0] is not None:
+                        lo, hi = ci[p]["ci95"]
+                        covered.setdefault(p, []).append(lo <= v <= hi)
             b0.append(d.before.beta)
             b1.append(d.after.beta)
-            chans = {k[1] for k in truth} or {"temperature"}
+            chans = {k[1] for k in truth if k[1] in d.outputs} or {"height", "temperature"}
             ratio.append(max(d.after.rms[c] / d.before.rms[c] for c in chans))
         perr = (
             "; ".join(f"{p} {statistics.median(v):.1%} / {max(v):.1%}" for p, v in errs.items())
             or "-"
         )
+        cover = "; ".join(f"{p} {sum(v)}/{len(v)}" for p, v in covered.items()) or "-"
         print(
-            f"{name:<24}{right:>4}/{args.seeds:<2}  {perr:<44}"
+            f"{name:<26}{right:>4}/{args.seeds:<2}  {perr:<44}"
             f"{statistics.median(b0):>9.2f} -> {statistics.median(b1):.2f}"
-            f"{statistics.median(ratio):>18.2f}{statistics.median(secs):>7.1f}",
+            f"{statistics.median(ratio):>18.2f}{statistics.median(secs):>7.1f}"
+            f"{unexplained:>6}   {cover}",
             flush=True,
         )
 
