@@ -4,8 +4,10 @@ A :class:`Scenario` fixes everything a simulated run of the two-tank rig needs: 
 sample period, operating point, the periodic excitation (started at t = 0 around the
 operating point, as the excitation node does), the rig's unmodelled effects (sensor noise,
 mixing delay) and faults in their text form (:mod:`twotank_validation.sim.faults`).
-``simulate_scenario`` runs it in memory, ``iter_scenario`` sample by sample; writing it into a
-bag is :func:`twotank_validation.bags.scenario.write_scenario_bag`.
+With a ``closed_loop`` section (:class:`ClosedLoop`) the valves are driven by the PI
+controller of :mod:`twotank_validation.sim.control` and the excitation enters at its output or
+its setpoints. ``simulate_scenario`` runs it in memory, ``iter_scenario`` sample by sample;
+writing it into a bag is :func:`twotank_validation.bags.scenario.write_scenario_bag`.
 
 Shipped scenarios live in ``twotank_validation/sim/scenarios/*.yaml`` (``shipped_scenarios()``);
 a YAML file holds the keys of :class:`Scenario` (``units`` as a mapping of
@@ -30,11 +32,12 @@ from numpy.typing import NDArray
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.online.streams import RigUnits
-from twotank_validation.sim import excitation, rig
+from twotank_validation.sim import control, excitation, rig
 from twotank_validation.sim.faults import MAX_FAULT_DELAY_S, Fault, parse_fault
 
 __all__ = [
     "MAX_SUBSTEP_S",
+    "ClosedLoop",
     "Scenario",
     "ScenarioError",
     "iter_scenario",
@@ -100,6 +103,114 @@ def _integer(where: str, key: str, value: object, *, lo: int) -> int:
     return int(value)
 
 
+_CC: Final = control.ControllerConfig()
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClosedLoop:
+    """The ``closed_loop:`` section of a scenario: the PI controller that drives the valves.
+
+    YAML: a mapping of these keys (``closed_loop: {}`` or ``closed_loop: true`` for the
+    defaults; absent, ``null`` or ``false``: open loop). Gains and times as
+    :class:`~twotank_validation.sim.control.ControllerConfig` (defaults: its own).
+
+    Attributes:
+        excitation: ``"output"``: the scenario's excitation (``rms_hot``, ``rms_cold``, ...)
+            is added to the valve commands; ``"setpoint"``: an excitation of the same kind,
+            cutoff and seed with RMS ``setpoint_rms_height`` / ``setpoint_rms_temperature``
+            is added to the level and temperature setpoints.
+        height_setpoint: Level setpoint; None: the scenario's ``height`` (where the rig
+            starts).
+        temperature_setpoint: Temperature setpoint; None: the scenario's ``temperature``.
+        setpoint_rms_height: RMS of the level setpoint excitation (``excitation: setpoint``).
+        setpoint_rms_temperature: RMS of the temperature setpoint excitation.
+        kp_level, ti_level_s, tt_level_s, kp_temperature, ti_temperature_s,
+        tt_temperature_s, u_min, u_max, filter_s: as ControllerConfig.
+    """
+
+    excitation: str = _CC.excitation_entry
+    height_setpoint: float | None = None
+    temperature_setpoint: float | None = None
+    setpoint_rms_height: float = 0.02
+    setpoint_rms_temperature: float = 0.05
+    kp_level: float = _CC.kp_level
+    ti_level_s: float = _CC.ti_level_s
+    tt_level_s: float = _CC.tt_level_s
+    kp_temperature: float = _CC.kp_temperature
+    ti_temperature_s: float = _CC.ti_temperature_s
+    tt_temperature_s: float = _CC.tt_temperature_s
+    u_min: float = _CC.u_min
+    u_max: float = _CC.u_max
+    filter_s: float = _CC.filter_s
+
+    def __post_init__(self) -> None:
+        where = "closed_loop"
+        for key in ("setpoint_rms_height", "setpoint_rms_temperature"):
+            object.__setattr__(self, key, _real(where, key, getattr(self, key), lo=0.0, hi=0.5))
+        for key in ("height_setpoint", "temperature_setpoint"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, _real(where, key, getattr(self, key)))
+        try:
+            self.controller_config(TS_S, 0.47, 0.5, PERIOD_SAMPLES)
+        except control.ControllerError as err:
+            raise ScenarioError(f"{where}: {err}") from err
+
+    def controller_config(
+        self, ts_s: float, height: float, temperature: float, period_samples: int
+    ) -> control.ControllerConfig:
+        """The controller of a scenario run at ``ts_s`` starting at (height, temperature)."""
+        return control.ControllerConfig(
+            ts_s=ts_s,
+            height_setpoint=height if self.height_setpoint is None else self.height_setpoint,
+            temperature_setpoint=(
+                temperature if self.temperature_setpoint is None else self.temperature_setpoint
+            ),
+            kp_level=self.kp_level,
+            ti_level_s=self.ti_level_s,
+            tt_level_s=self.tt_level_s,
+            kp_temperature=self.kp_temperature,
+            ti_temperature_s=self.ti_temperature_s,
+            tt_temperature_s=self.tt_temperature_s,
+            u_min=self.u_min,
+            u_max=self.u_max,
+            excitation_entry=self.excitation,
+            hold_samples=period_samples,
+            filter_s=self.filter_s,
+        )
+
+
+_CLOSED_LOOP_KEYS: Final = tuple(f.name for f in dataclasses.fields(ClosedLoop))
+
+
+def closed_loop_from(value: object, source: str) -> ClosedLoop | None:
+    """The ``closed_loop`` YAML value as a :class:`ClosedLoop` (None for open loop).
+
+    Raises:
+        ScenarioError: not a mapping, true, false or null; unknown keys; invalid values.
+    """
+    if value is None or value is False:
+        return None
+    if isinstance(value, ClosedLoop):
+        return value
+    if value is True:
+        return ClosedLoop()
+    if not isinstance(value, Mapping):
+        raise ScenarioError(
+            f"{source}: closed_loop={value!r} must be a mapping of controller settings, true "
+            "(the defaults) or false (open loop)"
+        )
+    bad = sorted(set(map(str, value)) - set(_CLOSED_LOOP_KEYS))
+    if bad:
+        raise ScenarioError(
+            f"{source}: unknown key(s) {bad} in closed_loop; allowed keys: "
+            f"{', '.join(_CLOSED_LOOP_KEYS)}"
+        )
+    try:
+        return ClosedLoop(**{str(k): v for k, v in value.items()})
+    except ScenarioError as err:
+        raise ScenarioError(f"{source}: {err}") from err
+
+
 # --- the scenario -----------------------------------------------------------------------------
 
 
@@ -141,6 +252,11 @@ class Scenario:
             new level and temperature (:func:`parse_setpoint`); the excitation goes on.
         seed: Seed of the sensor noise, >= 0.
         units: Conversion of level and temperature to Pa and °C in the messages.
+        closed_loop: The PI controller driving the valves (:class:`ClosedLoop`, or in YAML a
+            mapping of its keys / ``true``); None: open loop, the excitation's commands go to
+            the valves as they are. In closed loop the ``setpoints`` change the
+            controller's setpoints, and command k is computed from measurement k - 1 (one
+            sample of computation delay, as the controller node in ``live``).
 
     Raises:
         ScenarioError: (a ModelError) naming the offending key.
@@ -170,6 +286,7 @@ class Scenario:
     setpoints: tuple[str, ...] = ()
     seed: int = 0
     units: RigUnits = field(default_factory=RigUnits)
+    closed_loop: ClosedLoop | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -225,6 +342,7 @@ class Scenario:
             put(self, key, _real(where, key, getattr(self, key), lo=0.0, hi=5.0))
         if not isinstance(self.units, RigUnits):
             raise ScenarioError(f"{where}: units={self.units!r} must be a RigUnits")
+        put(self, "closed_loop", closed_loop_from(self.closed_loop, where))
         faults: object = self.faults  # YAML gives lists; anything else is refused
         if isinstance(faults, str) or not isinstance(faults, tuple | list):
             raise ScenarioError(
@@ -270,6 +388,14 @@ class Scenario:
             self.operating_point()
         except ModelError as err:
             raise ScenarioError(f"{where}: height/temperature/rig settings: {err}") from err
+        if self.closed_loop is not None:
+            cfg = self.controller_config()
+            try:
+                rig.operating_point(
+                    self.rig_params(), cfg.height_setpoint, cfg.temperature_setpoint
+                )
+            except ModelError as err:
+                raise ScenarioError(f"{where}: closed_loop setpoints: {err}") from err
         try:
             self.command_table()
         except DatumError as err:
@@ -351,6 +477,30 @@ class Scenario:
             steps.append((math.ceil(at / self.ts_s - 1e-9), new - base))
         return steps
 
+    def controller_config(self) -> control.ControllerConfig:
+        """The closed loop's controller settings (ScenarioError in open loop)."""
+        if self.closed_loop is None:
+            raise ScenarioError(f"scenario {self.name!r} has no closed_loop section")
+        return self.closed_loop.controller_config(
+            self.ts_s, self.height, self.temperature, self.period_samples
+        )
+
+    def excitation_table(self) -> FloatArray:
+        """(period_samples, 2) zero-mean excitation of one period, where it enters.
+
+        Open loop and ``excitation: output``: [hot, cold] deviations of the valve commands
+        (``command_table()`` less the operating commands); ``excitation: setpoint``:
+        [height, temperature] deviations of the setpoints.
+        """
+        loop = self.closed_loop
+        if loop is not None and loop.excitation == "setpoint":
+            cfg = dataclasses.replace(
+                self.excitation_config(),
+                rms=(loop.setpoint_rms_height, loop.setpoint_rms_temperature),
+            )
+            return excitation.excitation_period(cfg)
+        return self.command_table() - self.operating_point().commands
+
     def fault_objects(self) -> tuple[Fault, ...]:
         """The faults, parsed."""
         return tuple(parse_fault(spec) for spec in self.faults)
@@ -361,6 +511,8 @@ class Scenario:
         out["faults"] = list(self.faults)
         out["setpoints"] = list(self.setpoints)
         out["units"] = dataclasses.asdict(self.units)
+        if self.closed_loop is not None:
+            out["closed_loop"] = dataclasses.asdict(self.closed_loop)
         return out
 
 
@@ -427,6 +579,8 @@ def scenario_from_dict(doc: object, source: str, default_name: str = "") -> Scen
         kwargs["faults"] = ()
     if kwargs.get("setpoints") is None:
         kwargs["setpoints"] = ()
+    if "closed_loop" in kwargs:
+        kwargs["closed_loop"] = closed_loop_from(kwargs["closed_loop"], source)
     if "units" in kwargs:
         units = kwargs["units"]
         if not isinstance(units, Mapping):
@@ -505,6 +659,13 @@ def load_scenario(path_or_name: str | os.PathLike[str]) -> Scenario:
 def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float, float]]:
     """Run the scenario one sample at a time (memory independent of its length).
 
+    Open loop, the valves get the excitation's commands (moved by the ``setpoints``). In
+    closed loop (``scenario.closed_loop``) a :class:`~twotank_validation.sim.control.PIController`
+    started at the operating point's commands computes command k from measurement k - 1 and
+    excitation row k (command 0, before any measurement: :meth:`PIController.open_command`);
+    the ``setpoints`` change its setpoints. Either way the commands yielded are the ones
+    applied, i.e. what the validator is fed.
+
     Yields:
         ``(stamp_ns, hot, cold, height, temperature)`` for k = 0 .. n_samples - 1: the stamp
         k ts_ns, the commands applied from k ts_s on and the measurement taken at k ts_s
@@ -513,10 +674,6 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
     Raises:
         ModelError: If the tank empties.
     """
-    rows = scenario.command_table().tolist()
-    period = len(rows)
-    steps = scenario.setpoint_steps()
-    offset = (0.0, 0.0)
     ts_ns = scenario.ts_ns
     sim = rig.TankSimulator(
         scenario.rig_params(),
@@ -526,6 +683,13 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
         substeps=scenario.substeps,
         faults=scenario.fault_objects(),
     )
+    if scenario.closed_loop is not None:
+        yield from _iter_closed_loop(scenario, sim)
+        return
+    rows = scenario.command_table().tolist()
+    period = len(rows)
+    steps = scenario.setpoint_steps()
+    offset = (0.0, 0.0)
     for k in range(scenario.n_samples):
         while steps and k >= steps[0][0]:
             offset = tuple(steps.pop(0)[1].tolist())
@@ -534,6 +698,40 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
         height, temperature = sim.measure().tolist()
         sim.step((hot, cold))
         yield k * ts_ns, hot, cold, height, temperature
+
+
+def _iter_closed_loop(
+    scenario: Scenario, sim: rig.TankSimulator
+) -> Iterator[tuple[int, float, float, float, float]]:
+    """The closed-loop body of :func:`iter_scenario`."""
+    cfg = scenario.controller_config()
+    controller = control.PIController(cfg, scenario.operating_point().commands)
+    table = scenario.excitation_table()
+    period = len(table)
+    changes = []
+    height, temperature = cfg.height_setpoint, cfg.temperature_setpoint
+    for spec in sorted(scenario.setpoints, key=lambda x: parse_setpoint(x)[2]):
+        h, t, at = parse_setpoint(spec)
+        height = height if h is None else h
+        temperature = temperature if t is None else t
+        changes.append((math.ceil(at / scenario.ts_s - 1e-9), height, temperature))
+    ts_ns = scenario.ts_ns
+    previous: FloatArray | None = None
+    for k in range(scenario.n_samples):
+        while changes and k >= changes[0][0]:
+            _, h_new, t_new = changes.pop(0)
+            controller.set_setpoints(h_new, t_new)
+        exc = table[k % period]
+        measured = sim.measure()
+        if previous is None:
+            command = controller.open_command(exc)
+        else:
+            command = controller.step(previous, exc)
+        previous = measured
+        sim.step(command)
+        hot, cold = command.tolist()
+        height_k, temperature_k = measured.tolist()
+        yield k * ts_ns, hot, cold, height_k, temperature_k
 
 
 def simulate_scenario(
