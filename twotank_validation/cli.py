@@ -120,6 +120,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
         models=tuple(args.model or ["A", "B"]),
         faults=tuple(args.fault or ()),
         seed=args.seed,
+        closed_loop=args.closed_loop,
+        controller={"excitation_entry": args.excitation_entry} if args.closed_loop else {},
     )
 
     def show(rep: WindowReport) -> None:
@@ -525,6 +527,17 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--fault", action="append", help="plant fault, e.g. leak=0.02@1000 (repeat)")
     live.add_argument("--seed", type=int, default=0, help="plant noise seed")
     live.add_argument("--json", action="store_true", help="one JSON object per report")
+    live.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="PI controller on level and temperature drives the valves (excitation added)",
+    )
+    live.add_argument(
+        "--excitation-entry",
+        choices=["output", "setpoint"],
+        default="output",
+        help="closed loop: excitation added to the valve commands or to the setpoints",
+    )
     live.set_defaults(func=_cmd_live)
 
     sim = command("simulate", "simulate a scenario of the rig into a rosbag2 bag")

@@ -3,9 +3,13 @@
 A driver owns the simulated time: at every sample it publishes ``/clock``, lets the
 excitation node publish the command for that instant, waits until the plant received it,
 lets the plant publish its measurement and advance one sample, and spins the executor so the
-validator gets everything. All three nodes run with ``use_sim_time`` and talk over their
-ordinary topics (loopback DDS), so this exercises the same code as a deployment, faster than
-real time and deterministically.
+validator gets everything. In closed loop (``LiveConfig.closed_loop``) the controller node
+takes the excitation node's place: its command at each instant comes from the measurement of
+the sample before (which the driver waits for), with the excitation added; the validator is
+fed its ``flow_cmd`` and the measurements as in open loop, with the input periodicity gate
+opened (:data:`~twotank_validation.sim.control.CLOSED_LOOP_INPUT_PERIODIC_RTOL`). All three
+nodes run with ``use_sim_time`` and talk over their ordinary topics (loopback DDS), so this
+exercises the same code as a deployment, faster than real time and deterministically.
 """
 
 from __future__ import annotations
@@ -29,9 +33,11 @@ from rosgraph_msgs.msg import Clock
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.online import Sample, SampleBlock, WindowReport
 from twotank_validation.online import streams as itf
+from twotank_validation.ros.controller_node import ControllerNode
 from twotank_validation.ros.excitation_node import ExcitationNode
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.validator_node import ValidatorNode
+from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 
 
 @dataclass(frozen=True)
@@ -49,6 +55,10 @@ class LiveConfig:
         validator: extra validator parameters (name -> value).
         plant: extra plant parameters.
         excitation: extra excitation parameters.
+        closed_loop: run the controller node (PI loops, excitation added) instead of the
+            excitation node.
+        controller: extra controller parameters (closed loop; e.g. ``excitation_entry``,
+            gains, setpoints).
         record_samples: keep every aligned sample in the result (parity checks; memory
             grows with the run).
         keep_reports: keep every report in the result. Each carries its per-bin spectrum
@@ -66,6 +76,8 @@ class LiveConfig:
     validator: dict[str, Any] = field(default_factory=dict)
     plant: dict[str, Any] = field(default_factory=dict)
     excitation: dict[str, Any] = field(default_factory=dict)
+    closed_loop: bool = False
+    controller: dict[str, Any] = field(default_factory=dict)
     record_samples: bool = True
     keep_reports: bool = True
 
@@ -113,6 +125,10 @@ def spin_until(
 
 def _command_arrived(plant: PlantNode, t_ns: int) -> bool:
     return plant.last_command_ns == t_ns
+
+
+def _measured(ctl: ControllerNode, t_ns: int) -> bool:
+    return all(ctl.last_measurement_ns.get(s) == t_ns for s in itf.MEASUREMENTS)
 
 
 def _sample_arrived(val: ValidatorNode, k: int) -> bool:
@@ -169,20 +185,20 @@ def run_live(
     common = {"ts_s": config.ts_s, "period_samples": config.period_samples}
     nodes: list[Node] = []
     try:
-        exc = ExcitationNode(
-            context=ctx,
-            parameter_overrides=[
-                sim,
-                *_overrides(
-                    {
-                        **common,
-                        "self_timed": False,
-                        "seed": config.excitation_seed,
-                        **config.excitation,
-                    }
-                ),
-            ],
-        )
+        source = {**common, "self_timed": False, "seed": config.excitation_seed}
+        exc: ExcitationNode | ControllerNode
+        validator_extra: dict[str, Any] = {}
+        if config.closed_loop:
+            exc = ControllerNode(
+                context=ctx,
+                parameter_overrides=[sim, *_overrides({**source, **config.controller})],
+            )
+            validator_extra["input_periodic_rtol"] = CLOSED_LOOP_INPUT_PERIODIC_RTOL
+        else:
+            exc = ExcitationNode(
+                context=ctx,
+                parameter_overrides=[sim, *_overrides({**source, **config.excitation})],
+            )
         plant_params = {
             "ts_s": config.ts_s,
             "self_timed": False,
@@ -196,7 +212,14 @@ def run_live(
             context=ctx,
             parameter_overrides=[
                 sim,
-                *_overrides({**common, "models": list(config.models), **config.validator}),
+                *_overrides(
+                    {
+                        **common,
+                        "models": list(config.models),
+                        **validator_extra,
+                        **config.validator,
+                    }
+                ),
             ],
         )
         driver = Node("twotank_clock", context=ctx)
@@ -208,11 +231,13 @@ def run_live(
         for n in nodes:
             executor.add_node(n)
         # discovery: wait until the intra-process publishers and subscriptions have matched
+        n_measured = 1 + n_extra + (1 if config.closed_loop else 0)
         spin_until(
             executor,
             lambda: (
                 exc.pub.get_subscription_count() >= 2 + n_extra
-                and plant.pub_height.get_subscription_count() >= 1 + n_extra
+                and plant.pub_height.get_subscription_count() >= n_measured
+                and plant.pub_temperature.get_subscription_count() >= n_measured
             ),
             10.0,
         )
@@ -237,6 +262,12 @@ def run_live(
             if not spin_until(executor, partial(_command_arrived, plant, t)):
                 raise RuntimeError(f"plant did not receive the command of t = {t / NS_PER_S:.1f} s")
             plant.tick(t)
+            if isinstance(exc, ControllerNode) and not spin_until(
+                executor, partial(_measured, exc, t)
+            ):
+                raise RuntimeError(
+                    f"controller did not receive the measurement of t = {t / NS_PER_S:.1f} s"
+                )
             # lockstep: the validator has every message of this sample before time moves on
             if synced is not None and not spin_until(executor, partial(synced, k)):
                 raise RuntimeError(
