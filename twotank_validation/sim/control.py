@@ -87,9 +87,13 @@ CLOSED_LOOP_INPUT_PERIODIC_RTOL: Final = 1.0
 loop are not periodic (the controller feeds back the sensor noise and any disturbance), so
 the default gate (1e-6: the excitation repeats exactly) would judge no window. With the
 default gains and measurement filter the commands change by under 10 % of their RMS from one
-period to the next on the nominal rig, and by about half of it while the loop compensates a
-fault at twice its stated limit; 1.0 (the largest value the node accepts) judges them all.
-The test itself does not need a periodic input (docs/theory.md, closed loop)."""
+period to the next on the nominal rig and by about half of it while the loop compensates a
+leak or a valve loss at twice its stated limit; 1.0 (the largest value the validator node
+accepts) judges those windows. A fault the loop answers with a larger move of the commands (a
+temperature sensor bias of 0.16 moves the hot valve by about twice its RMS) makes the windows
+spanning the move unjudged (STALE) rather than invalidating. The test itself does not need a
+periodic input (docs/theory.md, closed loop)."""
+
 
 _MIN_FLOW: Final = 1e-9
 """Below this total flow the hot fraction of the delivered commands is undefined."""
