@@ -77,6 +77,7 @@ setup(
             "twotank_validator = twotank_validation.ros.validator_node:main",
             "twotank_plant = twotank_validation.ros.plant_node:main",
             "twotank_excitation = twotank_validation.ros.excitation_node:main",
+            "twotank_supervisor = twotank_validation.ros.supervisor_node:main",
         ],
     },
 )

@@ -490,6 +490,7 @@ class Harness:
             lambda: (
                 self.pub_report.get_subscription_count() >= 1
                 and self.pub_flag.get_subscription_count() >= 1
+                and self.pub_text.get_subscription_count() >= 1
                 and self.modes == ["normal"]
             )
         )

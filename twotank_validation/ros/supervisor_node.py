@@ -142,6 +142,7 @@ class SupervisorNode(Node):
         self.states_published = 0
         self.modes_published = 0
         self._clock_started = False
+        self._warned_interval = False
         self._pub_mode = self.create_publisher(String, "control/mode", LATCHED)
         self._pub_state = self.create_publisher(DiagnosticStatus, "supervisor/state", LATCHED)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -229,7 +230,16 @@ class SupervisorNode(Node):
     def _on_report(self, model: str, msg: Any) -> None:
         self._count(f"validation/{model}/report")
         stamp = msg.header.stamp
-        self._step(Report(model, stamp.sec + stamp.nanosec / NS_PER_S))
+        stamp_s = stamp.sec + stamp.nanosec / NS_PER_S
+        last = self.machine.state.last_report_s.get(model)
+        stale_s = self.machine.config.stale_after_s
+        if last is not None and stamp_s - last > stale_s / 2 and not self._warned_interval:
+            self._warned_interval = True
+            self.get_logger().warning(
+                f"reports of {model} {stamp_s - last:.1f} s apart: stale_after_s = {stale_s} s "
+                "leaves little margin; set it to about 3 report intervals (the validator's hop)"
+            )
+        self._step(Report(model, stamp_s))
 
     def _on_diagnosis(self, model: str, msg: String) -> None:
         self._count(f"validation/{model}/diagnosis_text")
