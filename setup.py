@@ -78,6 +78,7 @@ setup(
             "twotank_plant = twotank_validation.ros.plant_node:main",
             "twotank_excitation = twotank_validation.ros.excitation_node:main",
             "twotank_controller = twotank_validation.ros.controller_node:main",
+            "twotank_supervisor = twotank_validation.ros.supervisor_node:main",
         ],
     },
 )

@@ -320,6 +320,7 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
         "twotank_plant",
         "twotank_excitation",
         "twotank_controller",
+        "twotank_supervisor",
         "twotank-validation",
     }
     assert scripts == console_scripts(importlib.metadata.distribution("twotank_validation"))
@@ -331,7 +332,7 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     assert (own / "share/ament_index/resource_index/packages/twotank_validation").is_file()
     assert (share / "package.xml").read_text() == (ROOT / "package.xml").read_text()
     assert names(share / "launch", "*") == names(ROOT / "launch", "*.launch.py")
-    assert len(names(share / "launch", "*")) == 3
+    assert len(names(share / "launch", "*")) == 4
     assert names(share / "models", "*") == ["model_a.yaml", "model_b.yaml"]
     package = ROOT / "twotank_validation"
     assert names(share / "scenarios", "*") == names(package / "sim/scenarios", "*.yaml")
