@@ -1,7 +1,9 @@
 """Closed-loop rig: `ros2 launch twotank_validation twotank_closed_loop.launch.py`.
 
 The simulated plant, the PI controller (which adds the excitation to its output or its
-setpoints) and the validator, fed the controller's `flow_cmd` and the measurements.
+setpoints), the validator, fed the controller's `flow_cmd` and the measurements, and the
+supervisor, which watches `supervisor_models` (default B) and switches the controller to
+its safe mode on their alarm or silence (`control/mode`).
 Arguments: `models` (comma-separated, default A,B), `faults` (comma-separated fault specs,
 e.g. `leak=0.06@1000`), `real_time_factor` (default 1; > 1 runs the plant's /clock faster),
 `excitation_entry` (`output` or `setpoint`, default output). The plant owns the simulated
@@ -26,6 +28,9 @@ def _nodes(context, *args, **kwargs):
     faults = [f for f in LaunchConfiguration("faults").perform(context).split(",") if f] or [""]
     rtf = float(LaunchConfiguration("real_time_factor").perform(context))
     entry = LaunchConfiguration("excitation_entry").perform(context)
+    supervised = [
+        m for m in LaunchConfiguration("supervisor_models").perform(context).split(",") if m
+    ]
     sim = {"use_sim_time": True}
     return [
         Node(
@@ -49,6 +54,11 @@ def _nodes(context, *args, **kwargs):
                 }
             ],
         ),
+        Node(
+            package="twotank_validation",
+            executable="twotank_supervisor",
+            parameters=[{**sim, "models": supervised}],
+        ),
     ]
 
 
@@ -57,6 +67,7 @@ def generate_launch_description():
     return LaunchDescription(
         [
             DeclareLaunchArgument("models", default_value="A,B"),
+            DeclareLaunchArgument("supervisor_models", default_value="B"),
             DeclareLaunchArgument("faults", default_value=""),
             DeclareLaunchArgument("real_time_factor", default_value="1.0"),
             DeclareLaunchArgument("excitation_entry", default_value="output"),
