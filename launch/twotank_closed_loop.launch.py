@@ -8,7 +8,7 @@ Arguments: `models` (comma-separated, default A,B), `faults` (comma-separated fa
 e.g. `leak=0.06@1000`), `real_time_factor` (default 1; > 1 runs the plant's /clock faster),
 `excitation_entry` (`output` or `setpoint`, default output). The plant owns the simulated
 clock (/clock); every node uses it. The validator's input periodicity gate is opened
-(`input_periodic_rtol` 1.0): closed-loop commands are not periodic. `control/mode`
+(`input_periodic_rtol` 0.25): closed-loop commands are not periodic. `control/mode`
 (std_msgs/String "normal"/"safe", transient-local) switches the controller's safe mode. Not
 exercised by the test suite (no launch wheels on PyPI); `twotank-validation live
 --closed-loop` composes the same nodes in-process.
@@ -20,7 +20,7 @@ from launch_ros.actions import Node
 
 from launch import LaunchDescription
 
-CLOSED_LOOP_INPUT_PERIODIC_RTOL = 1.0  # twotank_validation.sim.control's value
+CLOSED_LOOP_INPUT_PERIODIC_RTOL = 0.25  # twotank_validation.sim.control's value
 
 
 def _nodes(context, *args, **kwargs):
