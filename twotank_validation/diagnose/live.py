@@ -13,8 +13,9 @@ and after an alarm's onset) it
 
    * a *saturation* finding: the input clips; ``stuck`` when it clips
      ``STUCK_FRACTION`` or more of the samples (the valve follows no command);
-   * else, when the validator raised the alarm on the operating point (``raised_by``) and
-     the outputs' steady means moved materially: the *operating-point signature*
+   * else, when the outputs' steady means moved materially from the reference (the
+     validator's operating-point check sees the same move, though it skips a window still
+     settling, so the alarm may rise on the dynamics first): the *operating-point signature*
      (:func:`operating_point_move`): the direction of the move among those of the plant
      causes (an output alone; the steady-state response to one valve's flow), and, for an
      output alone, whether it moved as a step (a sensor: ``offset``) or through the plant's
@@ -158,7 +159,7 @@ class CatalogueDiagnosis:
             )
             conf = float(np.clip(f.heldout_reduction, 0.0, 1.0))
             return _answer(job, kind, f.target, dict(f.parameters), conf, text)
-        if reference is not None and "operating point" in job.raised_by:
+        if reference is not None:
             move = operating_point_move(job, d, nominal, reference)
             if move is not None:
                 return move

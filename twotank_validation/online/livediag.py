@@ -129,8 +129,9 @@ class DiagnosisJob:
         means_end_ns: (k,) end stamps of the recent judged windows (hop apart), oldest first.
         means_u: (k, nu) input means of each of those windows' last period.
         means_y: (k, ny) output means of the same.
-        raised_by: what made the episode's windows invalidating (``WindowReport.raised_by``
-            of each, joined: ``"dynamics and operating point"`` when both occurred).
+        raised_by: what made the windows since the onset invalidating
+            (``WindowReport.raised_by`` of each, joined: ``"dynamics and operating point"``
+            when both occurred).
         ts_s: sample period (s).
         period_samples: excitation period (samples).
         update: the job's number in its alarm episode.
@@ -218,6 +219,7 @@ class _ModelState:
     windows: deque[WindowData]
     means: deque[tuple[int, np.ndarray, np.ndarray]]
     last_valid_end_ns: int | None = None
+    raised_since_valid: set[str] = field(default_factory=set)
     episode: _Episode | None = None
     pending: deque[Future[LiveDiagnosis]] = field(default_factory=deque)
     current: LiveDiagnosis | None = None
@@ -290,10 +292,13 @@ class LiveDiagnoser:
         st.windows.append(data)
         p = self._period or len(u)
         st.means.append((data.end_ns, u[-p:].mean(axis=0), y[-p:].mean(axis=0)))
+        if rep.raised_by:  # what invalidated the windows since the last valid one
+            st.raised_since_valid.update(rep.raised_by.replace(" and ", ",").split(","))
         if rep.alarm is not Alarm.ERROR:
             st.episode = None
             if not rep.invalidated:
                 st.last_valid_end_ns = data.end_ns
+                st.raised_since_valid = set()
             return
         ep = st.episode
         if ep is None:
@@ -301,8 +306,7 @@ class LiveDiagnoser:
             if onset is None:  # invalid from the first window on: nothing before the onset
                 onset = st.windows[0].start_ns - 1
             ep = st.episode = _Episode(onset, self._before(st, onset))
-        if rep.raised_by:
-            ep.raised_by.update(rep.raised_by.replace(" and ", ",").split(","))
+        ep.raised_by.update(st.raised_since_valid)
         grew = self._extend_post(st, ep)
         if (grew or ep.updates == 0) and ep.post and ep.updates < self.config.max_updates:
             ep.updates += 1
