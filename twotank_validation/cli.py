@@ -10,7 +10,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
@@ -284,12 +284,19 @@ def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     from twotank_validation import replay, report  # noqa: PLC0415
-    from twotank_validation.core.model import load_model  # noqa: PLC0415
+    from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
 
-    models = [load_model(m) for m in (args.model or ["A", "B"])]
+    docs = [load_model_document(m) for m in (args.model or ["A", "B"])]
+    models = [model_from_dict(doc, source) for doc, source in docs]
     cfg, timing = _timed_config(args)
     assert isinstance(cfg, replay.ReplayConfig)
     assert isinstance(timing, replay.Timing)
+    if not args.no_diagnosis:
+        cfg = replace(
+            cfg,
+            diagnosis=True,
+            documents={m.name: doc for m, (doc, _) in zip(models, docs, strict=True)},
+        )
     bar = None
     if not args.quiet:
         bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5, disable=None)
@@ -319,6 +326,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
                 verdict += f" ({w['raised_by']})"
             extra = f"  ({w['reason']})" if w["reason"] else ""
             extra += "".join(f"  (warning: {text})" for text in w["warnings"])
+            if w["diagnosis"] is not None:
+                extra += "  (diagnosis: {})".format(_diagnosis_text(w["diagnosis"]))
             _out(
                 f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<30} "
                 f"{w['alarm']}{extra}"
@@ -344,6 +353,17 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return _exit_code(result.complete, replay.unjudged_models(summary, timing, cfg), timing)
+
+
+def _diagnosis_text(d: dict[str, Any]) -> str:
+    """``"leak on height (outflow 0.058), confidence 0.17"`` of a window's diagnosis entry."""
+    params = ", ".join(f"{k} {v:.3g}" for k, v in d["parameters"].items())
+    where = f" on {d['channel']}" if d["channel"] else ""
+    return (
+        f"{d['kind']}{where}"
+        + (f" ({params})" if params else "")
+        + (f", confidence {d['confidence']:.2f}")
+    )
 
 
 def _exit_code(complete: bool, unjudged: Sequence[str], timing: object) -> int:
@@ -570,6 +590,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     val.add_argument("--json", help="write the per-window results as JSON to this file")
     val.add_argument("--report", help="write figures (alarm timeline, windows of interest) here")
+    val.add_argument(
+        "--no-diagnosis",
+        action="store_true",
+        help="do not name the fault live once an alarm rises (the live diagnosis)",
+    )
     _add_bag_options(val)
     val.set_defaults(func=_cmd_validate)
 

@@ -37,9 +37,10 @@ import numpy as np
 
 import twotank_validation.bags as bag_reader
 from twotank_validation import tables
-from twotank_validation.core.model import LFTModel
+from twotank_validation.core.model import LFTModel, load_model_document
 from twotank_validation.defaults import JITTER_FRACTION, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.diagnose import Window
+from twotank_validation.diagnose.live import catalogue_diagnosis
 from twotank_validation.diagnose.stretches import WindowFindings
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
@@ -63,6 +64,7 @@ from twotank_validation.online.interface import (
     extract,
     source_stamp_ns,
 )
+from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
 from twotank_validation.online.streams import MEASUREMENTS, STREAM_KINDS, STREAMS
 
 
@@ -83,6 +85,12 @@ class ReplayConfig:
             conversion; messages are decoded from the definitions stored in the bag. None:
             the two-tank interface of ``topics`` and ``units`` (read in bulk). A table
             (:func:`replay_table`) needs a map of columns.
+        diagnosis: run the live diagnosis (:mod:`~twotank_validation.online.livediag`):
+            once a model's alarm rises, each report carries the most likely effect in force
+            (``WindowReport.diagnosis``), computed synchronously, as the node's answers.
+        documents: model name -> model document for the diagnosis; a model not named is
+            loaded by its name (the built-in models); a model with neither is not diagnosed.
+        diagnosis_config: the live diagnosis's settings.
     """
 
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
@@ -91,6 +99,9 @@ class ReplayConfig:
     jitter_fraction: float = JITTER_FRACTION
     interface: InterfaceMap | None = None
     oversampling: Mapping[str, int] = field(default_factory=dict)
+    diagnosis: bool = False
+    documents: Mapping[str, Any] = field(default_factory=dict)
+    diagnosis_config: LiveDiagConfig = field(default_factory=LiveDiagConfig)
 
     def __post_init__(self) -> None:
         if self.interface is not None:
@@ -119,7 +130,28 @@ class ReplayConfig:
             models,
             jitter_fraction=self.jitter_fraction,
             oversampling=self.oversampling,
+            diagnoser=self.diagnoser(models) if self.diagnosis else None,
         )
+
+    def diagnoser(self, models: Sequence[LFTModel]) -> LiveDiagnoser:
+        """The synchronous live diagnoser of these models (their documents, see ``documents``)."""
+        docs = model_documents(models, self.documents)
+        cfg = dataclasses.replace(self.diagnosis_config, models=tuple(docs))
+        return LiveDiagnoser(catalogue_diagnosis(docs, convention=self.monitor.convention), cfg)
+
+
+def model_documents(
+    models: Sequence[LFTModel], given: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """Model name -> document: the given ones, else the built-in model of that name."""
+    out: dict[str, Any] = {}
+    for m in models:
+        if given and m.name in given:
+            out[m.name] = given[m.name]
+            continue
+        with contextlib.suppress(TwotankError, OSError):
+            out[m.name] = load_model_document(m.name)[0]
+    return out
 
 
 class ReplayConfigError(TwotankError, ValueError):
@@ -630,6 +662,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
                 "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
                 "raised_by": rep.raised_by,
                 "operating_point": rep.operating_point,
+                "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
             }
         )
         if (

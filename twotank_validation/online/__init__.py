@@ -4,6 +4,8 @@ Layers, each importing only those before it (and :mod:`twotank_validation.core`)
 :mod:`~twotank_validation.online.alarm` (the debounced alarm),
 :mod:`~twotank_validation.online.aligner` (stamped values onto the sample grid),
 :mod:`~twotank_validation.online.streams` (stream names, message types, units, extractors),
+:mod:`~twotank_validation.online.livediag` (the fault named live: windows buffered, the
+diagnosis scheduled once an alarm rises),
 :mod:`~twotank_validation.online.window` (gates, validation, reports),
 :mod:`~twotank_validation.online.faults` (input faults, the STALE text) and
 :mod:`~twotank_validation.online.validator` (:class:`OnlineValidator`, which the live node

@@ -28,6 +28,7 @@ from twotank_validation.online.aligner import (
     SampleBlock,
 )
 from twotank_validation.online.faults import STOPPED_STREAMS, InputFaults
+from twotank_validation.online.livediag import LiveDiagnoser
 from twotank_validation.online.streams import (
     FLOW_CMD,
     MEASUREMENTS,
@@ -77,6 +78,9 @@ class OnlineValidator:
             grid (stream name -> whole number; 1 for streams not named). A grid at a slower
             sensor's rate (``config.ts_s`` a multiple of the commands' period) decimates the
             faster streams (:class:`~twotank_validation.online.aligner.SampleAligner`).
+        diagnoser: the live diagnosis (:class:`~twotank_validation.online.livediag.LiveDiagnoser`):
+            it sees every judged window's report and samples, and each report carries the
+            answer in force (``WindowReport.diagnosis``); None: no diagnosis.
 
     Attributes:
         sample_listeners: called with each aligned :class:`Sample` or :class:`SampleBlock`
@@ -90,8 +94,12 @@ class OnlineValidator:
         *,
         jitter_fraction: float = JITTER_FRACTION,
         oversampling: Mapping[str, int] | None = None,
+        diagnoser: LiveDiagnoser | None = None,
     ) -> None:
         self.config = config
+        self.diagnoser = diagnoser
+        if diagnoser is not None:
+            diagnoser.bind(config.ts_s, config.period_samples)
         over = dict(oversampling or {})
         if unknown := sorted(set(over) - set(STREAMS)):
             raise DatumError(f"oversampling names unknown stream(s) {unknown}; streams: {STREAMS}")
@@ -173,20 +181,31 @@ class OnlineValidator:
         out: list[WindowReport] = []
         monitor = self._monitor
         listeners = self.sample_listeners
+        diagnoser = self.diagnoser
+
+        def take(rep: WindowReport) -> None:
+            # while the monitor's last window is this report's (the diagnoser copies nothing
+            # it does not keep: last_window returns copies)
+            if diagnoser is not None:
+                if rep.judged and diagnoser.wants(rep.model):
+                    diagnoser.observe(rep, *monitor.last_window())
+                answer = diagnoser.attach(rep)
+                if answer is not None:
+                    rep = dataclasses.replace(rep, diagnosis=answer)
+            out.append(rep)
+            if on_report is not None:
+                on_report(rep)
+
         for piece in pieces:
             for listener in listeners:
                 listener(piece)
             if isinstance(piece, SampleBlock):
                 self.samples_seen += len(piece)
-                out.extend(monitor.push_block(piece, on_report))
+                monitor.push_block(piece, take)
                 continue
             self.samples_seen += 1
-            reports = monitor.push(piece)
-            if reports:
-                out.extend(reports)
-                if on_report is not None:
-                    for rep in reports:
-                        on_report(rep)
+            for rep in monitor.push(piece):
+                take(rep)
         return out
 
     def restart(self) -> None:

@@ -42,6 +42,7 @@ from twotank_validation.online.alarm import (
     update_alarm,
 )
 from twotank_validation.online.aligner import Sample, SampleBlock
+from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.oppoint import OperatingPointTracker, OpPointConfig
 from twotank_validation.online.recovery import Recovery, recover_span
 
@@ -189,6 +190,9 @@ class WindowReport:
         operating_point: the reference's state (``commissioning``, ``given``,
             ``commissioned``, ``moved by a setpoint change``, ``off``) and, after a colon,
             why the window was not checked or what happened.
+        diagnosis: the live diagnosis in force at this window (the most likely effect behind
+            the alarm, :mod:`~twotank_validation.online.livediag`); None before one is ready,
+            while the alarm is not ERROR, and without a diagnoser.
     """
 
     model: str
@@ -214,6 +218,7 @@ class WindowReport:
     beta_total: float = math.nan
     raised_by: str = ""
     operating_point: str = ""
+    diagnosis: LiveDiagnosis | None = None
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> str:

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.streams import set_stamp
 from twotank_validation.online.window import WindowReport
 
@@ -34,6 +35,39 @@ def message_classes() -> tuple[Any, Any]:
             "or build the package with colcon"
         ) from err
     return FlowCommand, ValidationReport
+
+
+def diagnosis_class() -> Any:
+    """The generated ``Diagnosis`` message class.
+
+    Raises:
+        ImportError: with a hint when the package's messages were not built.
+    """
+    try:
+        from twotank_validation_msgs.msg import Diagnosis  # noqa: PLC0415
+    except ImportError as err:  # pragma: no cover - depends on the install
+        raise ImportError(
+            "the message twotank_validation_msgs/Diagnosis is not built: run "
+            "`bash scripts/run exec true` (bootstraps the venv and builds the messages)"
+        ) from err
+    return Diagnosis
+
+
+def diagnosis_message(diagnosis: LiveDiagnosis, cls: Any) -> Any:
+    """Fill a Diagnosis message from a :class:`LiveDiagnosis`."""
+    msg = cls()
+    set_stamp(msg.header.stamp, diagnosis.window_end_ns)
+    msg.model = diagnosis.model
+    msg.kind = diagnosis.kind
+    msg.channel = diagnosis.channel
+    msg.parameter_names = list(diagnosis.parameters)
+    msg.parameter_values = [float(v) for v in diagnosis.parameters.values()]
+    msg.confidence = float(diagnosis.confidence)
+    set_stamp(msg.onset, max(diagnosis.onset_ns, 0))
+    msg.windows = int(diagnosis.windows)
+    msg.update = int(diagnosis.update)
+    msg.summary = diagnosis.summary
+    return msg
 
 
 def message_class(msgtype: str) -> Any:

@@ -10,6 +10,10 @@ publishes. Topics (node-relative, remappable):
 * out, per model M: ``validation/M/report`` (ValidationReport), ``validation/M/margin``
   (std_msgs/Float64, ``1 - beta``), ``validation/M/invalidated`` (std_msgs/Bool,
   transient-local, the debounced alarm == ERROR); ``/diagnostics`` (one status per model);
+* out, per model M: ``validation/M/diagnosis`` (twotank_validation_msgs/Diagnosis): once the
+  alarm is ERROR, the most likely effect behind it (the live diagnosis,
+  :mod:`~twotank_validation.online.livediag`), computed in a background executor and
+  published as soon as it is ready, then at each new non-overlapping window after the onset;
 * service ``reset_alarm`` (std_srvs/Trigger) clears latched alarms.
 * service ``reset_operating_point`` (std_srvs/Trigger) forgets the reference operating point
   (the given one again, or commissioned from the next steady windows).
@@ -38,6 +42,7 @@ import sys
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 from time import perf_counter
@@ -54,7 +59,7 @@ from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
 from twotank_validation.core.datum import NormConvention
-from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.defaults import (
     JITTER_FRACTION,
     MAX_RECOVERED_FRACTION,
@@ -63,6 +68,7 @@ from twotank_validation.defaults import (
     PERIOD_SAMPLES,
     TS_S,
 )
+from twotank_validation.diagnose.live import catalogue_diagnosis
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import (
     Alarm,
@@ -85,9 +91,11 @@ from twotank_validation.online.interface import (
     load_interface_map,
     source_stamp_ns,
 )
+from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser, LiveDiagnosis
 from twotank_validation.online.oppoint import OpPointConfig
 from twotank_validation.online.validator import parse_oversampling
 from twotank_validation.online.window import verdict_text
+from twotank_validation.replay import model_documents
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
 
@@ -217,6 +225,19 @@ VALIDATOR_PARAMS = (
         "model order: NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive]; empty: none",
     ),
     Param("outputs", [""], "the interface map's output sources as text, as inputs"),
+    Param(
+        "diagnosis",
+        True,
+        "name the fault live: once a model's alarm is ERROR, diagnose the windows after the "
+        "onset against those before it and publish validation/M/diagnosis",
+    ),
+    Param(
+        "diagnosis_max_updates",
+        6,
+        "diagnoses per alarm episode (at the alarm, then one per new non-overlapping window)",
+        1,
+        1000,
+    ),
     Param(
         "oversampling",
         [""],
@@ -362,6 +383,8 @@ class ValidatorNode(Node):
 
     Args:
         models: models to use instead of the ``models`` parameter (tests, composition).
+        documents: model name -> model document for the live diagnosis (default: the
+            documents the ``models`` parameter names, or the built-in model of each name).
         keep_reports: reports kept in :attr:`reports` (the most recent ones).
         **kwargs: passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
 
@@ -373,6 +396,7 @@ class ValidatorNode(Node):
         self,
         *,
         models: Sequence[LFTModel] | None = None,
+        documents: dict[str, Any] | None = None,
         name: str = "twotank_validator",
         keep_reports: int = 16,
         **kwargs: Any,
@@ -386,14 +410,33 @@ class ValidatorNode(Node):
                 float(values["temperature_offset_c"]),
                 float(values["temperature_span_c"]),
             )
-            self.models = (
-                list(models) if models is not None else [load_model(m) for m in values["models"]]
-            )
+            docs = dict(documents or {})
+            if models is not None:
+                self.models = list(models)
+            else:
+                loaded = [load_model_document(m) for m in values["models"]]
+                self.models = [model_from_dict(doc, source) for doc, source in loaded]
+                docs = {m.name: doc for m, (doc, _) in zip(self.models, loaded, strict=True)} | docs
+            self.diagnoser: LiveDiagnoser | None = None
+            self._executor: ThreadPoolExecutor | None = None
+            if bool(values["diagnosis"]):
+                docs = model_documents(self.models, docs)
+                # one worker: answers come in the order their windows came
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="twotank_diagnosis")
+                self.diagnoser = LiveDiagnoser(
+                    catalogue_diagnosis(docs, convention=self.config.convention),
+                    LiveDiagConfig(
+                        max_updates=int(values["diagnosis_max_updates"]), models=tuple(docs)
+                    ),
+                    executor=self._executor,
+                    on_result=self._on_diagnosis,
+                )
             self.core = OnlineValidator(
                 self.config,
                 self.models,
                 jitter_fraction=float(values["jitter_fraction"]),
                 oversampling=parse_oversampling(values["oversampling"]),
+                diagnoser=self.diagnoser,
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
@@ -456,6 +499,14 @@ class ValidatorNode(Node):
             m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", latched)
             for m in self.models
         }
+        self._diagnosis_cls = messages.diagnosis_class()
+        self._pub_diagnosis = {
+            m.name: self.create_publisher(self._diagnosis_cls, f"validation/{m.name}/diagnosis", 10)
+            for m in self.models
+        }
+        # the latest live diagnosis of each model (published on its topic when ready)
+        self.diagnoses: deque[LiveDiagnosis] = deque(maxlen=keep_reports)
+        self._latest_diagnosis: dict[str, LiveDiagnosis] = {}
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # the first report message costs milliseconds (lazy imports): pay that now, not in
         # the first window's latency
@@ -618,6 +669,31 @@ class ValidatorNode(Node):
             listener(rep)
         return rep.alarm, text, rep
 
+    def _on_diagnosis(self, d: LiveDiagnosis) -> None:
+        """A live diagnosis is ready (executor thread): publish it at once."""
+        self._latest_diagnosis[d.model] = d
+        self.diagnoses.append(d)
+        self._pub_diagnosis[d.model].publish(messages.diagnosis_message(d, self._diagnosis_cls))
+        where = f" on {d.channel}" if d.channel else ""
+        self.get_logger().info(
+            f"model {d.model}: most likely {d.kind}{where} (confidence {d.confidence:.2f}): "
+            f"{d.summary}"
+        )
+
+    def _diagnosis_values(self, name: str, rep: WindowReport) -> list[KeyValue]:
+        """The /diagnostics keys of the latest live diagnosis while the alarm is ERROR."""
+        d = self._latest_diagnosis.get(name)
+        if d is None or rep.alarm is not Alarm.ERROR or d.onset_ns >= rep.end_ns:
+            return []
+        params = ", ".join(f"{k}={v:.6g}" for k, v in d.parameters.items())
+        return [
+            KeyValue(key="diagnosis_kind", value=d.kind),
+            KeyValue(key="diagnosis_channel", value=d.channel),
+            KeyValue(key="diagnosis_parameters", value=params),
+            KeyValue(key="diagnosis_confidence", value=f"{d.confidence:.3f}"),
+            KeyValue(key="diagnosis_summary", value=d.summary),
+        ]
+
     def _publish_invalidated(self, name: str, value: bool) -> None:
         self._pub_invalid[name].publish(Bool(data=value))
 
@@ -654,6 +730,7 @@ class ValidatorNode(Node):
                     KeyValue(key="raised_by", value=rep.raised_by),
                     KeyValue(key="operating_point", value=rep.operating_point),
                     KeyValue(key="op_reference", value=op_reference_text(ops[m.name])),
+                    *self._diagnosis_values(m.name, rep),
                 ]
             arr.status.append(st)
         self._pub_diag.publish(arr)
@@ -694,6 +771,9 @@ class ValidatorNode(Node):
         if worker is not None:
             self._queue.put(_Control.EXIT)
             worker.join(timeout=5.0)
+        executor = getattr(self, "_executor", None)
+        if executor is not None:
+            executor.shutdown(wait=True, cancel_futures=True)
         super().destroy_node()
 
 
