@@ -7,6 +7,7 @@ own equilibrium (``rig.operating_point``) for the setpoints; the injected fault'
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -290,3 +291,32 @@ def test_nominal_closed_loop_raises_nothing_over_four_simulated_hours() -> None:
     assert len(judged) > 4 * 60  # a window every quarter period, 70 periods
     assert not any(r.invalidated for r in judged), max(r.beta_total for r in judged)
     assert all(r.alarm in (Alarm.OK, Alarm.WARN, Alarm.STALE) for r in reports)
+
+
+def test_validate_closed_loop_option_judges_a_closed_loop_bag(tmp_path) -> None:
+    """`validate` on a closed-loop recording: without --closed-loop no window is judged (exit 4,
+    and the message names the option); with it the leak is raised by the operating-point
+    check after its onset (the injected one) and nothing before."""
+    from twotank_validation import cli  # noqa: PLC0415
+    from twotank_validation.bags import write_scenario_bag  # noqa: PLC0415
+
+    onset = 2000.0
+    scenario = Scenario(
+        name="cl_leak",
+        duration_s=18 * PERIOD_S,
+        seed=2,
+        faults=(f"leak=0.06@{onset:g}",),
+        closed_loop=ClosedLoop(),
+    )
+    bag = tmp_path / "cl.mcap"
+    write_scenario_bag(scenario, bag, progress=False)
+    base = ["validate", str(bag), "--model", "B", "--no-diagnosis", "--quiet"]
+    assert cli.main(base) == cli.EXIT_NOT_JUDGED
+    out = tmp_path / "cl.json"
+    assert cli.main([*base, "--closed-loop", "--json", str(out)]) == 0
+    model = json.loads(out.read_text())["models"]["B"]
+    assert model["first_alarm"] is not None
+    assert model["first_alarm"] > onset
+    errors = [w for w in model["windows"] if w["alarm"] == "ERROR"]
+    assert errors
+    assert all(w["end"] > onset for w in errors)

@@ -169,12 +169,16 @@ def test_live_closed_loop_equals_the_simulated_scenario(entry: str) -> None:
     closed-loop scenario's data, and the validator judges it valid for Model B."""
     ts, period = 0.8, 256
     cfg = LiveConfig(
-        duration_s=4 * period * ts,
+        duration_s=7 * period * ts,  # windows judged once the loop's start-up has passed
         ts_s=ts,
         period_samples=period,
         models=("B",),
         closed_loop=True,
         controller={"excitation_entry": entry},
+        # at Ts 0.8 s the steady loop's commands vary by up to 0.43 of their RMS from one
+        # period to the next (0.11 at the default Ts 0.1 s): the gate is set above that, as
+        # docs/theory.md §10 says to
+        validator={"input_periodic_rtol": 0.6},
     )
     res = run_live(cfg)
     _, u, y = samples_as_record(res.samples)
@@ -187,7 +191,7 @@ def test_live_closed_loop_equals_the_simulated_scenario(entry: str) -> None:
     )
     _, u_ref, y_ref = simulate_scenario(scenario)
     n = len(u)
-    assert n >= 4 * period - 1
+    assert n >= 7 * period - 1
     np.testing.assert_allclose(u, u_ref[:n], rtol=0, atol=1e-12)
     np.testing.assert_allclose(y, y_ref[:n], rtol=0, atol=1e-12)
     judged = [r for r in res.reports if r.judged]

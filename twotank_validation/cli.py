@@ -214,6 +214,7 @@ def _replay_config(
                 hop_samples=args.hop,
                 convention=NormConvention(args.norm),
                 alarm=AlarmConfig(debounce=args.debounce),
+                input_periodic_rtol=_input_periodic_rtol(args),
             ),
             topics=_topic_map(args.topic),
             units=RigUnits(
@@ -224,6 +225,16 @@ def _replay_config(
         )
     except ValueError as err:
         raise UsageError(str(err)) from err
+
+
+def _input_periodic_rtol(args: argparse.Namespace) -> float:
+    """The input periodicity gate: closed-loop data's with ``--closed-loop`` (theory.md §10)."""
+    from twotank_validation.online import MonitorConfig  # noqa: PLC0415
+    from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL  # noqa: PLC0415
+
+    if getattr(args, "closed_loop", False):
+        return CLOSED_LOOP_INPUT_PERIODIC_RTOL
+    return MonitorConfig.input_periodic_rtol
 
 
 def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
@@ -689,6 +700,13 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
         default="sequential",
         help="count: ERROR after 2 invalidating windows in a row; sequential: after the CUSUM "
         "of beta's excess over 1 (weighted by hop/period) reaches 0.1",
+    )
+    val.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="the recording is of a plant under feedback control: its valve commands are not "
+        "periodic, so the input periodicity gate is opened to 0.25 of their RMS (windows in "
+        "which the loop moves the valves are left unjudged)",
     )
     val.add_argument(
         "--hop",

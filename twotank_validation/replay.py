@@ -1062,7 +1062,8 @@ _FIXES: dict[str, str] = {
         "record longer, or check --period"
     ),
     "input not periodic": (
-        "the commands do not repeat every --period samples: pass the excitation period (--period)"
+        "the commands do not repeat every --period samples: pass the excitation period "
+        "(--period), or --closed-loop if a controller computed them"
     ),
     "too little excitation": (
         "the inputs hardly move: check the command topic (--topic flow_cmd=...) and that the "
