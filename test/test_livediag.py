@@ -203,3 +203,18 @@ def test_expected_effect_table_covers_every_rig_fault() -> None:
     assert got["valve_stuck"] == ("stuck", "cold")
     with pytest.raises(Exception, match="no expected answer"):
         expected_effect(type("G", (), {"kind": "meteor", "channel": ""})())
+
+
+def test_a_job_cancelled_at_shutdown_is_dropped_quietly() -> None:
+    """A node that shuts down cancels the pending jobs: their callback records no failure and
+    calls nothing (a cancelled future has no exception to ask for)."""
+    from concurrent.futures import Future  # noqa: PLC0415
+
+    seen = []
+    dg = diagnoser()
+    dg.on_result = seen.append
+    future: Future = Future()
+    assert future.cancel()
+    dg._notify(future)
+    assert seen == []
+    assert dg.failures == []

@@ -365,6 +365,8 @@ class LiveDiagnoser:
         future.add_done_callback(self._notify)
 
     def _notify(self, future: Future[LiveDiagnosis]) -> None:
+        if future.cancelled():  # the node is shutting down: nothing to publish
+            return
         err = future.exception()
         if err is not None:
             with self._lock:
