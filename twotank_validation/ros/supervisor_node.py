@@ -140,6 +140,7 @@ class SupervisorNode(Node):
         self.diagnosis: dict[str, str] = {}
         self.received: dict[str, int] = {}
         self.states_published = 0
+        self.last_state: DiagnosticStatus | None = None
         self.modes_published = 0
         self._clock_started = False
         self._warned_interval = False
@@ -301,7 +302,8 @@ class SupervisorNode(Node):
         self.modes_published += 1
 
     def _publish_state(self) -> None:
-        self._pub_state.publish(self.status())
+        self.last_state = self.status()
+        self._pub_state.publish(self.last_state)
         self.states_published += 1
 
 
