@@ -17,10 +17,9 @@ import argparse
 import statistics
 import time
 
-import numpy as np
-
+from tools.records import record_events
 from twotank_validation.core.model import load_model
-from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 from twotank_validation.sim.scenario import ClosedLoop, Scenario, simulate_scenario
 
@@ -49,16 +48,8 @@ def delay_s(spec: str, phase: float, seed: int, closed: bool) -> float | None:
         closed_loop=ClosedLoop() if closed else None,
     )
     stamps, u, y = simulate_scenario(scenario)
-    n = len(stamps)
-    kinds = np.tile([COMMAND, 0, 1], n)
-    values = np.zeros((3 * n, 2))
-    values[0::3] = u
-    values[1::3, 0] = y[:, 0]
-    values[2::3, 0] = y[:, 1]
     config = MonitorConfig(input_periodic_rtol=CLOSED_LOOP_INPUT_PERIODIC_RTOL if closed else 1e-6)
-    reports = OnlineValidator(config, [load_model("B")]).feed_many(
-        kinds, np.repeat(stamps, 3), values
-    )
+    reports = OnlineValidator(config, [load_model("B")]).feed_many(*record_events(stamps, u, y))
     for r in reports:
         t = r.end_ns / 1e9
         if r.alarm is Alarm.ERROR:

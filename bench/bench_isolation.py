@@ -31,9 +31,10 @@ import time
 
 import numpy as np
 
+from tools.records import record_events
 from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose.live import catalogue_diagnosis
-from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser, expected_effect
 from twotank_validation.sim.faults import parse_fault
 from twotank_validation.sim.scenario import Scenario, simulate_scenario
@@ -57,17 +58,6 @@ FAULTS = (
 )
 
 
-def events(u: np.ndarray, y: np.ndarray, ts_ns: int):
-    n = len(u)
-    stamps = np.repeat(np.arange(n, dtype=np.int64) * ts_ns, 3)
-    kinds = np.tile(np.array([COMMAND, 0, 1]), n)
-    values = np.zeros((3 * n, 2))
-    values[0::3] = u
-    values[1::3, 0] = y[:, 0]
-    values[2::3, 0] = y[:, 1]
-    return kinds, stamps, values
-
-
 def one_run(spec: str, phase: float, seed: int, windows_after: float, max_updates: int):
     onset = round((ONSET_PERIOD + phase) * PERIOD_S, 1)
     sc = Scenario(
@@ -76,11 +66,11 @@ def one_run(spec: str, phase: float, seed: int, windows_after: float, max_update
         seed=seed,
         faults=(f"{spec}@{onset}",),
     )
-    _, u, y = simulate_scenario(sc)
+    stamps, u, y = simulate_scenario(sc)
     doc, _ = load_model_document("B")
     dg = LiveDiagnoser(catalogue_diagnosis({"B": doc}), LiveDiagConfig(max_updates=max_updates))
     v = OnlineValidator(MonitorConfig(), [load_model("B")], diagnoser=dg)
-    reports = v.feed_many(*events(u, y, sc.ts_ns))
+    reports = v.feed_many(*record_events(stamps, u, y))
     want = expected_effect(parse_fault(f"{spec}@{onset}"))
     alarm = next((r.end_ns / 1e9 - onset for r in reports if r.alarm is Alarm.ERROR), None)
     answers = []

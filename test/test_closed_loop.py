@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from tools.records import record_events
 from twotank_validation.core.model import load_model
-from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig
 from twotank_validation.sim.control import (
     CLOSED_LOOP_INPUT_PERIODIC_RTOL,
@@ -208,14 +209,8 @@ MONITOR = MonitorConfig(input_periodic_rtol=CLOSED_LOOP_INPUT_PERIODIC_RTOL)
 def _reports(scenario: Scenario, config: MonitorConfig = MONITOR) -> list:
     """Model B's reports on the scenario, fed as the node's three streams."""
     stamps, commands, measured = simulate_scenario(scenario)
-    n = len(stamps)
-    kinds = np.tile([COMMAND, 0, 1], n)
-    values = np.zeros((3 * n, 2))
-    values[0::3] = commands
-    values[1::3, 0] = measured[:, 0]
-    values[2::3, 0] = measured[:, 1]
     validator = OnlineValidator(config, [load_model("B")])
-    return validator.feed_many(kinds, np.repeat(stamps, 3), values)
+    return validator.feed_many(*record_events(stamps, commands, measured))
 
 
 @pytest.mark.parametrize("entry", ["output", "setpoint"])

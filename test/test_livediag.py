@@ -10,14 +10,14 @@ from __future__ import annotations
 import concurrent.futures
 import math
 
-import numpy as np
 import pytest
 
+from tools.records import record_events
 from twotank_validation import replay
 from twotank_validation.bags import open_bag, write_scenario_bag
 from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose.live import catalogue_diagnosis
-from twotank_validation.online import COMMAND, STREAMS, MonitorConfig, OnlineValidator, RigUnits
+from twotank_validation.online import STREAMS, MonitorConfig, OnlineValidator, RigUnits
 from twotank_validation.online.livediag import (
     LiveDiagConfig,
     LiveDiagnoser,
@@ -31,18 +31,6 @@ from twotank_validation.sim.scenario import Scenario, simulate_scenario
 PERIOD_S = 204.8
 WINDOW_S = 2 * PERIOD_S
 ONSET_S = round(6.375 * PERIOD_S, 1)  # three non-overlapping nominal windows before it
-
-
-def events(u: np.ndarray, y: np.ndarray, ts_ns: int):
-    """The three streams as OnlineValidator.feed_many events (bag order), as the benches."""
-    n = len(u)
-    stamps = np.repeat(np.arange(n, dtype=np.int64) * ts_ns, 3)
-    kinds = np.tile(np.array([COMMAND, 0, 1]), n)
-    values = np.zeros((3 * n, 2))
-    values[0::3] = u
-    values[1::3, 0] = y[:, 0]
-    values[2::3, 0] = y[:, 1]
-    return kinds, stamps, values
 
 
 def scenario(spec: str | None, windows_after: int = 3, seed: int = 0) -> Scenario:
@@ -66,10 +54,10 @@ def diagnoser(max_updates: int = 2, executor=None) -> LiveDiagnoser:
 
 def run(spec: str | None, *, windows_after: int = 3, executor=None, seed: int = 0):
     sc = scenario(spec, windows_after, seed)
-    _, u, y = simulate_scenario(sc)
+    stamps, u, y = simulate_scenario(sc)
     dg = diagnoser(executor=executor)
     v = OnlineValidator(MonitorConfig(), [load_model("B")], diagnoser=dg)
-    reports = v.feed_many(*events(u, y, sc.ts_ns))
+    reports = v.feed_many(*record_events(stamps, u, y))
     return reports, dg
 
 
