@@ -48,8 +48,8 @@ from twotank_validation.online.supervisor import (
     report_records,
 )
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import ParameterError
-from twotank_validation.ros.supervisor_node import LATCHED, SupervisorNode
+from twotank_validation.ros.params import LATCHED, ParameterError
+from twotank_validation.ros.supervisor_node import SupervisorNode
 
 # ------------------------------------------------------------------ the reference
 

@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import String
 
@@ -35,7 +34,14 @@ from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import (
+    LATCHED,
+    UNIT_PARAMS,
+    Param,
+    ParameterError,
+    declare,
+    run_node,
+)
 from twotank_validation.sim import control, excitation, rig
 
 MODE_TOPIC = "control/mode"
@@ -181,12 +187,7 @@ class ControllerNode(Node):
         self.pub = self.create_publisher(flow_cls, itf.FLOW_CMD, 100)
         self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 100)
         self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 100)
-        latched = QoSProfile(
-            depth=1,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-            reliability=ReliabilityPolicy.RELIABLE,
-        )
-        self.create_subscription(String, MODE_TOPIC, self._on_mode, latched)
+        self.create_subscription(String, MODE_TOPIC, self._on_mode, LATCHED)
         if v["self_timed"]:
             self.create_timer(ts_s, self.tick)
 

@@ -11,9 +11,17 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.streams import RigUnits
+
+LATCHED = QoSProfile(
+    depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
+)
+"""QoS of the state topics (``validation/M/invalidated``, ``control/mode``,
+``supervisor/state``): reliable, the last value kept for a late subscriber. Publisher and
+subscribers must agree on it, hence one definition."""
 
 
 class ParameterError(TwotankError, ValueError):

@@ -30,7 +30,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
@@ -51,7 +50,7 @@ from twotank_validation.online.supervisor import (
     report_age_s,
 )
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import LATCHED, Param, ParameterError, declare, run_node
 
 _DEFAULTS = SupervisorConfig()
 
@@ -94,12 +93,6 @@ SUPERVISOR_PARAMS = (
         3600,
     ),
 )
-
-LATCHED = QoSProfile(
-    depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
-)
-"""QoS of ``validation/M/invalidated`` (as the validator publishes it), ``control/mode`` and
-``supervisor/state``: a late subscriber gets the current value."""
 
 
 def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:

@@ -53,7 +53,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
@@ -97,7 +96,14 @@ from twotank_validation.online.validator import parse_oversampling
 from twotank_validation.online.window import verdict_text
 from twotank_validation.replay import model_documents
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import (
+    LATCHED,
+    UNIT_PARAMS,
+    Param,
+    ParameterError,
+    declare,
+    run_node,
+)
 
 VALIDATOR_PARAMS = (
     Param("models", ["A", "B"], "models to validate: built-in names (A, B) or YAML file paths"),
@@ -482,11 +488,6 @@ class ValidatorNode(Node):
                 except ImportError as err:
                     raise ParameterError(f"cannot start the validator: {err}") from err
                 self.create_subscription(cls, topic, partial(self._on_mapped, topic), 1000)
-        latched = QoSProfile(
-            depth=1,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-            reliability=ReliabilityPolicy.RELIABLE,
-        )
         self._pub_report = {
             m.name: self.create_publisher(self._report_cls, f"validation/{m.name}/report", 10)
             for m in self.models
@@ -496,7 +497,7 @@ class ValidatorNode(Node):
             for m in self.models
         }
         self._pub_invalid = {
-            m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", latched)
+            m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", LATCHED)
             for m in self.models
         }
         self._diagnosis_cls = messages.diagnosis_class()
