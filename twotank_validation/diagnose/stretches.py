@@ -540,8 +540,9 @@ class StretchDiagnosis:
         window_starts_s: start times (s) of its diagnosed windows.
         skipped: ``(start_s, why)`` of its skipped windows.
         relative_to_model: the diagnosis against the model (None: not diagnosed).
-        relative_to_previous: against the model with the previous stretch's effects (None
-            for the first stretch, or when one of the two could not be diagnosed).
+        relative_to_previous: against the model with the previous stretch's effects, its
+            steady means the offset's reference (None for the first stretch, or when one of
+            the two could not be diagnosed).
         not_diagnosed: why the stretch was not diagnosed, or ``""``.
     """
 
