@@ -1,7 +1,7 @@
 """Isolation figures of the live diagnosis: is the fault behind the alarm named right, and when.
 
 Usage: scripts/run bench bench_isolation.py [--seeds 3] [--phases 0.125,0.375,0.625,0.875]
-       [--windows-after 3.5] [--max-updates 3] [--faults SUBSTRING ...]
+       [--windows-after 3.5] [--max-updates 3] [--faults SUBSTRING ...] [--closed-loop]
 
 Each rig fault at twice its stated limit (docs/detection.md, "Stated limits", the default
 alarm: leak 0.03, level bias 0.025, temperature bias 0.08, valve loss 7 %), and the faults
@@ -36,12 +36,14 @@ from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose.live import catalogue_diagnosis
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser, expected_effect
+from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 from twotank_validation.sim.faults import parse_fault
-from twotank_validation.sim.scenario import Scenario, simulate_scenario
+from twotank_validation.sim.scenario import ClosedLoop, Scenario, simulate_scenario
 
 PERIOD_S = 204.8
 WINDOW_S = 2 * PERIOD_S
 ONSET_PERIOD = 6
+ONSET_PERIOD_CLOSED = 8
 
 FAULTS = (
     "leak=0.06",
@@ -58,18 +60,22 @@ FAULTS = (
 )
 
 
-def one_run(spec: str, phase: float, seed: int, windows_after: float, max_updates: int):
-    onset = round((ONSET_PERIOD + phase) * PERIOD_S, 1)
+def one_run(  # noqa: PLR0917 - one run's settings
+    spec: str, phase: float, seed: int, windows_after: float, max_updates: int, closed: bool
+):
+    onset = round(((ONSET_PERIOD_CLOSED if closed else ONSET_PERIOD) + phase) * PERIOD_S, 1)
     sc = Scenario(
         name="isolation",
         duration_s=round(onset + windows_after * WINDOW_S, 1),
         seed=seed,
         faults=(f"{spec}@{onset}",),
+        closed_loop=ClosedLoop() if closed else None,
     )
     stamps, u, y = simulate_scenario(sc)
     doc, _ = load_model_document("B")
     dg = LiveDiagnoser(catalogue_diagnosis({"B": doc}), LiveDiagConfig(max_updates=max_updates))
-    v = OnlineValidator(MonitorConfig(), [load_model("B")], diagnoser=dg)
+    config = MonitorConfig(input_periodic_rtol=CLOSED_LOOP_INPUT_PERIODIC_RTOL) if closed else None
+    v = OnlineValidator(config or MonitorConfig(), [load_model("B")], diagnoser=dg)
     reports = v.feed_many(*record_events(stamps, u, y))
     want = expected_effect(parse_fault(f"{spec}@{onset}"))
     alarm = next((r.end_ns / 1e9 - onset for r in reports if r.alarm is Alarm.ERROR), None)
@@ -101,12 +107,14 @@ def main() -> None:
     parser.add_argument("--windows-after", type=float, default=3.5)
     parser.add_argument("--max-updates", type=int, default=3)
     parser.add_argument("--faults", nargs="*", help="only faults containing one of these")
+    parser.add_argument("--closed-loop", action="store_true", help="the rig under PI control")
     args = parser.parse_args()
     phases = [float(p) for p in args.phases.split(",")]
     faults = [f for f in FAULTS if not args.faults or any(s in f for s in args.faults)]
     print("command: " + " ".join(["bench_isolation.py", *sys.argv[1:]]))
     print(
-        f"{len(faults)} faults x {args.seeds} seeds x {len(phases)} onsets; Model B, default "
+        f"{len(faults)} faults x {args.seeds} seeds x {len(phases)} onsets; "
+        f"{'closed loop (PI)' if args.closed_loop else 'open loop'}; Model B, default "
         f"MonitorConfig, {args.windows_after} windows after the onset, at most "
         f"{args.max_updates} answers per alarm"
     )
@@ -116,7 +124,17 @@ def main() -> None:
         for seed in range(args.seeds):
             for phase in phases:
                 rows.append(
-                    (spec, one_run(spec, phase, seed, args.windows_after, args.max_updates))
+                    (
+                        spec,
+                        one_run(
+                            spec,
+                            phase,
+                            seed,
+                            args.windows_after,
+                            args.max_updates,
+                            args.closed_loop,
+                        ),
+                    )
                 )
         print(f"  {spec}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     n = len(rows)

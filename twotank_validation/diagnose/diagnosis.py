@@ -182,6 +182,8 @@ class Diagnosis:
         explained: how much of the held-out error is left, and whether it is noise.
         runners_up: the best candidates not chosen, by held-out score.
         inputs: input names.
+        candidates: every single effect of the catalogue fitted alone, best held-out score
+            first (``reduction`` is its penalised held-out reduction).
     """
 
     model: str
@@ -206,6 +208,7 @@ class Diagnosis:
     explained: Explained | None = None
     runners_up: list[RunnerUp] = field(default_factory=list)
     inputs: tuple[str, ...] = ()
+    candidates: list[FittedEffect] = field(default_factory=list, repr=False)
 
     @property
     def unexplained(self) -> bool:
@@ -483,6 +486,7 @@ def diagnose(
         explained=explained,
         runners_up=runners,
         inputs=tuple(model.input_names),
+        candidates=list(singles),
     )
 
 

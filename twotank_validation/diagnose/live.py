@@ -36,6 +36,7 @@ Confidence (in [0, 1]):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -121,6 +122,7 @@ class CatalogueDiagnosis:
         """Diagnose one job (never raises: a job that cannot be diagnosed is unexplained)."""
         if job.model not in self.documents:
             return _answer(job, UNEXPLAINED, "", {}, 0.0, f"no model document for {job.model}")
+        job = dated(job, Nominal.from_document(self.documents[job.model]))
         t0 = job.pre[0].start_ns if job.pre else job.post[0].start_ns
         pre = _windows(job.pre, job, t0)
         post = _windows(job.post, job, t0)
@@ -160,7 +162,7 @@ class CatalogueDiagnosis:
             conf = float(np.clip(f.heldout_reduction, 0.0, 1.0))
             return _answer(job, kind, f.target, dict(f.parameters), conf, text)
         if reference is not None:
-            move = operating_point_move(job, d, nominal, reference)
+            move = operating_point_move(job, d, nominal, reference, self.config)
             if move is not None:
                 return move
         if d.effects:
@@ -216,17 +218,22 @@ def _answer(  # noqa: PLR0917 - the fields of the answer
 
 
 def operating_point_move(
-    job: DiagnosisJob, d: Diagnosis, nominal: Nominal, reference: OperatingPoint
+    job: DiagnosisJob,
+    d: Diagnosis,
+    nominal: Nominal,
+    reference: OperatingPoint,
+    config: DiagnosisConfig | None = None,
 ) -> LiveDiagnosis | None:
     """The plant cause whose steady-state signature the move of the operating point matches.
 
     The move ``m = ȳ − y_ref − G(0)(ū − u_ref)`` (model units) is taken on the last period
     of the newest window. Candidate directions: each output alone, and each input's column
-    of ``G(0)`` (one valve delivering a different flow: ``input_gain``). An output alone is
+    of ``G(0)`` (one valve delivering a different flow: ``input_gain``). The level alone is
     a sensor ``offset`` when the move was a step (the per-hop means follow a step averaged
     over a period better than a first-order settle with the output's slowest time
-    constant), else a plant effect (``leak`` for the level, a thermal effect for the
-    temperature). None when no output moved by more than :data:`MATERIAL_MOVE`.
+    constant), else a ``leak``. Any other output alone is judged by its dynamics
+    (:func:`_thermal_or_offset`). None when no output moved by more than
+    :data:`MATERIAL_MOVE`.
     """
     g0 = dc_gain(nominal)  # (ny, nu)
     outputs, inputs = d.outputs, d.inputs
@@ -256,39 +263,88 @@ def operating_point_move(
         )
         return _answer(job, "input_gain", inputs[idx], params, conf, text)
     out = outputs[idx]
+    size = float(move[idx])
+    if out != "height":
+        return _thermal_or_offset(job, d, out, size, conf, config or DiagnosisConfig())
     step, settle = _step_or_settle(job, dev[:, idx], nominal, idx)
     chosen, other = (step, settle) if step <= settle else (settle, step)
     conf *= 1.0 - chosen / max(other, 1e-300)
-    size = float(move[idx])
     if step <= settle:
         text = f"the {out} sensor reads {size:+.3g} off: its mean stepped at the onset"
         return _answer(job, "offset", out, {"offset": size}, conf, text)
-    if out == "height":
-        denom = float(np.sum(g0[idx]))
-        flow = -2.0 * size / denom if denom else math.nan
-        text = (
-            f"the level settled {size:+.3g} lower through the tank's own time constant: a "
-            f"constant extra outflow of about {flow:.3g}"
+    denom = float(np.sum(g0[idx]))
+    flow = -2.0 * size / denom if denom else math.nan
+    text = (
+        f"the level settled {size:+.3g} lower through the tank's own time constant: a "
+        f"constant extra outflow of about {flow:.3g}"
+    )
+    return _answer(job, "leak", out, {"level_change": size, "outflow": flow}, conf, text)
+
+
+def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
+    job: DiagnosisJob, d: Diagnosis, out: str, size: float, conf: float, cfg: DiagnosisConfig
+) -> LiveDiagnosis:
+    """A temperature that moved alone: a sensor offset, a heat loss or a hot-supply change.
+
+    The three move the temperature alone at steady state and, the thermal time constant
+    being short against a period, all look like a step in the period means; their dynamics
+    differ. A sensor offset changes no response, so the windows after the onset need no
+    effect (the held-out error is not material, or no candidate removes ``min_reduction``
+    of it). For a mixing tank a supply-temperature change scales both valves' temperature
+    responses by one factor ``1 + Δt/(t − t_cold)`` with the time constant unchanged, an
+    output ``gain`` on the temperature of the move's sign; a heat loss also makes the
+    temperature settle faster, which the catalogue's ``heat_loss`` fits. (The catalogue's
+    own ``hot_supply`` is linearised at the temperature before the move and misses the
+    share of the cold valve, so it is not used to decide here.) Confidence: the direction
+    match times the gap between the two candidates' held-out reductions.
+    """
+    reds: dict[str, tuple[float, float]] = {}  # kind -> (held-out reduction, first value)
+    for e in d.candidates:
+        wanted = e.spec.kind == "heat_loss" or (
+            e.spec.kind == "gain" and e.spec.target(d.outputs) == out
         )
-        return _answer(job, "leak", out, {"level_change": size, "outflow": flow}, conf, text)
-    thermal = [e for e in d.effects if e.spec.kind in THERMAL]
-    kind = thermal[0].spec.kind if thermal else "heat_loss"
-    channel = "hot" if kind == "hot_supply" else out
-    text = f"the {out} settled {size:+.3g} off through the plant's thermal time constant"
-    return _answer(job, kind, channel, {"temperature_change": size}, conf, text)
+        if wanted and (e.spec.kind not in reds or e.reduction > reds[e.spec.kind][0]):
+            reds[e.spec.kind] = (float(e.reduction), float(e.values[0]))
+    gain, loss = reds.get("gain", (-math.inf, 0.0)), reds.get("heat_loss", (-math.inf, 0.0))
+    material = d.noise_ratio >= cfg.material
+    if not material or max(gain[0], loss[0]) < cfg.min_reduction:
+        text = (
+            f"the {out} sensor reads {size:+.3g} off: its mean moved while the responses "
+            "stayed as before"
+        )
+        return _answer(job, "offset", out, {"offset": size}, conf, text)
+    if gain[0] >= loss[0] and gain[1] * size > 0:
+        g = gain[1]
+        text = (
+            f"the {out} settled {size:+.3g} off and both valves' {out} responses are "
+            f"scaled by {1.0 + g:.3f} with the time constant unchanged: the hot supply "
+            f"temperature changed (about {size / g:+.3g} from the cold supply)"
+        )
+        params = {"temperature_change": size, "response_gain": g}
+        return _answer(job, "hot_supply", "hot", params, conf * (gain[0] - max(loss[0], 0.0)), text)
+    text = (
+        f"the {out} settled {size:+.3g} off and settles faster than modelled: heat is lost "
+        f"at a rate of about {loss[1]:.3g} /s"
+    )
+    params = {"temperature_change": size, "rate_per_s": loss[1]}
+    return _answer(job, "heat_loss", out, params, conf * (loss[0] - max(gain[0], 0.0)), text)
 
 
-def _step_or_settle(
-    job: DiagnosisJob, dev: np.ndarray, nominal: Nominal, channel: int
-) -> tuple[float, float]:
-    """Residual sums of squares of a step and of a first-order settle fitted to the move.
+def _shape_fit(
+    job: DiagnosisJob, dev: np.ndarray, nominal: Nominal, channel: int, shape: str
+) -> tuple[float, float, float]:
+    """A step or a first-order settle fitted to an output's steady deviations.
 
     ``dev`` (k,) is the output's steady deviation on each recent window's last period (a
     period-long mean ending at ``job.means_end_ns``). A step at ``t0`` gives, averaged over
-    a period P, ``clip((t − t0)/P, 0, 1)``; a first-order settle with time constant T gives
-    ``(F(t − t0) − F(t − P − t0)) / P`` with ``F(x) = x − T (1 − e^{−x/T})`` for x > 0. The
-    onset ``t0`` is searched on a grid of a tenth of a period; baseline and size by least
-    squares.
+    a period P, ``clip((t − t0)/P, 0, 1)``; a first-order settle (``shape="settle"``) with the
+    output's slowest time constant T gives ``(F(t − t0) − F(t − P − t0)) / P`` with
+    ``F(x) = x − T (1 − e^{−x/T})`` for x > 0. The onset ``t0`` is searched on a grid of a
+    tenth of a period; baseline and size by least squares.
+
+    Returns:
+        ``(rss, t0_s, size)``: residual sum of squares (model units²), the fitted onset (s
+        after ``job.means_end_ns[0]``) and the size of the change (model units).
     """
     t = (job.means_end_ns - job.means_end_ns[0]) * 1e-9
     p_s = job.period_samples * job.ts_s
@@ -305,12 +361,67 @@ def _step_or_settle(
 
         return (f(x) - f(x - p_s)) / p_s
 
-    def rss(shape: Any) -> float:
-        best = math.inf
-        for t0 in np.arange(t[0] - p_s, t[-1], p_s / 10.0):
-            a = np.column_stack([np.ones_like(t), shape(t - t0)])
-            coef, *_ = np.linalg.lstsq(a, dev, rcond=None)
-            best = min(best, float(np.sum((a @ coef - dev) ** 2)))
-        return best
+    form = settle if shape == "settle" else ramp
+    best = (math.inf, math.nan, 0.0)
+    for t0 in np.arange(t[0] - p_s, t[-1], p_s / 10.0):
+        a = np.column_stack([np.ones_like(t), form(t - t0)])
+        coef, *_ = np.linalg.lstsq(a, dev, rcond=None)
+        rss = float(np.sum((a @ coef - dev) ** 2))
+        if rss < best[0]:
+            best = (rss, float(t0), float(coef[1]))
+    return best
 
-    return rss(ramp), rss(settle)
+
+def _step_or_settle(
+    job: DiagnosisJob, dev: np.ndarray, nominal: Nominal, channel: int
+) -> tuple[float, float]:
+    """Residual sums of squares of a step and of a first-order settle (:func:`_shape_fit`)."""
+    return (
+        _shape_fit(job, dev, nominal, channel, "step")[0],
+        _shape_fit(job, dev, nominal, channel, "settle")[0],
+    )
+
+
+def change_onset(job: DiagnosisJob, nominal: Nominal) -> int | None:
+    """When the operating point started to move, from the per-hop means (ns), or None.
+
+    The steady deviation ``ȳ − G(0) ū`` of each output (model units; constant while the
+    plant is the model, whatever the inputs do, so it also sees a fault a feedback loop
+    hides in the inputs) is fitted a step and a settle (:func:`_shape_fit`); the output
+    that moved most, by more than :data:`MATERIAL_MOVE`, dates the change by its better
+    fit. None when no output moved materially or the change is not inside the means kept.
+    """
+    if len(job.means_end_ns) < 3:
+        return None
+    g0 = dc_gain(nominal)
+    dev = job.means_y - job.means_u @ g0.T  # (k, ny)
+    best: tuple[float, float] | None = None  # (|size|, t0)
+    for c in range(dev.shape[1]):
+        fits = [_shape_fit(job, dev[:, c], nominal, c, s) for s in ("step", "settle")]
+        _rss, t0, size = min(fits)
+        if abs(size) > MATERIAL_MOVE and (best is None or abs(size) > best[0]):
+            best = (abs(size), t0)
+    if best is None or best[1] <= 0.0:
+        return None
+    return int(job.means_end_ns[0] + round(best[1] * 1e9))
+
+
+def dated(job: DiagnosisJob, nominal: Nominal) -> DiagnosisJob:
+    """The job with its reference windows ending before the change (:func:`change_onset`).
+
+    A slow fault (a heat loss, a changed supply) can leave windows valid after it started,
+    so the validator's onset (the end of the last valid window) comes late and its windows
+    before the onset already hold part of the move. When the means date the change earlier,
+    the newest non-overlapping windows ending at or before it (from ``pre`` and ``earlier``)
+    become the reference, and the onset is that date; else the job is returned unchanged.
+    """
+    t0 = change_onset(job, nominal)
+    if t0 is None or t0 >= job.onset_ns:
+        return job
+    n_pre = len(job.pre)
+    before = [w for w in (*job.earlier, *job.pre) if w.end_ns <= t0]
+    if n_pre == 0 or not before:
+        return job
+    pre = tuple(before[-n_pre:])
+    earlier = tuple(before[:-n_pre])
+    return dataclasses.replace(job, onset_ns=t0, pre=pre, earlier=earlier)

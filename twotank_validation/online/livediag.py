@@ -135,6 +135,9 @@ class DiagnosisJob:
         ts_s: sample period (s).
         period_samples: excitation period (samples).
         update: the job's number in its alarm episode.
+        earlier: further non-overlapping judged windows before ``pre``, oldest first (the
+            runner may take its reference from them when it dates the change earlier than
+            ``onset_ns``: a slow fault can leave windows valid after it started).
     """
 
     model: str
@@ -149,6 +152,7 @@ class DiagnosisJob:
     ts_s: float
     period_samples: int
     update: int
+    earlier: tuple[WindowData, ...] = ()
 
 
 DiagnoseFn = Callable[[DiagnosisJob], LiveDiagnosis]
@@ -184,6 +188,8 @@ class LiveDiagConfig:
         max_post_windows: the newest this many windows after the onset are diagnosed.
         pre_windows: windows before the onset whose means are the reference (and whose
             diagnosis is the model the change is judged against).
+        earlier_windows: further windows before those, offered to the runner in case it
+            dates the change earlier than the onset (:attr:`DiagnosisJob.earlier`).
         keep_windows: judged windows kept per model (samples): must reach from the windows
             before the onset to the alarm.
         keep_means: judged windows' means kept per model.
@@ -193,6 +199,7 @@ class LiveDiagConfig:
     max_updates: int = 6
     max_post_windows: int = 3
     pre_windows: int = 2
+    earlier_windows: int = 4
     keep_windows: int = 48
     keep_means: int = 96
     models: tuple[str, ...] = ()
@@ -201,14 +208,16 @@ class LiveDiagConfig:
         for name in ("max_updates", "max_post_windows", "keep_windows", "keep_means"):
             if getattr(self, name) < 1:
                 raise DatumError(f"{name} must be >= 1, found {getattr(self, name)}")
-        if self.pre_windows < 0:
-            raise DatumError(f"pre_windows must be >= 0, found {self.pre_windows}")
+        for name in ("pre_windows", "earlier_windows"):
+            if getattr(self, name) < 0:
+                raise DatumError(f"{name} must be >= 0, found {getattr(self, name)}")
 
 
 @dataclass
 class _Episode:
     onset_ns: int
     pre: tuple[WindowData, ...]
+    earlier: tuple[WindowData, ...] = ()
     post: list[WindowData] = field(default_factory=list)
     updates: int = 0
     raised_by: set[str] = field(default_factory=set)
@@ -305,7 +314,9 @@ class LiveDiagnoser:
             onset = st.last_valid_end_ns
             if onset is None:  # invalid from the first window on: nothing before the onset
                 onset = st.windows[0].start_ns - 1
-            ep = st.episode = _Episode(onset, self._before(st, onset))
+            before = self._before(st, onset)
+            cut = max(len(before) - self.config.pre_windows, 0)
+            ep = st.episode = _Episode(onset, before[cut:], before[:cut])
         ep.raised_by.update(st.raised_since_valid)
         grew = self._extend_post(st, ep)
         if (grew or ep.updates == 0) and ep.post and ep.updates < self.config.max_updates:
@@ -313,10 +324,13 @@ class LiveDiagnoser:
             self._start(st, ep, rep)
 
     def _before(self, st: _ModelState, onset_ns: int) -> tuple[WindowData, ...]:
-        """Non-overlapping windows ending at or before the onset: the newest first chained."""
+        """Non-overlapping windows ending at or before the onset, oldest first.
+
+        The newest is chained first; ``earlier_windows`` then ``pre_windows`` of them.
+        """
         out: list[WindowData] = []
         for w in reversed(st.windows):
-            if len(out) >= self.config.pre_windows:
+            if len(out) >= self.config.pre_windows + self.config.earlier_windows:
                 break
             if w.end_ns <= onset_ns and (not out or w.end_ns < out[-1].start_ns):
                 out.append(w)
@@ -349,6 +363,7 @@ class LiveDiagnoser:
             ts_s=self._ts_s,
             period_samples=self._period,
             update=ep.updates,
+            earlier=ep.earlier,
         )
         self.jobs_started += 1
         if self.executor is None:
