@@ -1,18 +1,19 @@
 """Isolation figures of the live diagnosis: is the fault behind the alarm named right, and when.
 
 Usage: scripts/run bench bench_isolation.py [--seeds 3] [--phases 0.125,0.375,0.625,0.875]
-       [--windows-after 3.5] [--max-updates 3] [--faults SUBSTRING ...] [--closed-loop]
+       [--windows-after W] [--max-updates 3] [--faults SUBSTRING ...] [--closed-loop]
 
 Each rig fault at twice its stated limit (docs/detection.md, "Stated limits", the default
 alarm: leak 0.03, level bias 0.025, temperature bias 0.08, valve loss 7 %), and the faults
 without a stated limit at a size of the detection matrix that the default alarm detects
 (sensor delay 10 s on the level, 30 s on the temperature, mixing delay 35 s, heat loss 0.2,
-a permanently stuck hot valve, a hot supply 0.15 cooler), starts at ``(6 + phase) P`` (P =
-204.8 s; three non-overlapping nominal windows before it) in the default scenario with noise
-seed ``seed``. The samples are fed as events into ``OnlineValidator`` with the default
-``MonitorConfig`` (a window every quarter period, the sequential debounce, the
-operating-point check), Model B, and a synchronous ``LiveDiagnoser`` (the bag replay path;
-the node computes the same answers in the background). A run lasts ``--windows-after``
+a permanently stuck hot valve, a hot valve that opens no further than 0.38, a hot supply
+0.15 cooler), starts at ``(6 + phase) P`` (P = 204.8 s; three non-overlapping nominal
+windows before it) in the default scenario with noise seed ``seed``. The samples are fed
+as events into ``OnlineValidator`` with the default ``MonitorConfig`` (a window every
+quarter period, the sequential debounce, the operating-point check), Model B, and a
+synchronous ``LiveDiagnoser`` (the bag replay path; the node computes the same answers in
+the background). A run lasts ``--windows-after``
 windows after the onset.
 
 Scored against ``expected_effect(fault)``: **top-1 accuracy** of the last answer of each
@@ -56,6 +57,7 @@ FAULTS = (
     "mixing_delay=35",
     "heat_loss=0.2",
     "valve_stuck:hot=0",
+    "valve_saturation:hot=0.38",
     "hot_supply=-0.15",
 )
 
@@ -104,11 +106,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--phases", default="0.125,0.375,0.625,0.875")
-    parser.add_argument("--windows-after", type=float, default=3.5)
+    parser.add_argument(
+        "--windows-after", type=float, help="default 3.5, closed loop 5 (it detects later)"
+    )
     parser.add_argument("--max-updates", type=int, default=3)
     parser.add_argument("--faults", nargs="*", help="only faults containing one of these")
     parser.add_argument("--closed-loop", action="store_true", help="the rig under PI control")
     args = parser.parse_args()
+    if args.windows_after is None:
+        args.windows_after = 5.0 if args.closed_loop else 3.5
     phases = [float(p) for p in args.phases.split(",")]
     faults = [f for f in FAULTS if not args.faults or any(s in f for s in args.faults)]
     print("command: " + " ".join(["bench_isolation.py", *sys.argv[1:]]))

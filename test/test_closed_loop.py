@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -129,9 +130,13 @@ def test_hold_and_bumpless_resume() -> None:
     np.testing.assert_allclose(held, np.mean(sent[-8:], axis=0), rtol=0, atol=1e-15)
     # frozen: whatever the measurement, the held value, and the integrators do not move
     state = c.integrators
-    for y in ((0.2, 0.1), (0.7, 0.9)):
-        np.testing.assert_array_equal(c.step(y, (0.05, -0.05)), held)
+    exc = np.array([0.05, -0.05])
+    for y in ((0.2, 0.1), (0.7, 0.9)):  # the output excitation goes on around the held value
+        np.testing.assert_allclose(c.step(y, tuple(exc)), held + exc, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(c.integrators, state)
+    still = PIController(replace(cfg, excite_when_held=False), (0.4, 0.4))
+    still.hold()
+    np.testing.assert_array_equal(still.step((0.2, 0.1), (0.05, -0.05)), still.held)
     c.resume()
     # the same measurement and no excitation: the PI part is the held command (bumpless)
     np.testing.assert_allclose(c.step((0.7, 0.9)), held, rtol=0, atol=1e-12)

@@ -119,9 +119,9 @@ def test_controller_node_holds_in_safe_mode_and_resumes_bumplessly(context) -> N
         rig.mode("safe")
         assert spin_until(ex, lambda: ctl.mode == "safe")
         held = np.mean(np.array(sent[-PERIOD:]), axis=0)  # the last period the test received
-        for k in range(40, 50):  # whatever is measured, the valves stay at the held value
+        for k in range(40, 50):  # whatever is measured: the held value, the excitation on it
             got = _step(ex, rig, ctl, k, 0.3 + 0.02 * (k - 40), 0.7)
-            np.testing.assert_allclose(got, held, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(got, held + table[k % PERIOD], rtol=0, atol=1e-12)
         rig.mode("normal")
         assert spin_until(ex, lambda: ctl.mode == "normal")
         # same measurement as the last one: the PI part is the held command, the excitation
@@ -197,3 +197,45 @@ def test_live_closed_loop_equals_the_simulated_scenario(entry: str) -> None:
     judged = [r for r in res.reports if r.judged]
     assert judged
     assert all(r.beta_total < 1.0 for r in judged)
+
+
+def test_live_closed_loop_with_the_supervisor_goes_safe_on_the_alarm() -> None:
+    """`live --closed-loop --supervisor`: no transition while the rig is nominal, and the
+    switch to safe follows the first ERROR report of the watched model (the reference: the
+    validator's own reports of the same run), within one check of the supervisor."""
+    ts, period = 0.8, 256
+    p_s = period * ts
+    onset = 8.3 * p_s
+    cfg = LiveConfig(
+        duration_s=14 * p_s,
+        ts_s=ts,
+        period_samples=period,
+        models=("B",),
+        faults=(f"leak=0.06@{onset:.1f}",),
+        closed_loop=True,
+        supervisor=True,
+        supervisor_params={"models": ["B"]},
+        validator={"input_periodic_rtol": 0.6},  # as in the parity test above
+        record_samples=False,
+    )
+    res = run_live(cfg)
+    errors = [r for r in res.reports if r.alarm.name == "ERROR"]
+    assert errors, "the leak was not detected in closed loop"
+    first_error_s = errors[0].end_ns / 1e9
+    assert first_error_s > onset
+    assert res.transitions, "the supervisor never switched"
+    tr = res.transitions[0]
+    assert (tr.from_mode.value, tr.to_mode.value) == ("normal", "safe")
+    assert "B" in tr.reason
+    assert first_error_s <= tr.time_s <= first_error_s + 2.0 + ts
+    # the fault lasts: the supervisor stays safe to the end (the windows after the switch,
+    # from closed to open loop, are not judged, and they are no evidence of a recovery)
+    assert len(res.transitions) == 1
+    after = [r for r in res.reports if r.end_ns / 1e9 > tr.time_s]
+    assert after
+    assert not any(r.judged and r.alarm.name == "OK" for r in after)
+
+
+def test_live_supervisor_needs_the_closed_loop() -> None:
+    with pytest.raises(ValueError, match="closed loop"):
+        run_live(LiveConfig(duration_s=10.0, supervisor=True))

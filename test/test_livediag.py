@@ -76,6 +76,7 @@ CASES = [
     ("mixing_delay=35", None),
     ("heat_loss=0.2", None),
     ("valve_stuck:hot=0", None),
+    ("valve_saturation:hot=0.38", None),
     ("hot_supply=-0.15", None),
 ]
 
@@ -210,3 +211,87 @@ def test_a_job_cancelled_at_shutdown_is_dropped_quietly() -> None:
     dg._notify(future)
     assert seen == []
     assert dg.failures == []
+
+
+# Closed loop (PI on level and temperature, excitation added to the valve commands): the
+# loop hides the fault's move of the outputs in the inputs, so the fault shows in the
+# deviation of the outputs from the nominal's response to the inputs. A sensor bias and a
+# plant fault that move the same output are told apart by its time course.
+CLOSED_ONSET_S = round(8.375 * PERIOD_S, 1)
+CLOSED_CASES = ["leak=0.06", "sensor_bias:height=0.05", "sensor_bias:temperature=0.16"]
+
+
+@pytest.mark.parametrize("spec", CLOSED_CASES)
+def test_live_diagnosis_names_the_fault_in_closed_loop(spec) -> None:
+    from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL  # noqa: PLC0415
+    from twotank_validation.sim.scenario import ClosedLoop  # noqa: PLC0415
+
+    sc = Scenario(
+        name="livediag-closed",
+        duration_s=round(CLOSED_ONSET_S + 4 * WINDOW_S, 1),
+        seed=0,
+        faults=(f"{spec}@{CLOSED_ONSET_S}",),
+        closed_loop=ClosedLoop(),
+    )
+    stamps, u, y = simulate_scenario(sc)
+    config = MonitorConfig(input_periodic_rtol=CLOSED_LOOP_INPUT_PERIODIC_RTOL)
+    v = OnlineValidator(config, [load_model("B")], diagnoser=diagnoser())
+    reports = v.feed_many(*record_events(stamps, u, y))
+    answers = [r.diagnosis for r in reports if r.diagnosis is not None]
+    assert answers, f"{spec}: no diagnosis in closed loop"
+    fault = parse_fault(f"{spec}@{CLOSED_ONSET_S}")
+    last = answers[-1]
+    assert named(last, fault), f"{spec}: named {last.kind} on {last.channel}: {last.summary}"
+    assert abs(last.onset_ns / 1e9 - CLOSED_ONSET_S) <= PERIOD_S
+    if spec in PARAMETERS:
+        name, true, rtol = PARAMETERS[spec]
+        assert last.parameters[name] == pytest.approx(true, rel=rtol), last
+
+
+def test_mean_deviations_remove_the_response_to_the_input_means() -> None:
+    """Output means = the nominal's response to input means that moved + a step of 0.03 on the
+    level: the deviations are that step alone (the reference: the step injected), where the
+    steady-state version also carries the response's settling."""
+    import numpy as np  # noqa: PLC0415
+    import scipy.linalg  # noqa: PLC0415
+
+    from twotank_validation.diagnose.effects import Nominal  # noqa: PLC0415
+    from twotank_validation.diagnose.live import mean_deviations  # noqa: PLC0415
+    from twotank_validation.diagnose.steady import dc_gain  # noqa: PLC0415
+    from twotank_validation.online.livediag import DiagnosisJob  # noqa: PLC0415
+
+    doc, _ = load_model_document("B")
+    nom = Nominal.from_document(doc)
+    hop = PERIOD_S / 4
+    t = np.arange(40) * hop
+    # input means: a ramp of the hot valve over two hops from t = 10 hops (a loop's move)
+    du = np.zeros((t.size, 2))
+    du[:, 0] = 0.02 * np.clip((t - 10 * hop) / (2 * hop), 0.0, 1.0)
+    # the nominal's response, by the matrix exponential on a fine grid (not lsim)
+    fine = 64
+    dt = hop / fine
+    n = nom.a.shape[0]
+    big = np.zeros((n + 2, n + 2))
+    big[:n, :n], big[:n, n:] = nom.a * dt, nom.b * dt
+    phi = scipy.linalg.expm(big)
+    x = np.zeros(n)
+    ys = [nom.c @ x + nom.d @ du[0]]
+    for k in range(1, t.size):
+        for j in range(fine):  # the input linear between the hops, held over each fine step
+            uk = du[k - 1] + (du[k] - du[k - 1]) * (j + 0.5) / fine
+            x = phi[:n, :n] @ x + phi[:n, n:] @ uk
+        ys.append(nom.c @ x + nom.d @ du[k])
+    y = np.array(ys)
+    step = np.where(t >= 20 * hop, 0.03, 0.0)
+    y[:, 0] += step
+    job = DiagnosisJob(
+        model="B", onset_ns=0, trigger_end_ns=0, pre=(), post=(),
+        means_end_ns=np.round(t * 1e9).astype(np.int64),
+        means_u=0.4 + du, means_y=np.array([0.47, 0.5]) + y,
+        raised_by="operating point", ts_s=0.1, period_samples=2048, update=1,
+    )  # fmt: skip
+    got = mean_deviations(job, nom)
+    assert np.max(np.abs(got[:, 0] - step)) < 1e-3
+    assert np.max(np.abs(got[:, 1])) < 1e-3
+    steady = y - du @ dc_gain(nom).T  # the steady-state version is off while the level settles
+    assert np.max(np.abs(steady[:, 0] - step)) > 5e-3

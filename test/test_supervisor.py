@@ -90,8 +90,8 @@ class RefRun:
 
 
 def reference(cfg, events):
-    """Run the documented rules over [(t, event)]; events: ("flag", m, v), ("report", m, stamp),
-    ("reset",), ("tick",), ("restart",)."""
+    """Run the documented rules over [(t, event)]; events: ("flag", m, v), ("report", m, stamp,
+    judged), ("reset",), ("tick",), ("restart",)."""
     mode, latched = "normal", False
     to_safe = to_normal = n_inv = n_stale = acc = ref = 0
     faults_at = []
@@ -122,7 +122,11 @@ def reference(cfg, events):
         elif mode == "safe" and not faults and not latched:
             since = events[k][0]
             reports = {
-                m: sum(1 for _, e in events[k : i + 1] if e[0] == "report" and e[1] == m)
+                m: sum(
+                    1
+                    for _, e in events[k : i + 1]
+                    if e[0] == "report" and e[1] == m and e[3]  # judged reports only
+                )
                 for m in cfg.watched
             }
             if t - since >= cfg.clear_after_s and all(
@@ -151,7 +155,7 @@ def to_event(ev):
     if kind == "flag":
         return Invalidated(ev[1], ev[2])
     if kind == "report":
-        return Report(ev[1], ev[2])
+        return Report(ev[1], ev[2], ev[3])
     return {"reset": Reset(), "tick": Tick(), "restart": Restart()}[kind]
 
 
@@ -189,6 +193,7 @@ raw_events = st.lists(
         st.sampled_from(["A", "B", "B", "C"]),  # C is never watched
         st.booleans(),  # a flag's value
         st.sampled_from([0.0, 0.5, 3.0, 9.0, -2.0]),  # a report's stamp: this much earlier
+        st.sampled_from([True, True, True, False]),  # a report's window was judged
     ),
     min_size=15,
     max_size=80,
@@ -198,10 +203,10 @@ raw_events = st.lists(
 def timed(raw):
     """[(t, event)] with non-decreasing time, except that a restart may jump back."""
     t, out = 100.0, []
-    for dt, kind, model, value, lag in raw:
+    for dt, kind, model, value, lag, judged in raw:
         t = max(0.0, t - 3 * dt) if kind == "restart" else t + dt
         if kind == "report":
-            out.append((t, ("report", model, t - lag)))
+            out.append((t, ("report", model, t - lag, judged)))
         elif kind == "flag":
             out.append((t, ("flag", model, value)))
         else:
@@ -249,6 +254,26 @@ def test_hysteresis_time_and_reports() -> None:
     assert sup.mode is Mode.NORMAL
     assert sup.counters == Counters(to_safe=2, to_normal=2, invalidated=2)
     assert [tr.to_mode for tr in sup.log] == [Mode.SAFE, Mode.NORMAL] * 2
+
+
+def test_unjudged_reports_keep_the_validator_alive_but_do_not_clear_safe() -> None:
+    """A window the validator could not judge (e.g. the valves held in safe mode spoil the
+    windows) is no evidence that the model holds: SAFE stays until judged valid reports come."""
+    cfg = SupervisorConfig(clear_after_s=10.0, clear_reports=2, stale_after_s=30.0)
+    sup = Supervisor(cfg)
+    sup.step(0.0, Report("B", 0.0))
+    sup.step(1.0, Invalidated("B", True))
+    sup.step(2.0, Invalidated("B", False))
+    for t in range(5, 100, 5):  # unjudged reports only: alive (not stale), not cleared
+        sup.step(float(t), Report("B", float(t), judged=False))
+        sup.step(float(t), Tick())
+    assert sup.mode is Mode.SAFE
+    assert not sup.state.faults
+    sup.step(100.0, Report("B", 100.0))
+    assert sup.mode is Mode.SAFE  # one judged report of the two needed
+    sup.step(105.0, Report("B", 105.0))
+    assert sup.mode is Mode.NORMAL
+    assert "2 report(s)" in sup.log[-1].reason
 
 
 def test_latch_holds_until_an_accepted_reset() -> None:
@@ -523,10 +548,11 @@ class Harness:
     def _received(self, topic: str) -> int:
         return self.sup.received.get(topic, 0)
 
-    def report(self, stamp_s: float) -> None:
+    def report(self, stamp_s: float, judged: bool = True) -> None:
         msg = self.report_cls()
         itf.set_stamp(msg.header.stamp, round(stamp_s * 1e9))
         msg.model = "B"
+        msg.judged = judged
         n = self._received("validation/B/report")
         self.pub_report.publish(msg)
         assert self.spin_until(lambda: self._received("validation/B/report") > n)

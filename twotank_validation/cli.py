@@ -122,7 +122,15 @@ def _cmd_live(args: argparse.Namespace) -> int:
         seed=args.seed,
         closed_loop=args.closed_loop,
         controller={"excitation_entry": args.excitation_entry} if args.closed_loop else {},
+        supervisor=args.supervisor is not None,
+        supervisor_params={"models": args.supervisor} if args.supervisor else {},
     )
+    if cfg.supervisor and not cfg.closed_loop:
+        print(
+            "error: --supervisor switches the controller's mode: add --closed-loop",
+            file=sys.stderr,
+        )
+        return 2
 
     def show(rep: WindowReport) -> None:
         if args.json:
@@ -137,6 +145,21 @@ def _cmd_live(args: argparse.Namespace) -> int:
         )
 
     result = run_live(cfg, on_report=show)
+    for tr in result.transitions:
+        if args.json:
+            entry = {
+                "time": tr.time_s,
+                "from": tr.from_mode.value,
+                "to": tr.to_mode.value,
+                "reason": tr.reason,
+            }
+            print(json.dumps({"transition": entry}), flush=True)
+        else:
+            print(
+                f"[{tr.time_s:8.1f} s] supervisor: {tr.from_mode.value} -> {tr.to_mode.value}: "
+                f"{tr.reason}",
+                flush=True,
+            )
     print(
         f"simulated {cfg.duration_s:.0f} s in {result.wall_s:.1f} s wall "
         f"({cfg.duration_s / max(result.wall_s, 1e-9):.0f}x real time); "
@@ -568,6 +591,14 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["output", "setpoint"],
         default="output",
         help="closed loop: excitation added to the valve commands or to the setpoints",
+    )
+    live.add_argument(
+        "--supervisor",
+        nargs="*",
+        metavar="MODEL",
+        help="closed loop: run the supervisor, which switches the controller to its safe mode "
+        "while these models' alarm is ERROR (default: the supervisor's own, B); its "
+        "transitions are printed at the end",
     )
     live.set_defaults(func=_cmd_live)
 

@@ -167,6 +167,8 @@ class SaturationFit:
         level: fitted clip level (command, model units).
         fit_cost, heldout_cost: scaled squared error (held-out: with the parameter penalty).
         clipped: fraction of the held-out samples the level clips.
+        constant_cost: held-out error with the input held constant (clipped at every sample:
+            a valve that follows no command), no parameter to penalise.
     """
 
     input: int
@@ -175,6 +177,7 @@ class SaturationFit:
     fit_cost: float
     heldout_cost: float
     clipped: float
+    constant_cost: float = math.inf
 
 
 def fit_saturation(  # noqa: PLR0917 - the diagnosis context
@@ -209,7 +212,10 @@ def fit_saturation(  # noqa: PLR0917 - the diagnosis context
             j_held = _cost(nom, held_data, u_held, ts_s) * (1.0 + cfg.param_penalty)
             u_all = np.concatenate([w.u[:, i] for w in held_w])
             frac = float(np.mean(u_all > best) if side == "upper" else np.mean(u_all < best))
-            out.append(SaturationFit(i, side, best, best_c, j_held, frac))
+            u_const = held_data.u.copy()
+            u_const[:, i] = 0.0  # a constant input has no component at the excited bins
+            j_const = _cost(nom, held_data, u_const, ts_s)
+            out.append(SaturationFit(i, side, best, best_c, j_held, frac, j_const))
     out.sort(key=lambda s: s.heldout_cost)
     return out
 
@@ -301,7 +307,11 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
                 Finding(
                     kind="saturation",
                     target=inputs[s.input],
-                    parameters={"level": s.level, "clipped_fraction": s.clipped},
+                    parameters={
+                        "level": s.level,
+                        "clipped_fraction": s.clipped,
+                        "constant_cost_ratio": s.constant_cost / max(s.heldout_cost, 1e-300),
+                    },
                     evidence=(
                         f"with the {inputs[s.input]} command clipped {above} {s.level:.3g} "
                         f"({s.clipped:.0%} of the samples) the nominal removes {red:.0%} of the "

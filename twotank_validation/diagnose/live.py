@@ -42,6 +42,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+import scipy.signal
 
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.oppoint import OperatingPoint
@@ -59,7 +60,9 @@ from twotank_validation.online.livediag import (
 )
 
 STUCK_FRACTION = 0.9
-"""A saturation that clips at least this fraction of the samples is a stuck valve."""
+"""A saturation that clips at least this fraction of the samples is a stuck valve (so is one
+whose input held constant explains the held-out windows as well as the clip, its level's
+parameter counted: ``constant_cost_ratio`` ≤ 1)."""
 
 MATERIAL_MOVE = 0.01
 """An output's steady mean moved materially: by more than this (model units, five times the
@@ -153,7 +156,8 @@ class CatalogueDiagnosis:
         if sat:
             f = sat[0]
             clipped = float(f.parameters.get("clipped_fraction", 0.0))
-            kind = STUCK if clipped >= STUCK_FRACTION else "saturation"
+            constant = float(f.parameters.get("constant_cost_ratio", math.inf))
+            kind = STUCK if clipped >= STUCK_FRACTION or constant <= 1.0 else "saturation"
             text = (
                 f"the {f.target} valve follows no command (clips {clipped:.0%} of the samples)"
                 if kind == STUCK
@@ -161,7 +165,9 @@ class CatalogueDiagnosis:
             )
             conf = float(np.clip(f.heldout_reduction, 0.0, 1.0))
             return _answer(job, kind, f.target, dict(f.parameters), conf, text)
-        if reference is not None:
+        # the operating point names the fault only when it (also) invalidated the model: a
+        # delay in a feedback loop can shift the means a little without doing so
+        if reference is not None and "operating point" in job.raised_by:
             move = operating_point_move(job, d, nominal, reference, self.config)
             if move is not None:
                 return move
@@ -264,11 +270,12 @@ def operating_point_move(
         return _answer(job, "input_gain", inputs[idx], params, conf, text)
     out = outputs[idx]
     size = float(move[idx])
-    if out != "height":
-        return _thermal_or_offset(job, d, out, size, conf, config or DiagnosisConfig())
-    step, settle = _step_or_settle(job, dev[:, idx], nominal, idx)
+    step, settle = _step_or_settle(job, mean_deviations(job, nominal)[:, idx], nominal, idx)
     chosen, other = (step, settle) if step <= settle else (settle, step)
     conf *= 1.0 - chosen / max(other, 1e-300)
+    if out != "height":
+        cfg = config or DiagnosisConfig()
+        return _thermal_or_offset(job, d, out, size, conf, cfg, stepped=step <= settle)
     if step <= settle:
         text = f"the {out} sensor reads {size:+.3g} off: its mean stepped at the onset"
         return _answer(job, "offset", out, {"offset": size}, conf, text)
@@ -282,21 +289,30 @@ def operating_point_move(
 
 
 def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
-    job: DiagnosisJob, d: Diagnosis, out: str, size: float, conf: float, cfg: DiagnosisConfig
+    job: DiagnosisJob,
+    d: Diagnosis,
+    out: str,
+    size: float,
+    conf: float,
+    cfg: DiagnosisConfig,
+    *,
+    stepped: bool,
 ) -> LiveDiagnosis:
     """A temperature that moved alone: a sensor offset, a heat loss or a hot-supply change.
 
-    The three move the temperature alone at steady state and, the thermal time constant
-    being short against a period, all look like a step in the period means; their dynamics
-    differ. A sensor offset changes no response, so the windows after the onset need no
-    effect (the held-out error is not material, or no candidate removes ``min_reduction``
-    of it). For a mixing tank a supply-temperature change scales both valves' temperature
-    responses by one factor ``1 + Δt/(t − t_cold)`` with the time constant unchanged, an
-    output ``gain`` on the temperature of the move's sign; a heat loss also makes the
-    temperature settle faster, which the catalogue's ``heat_loss`` fits. (The catalogue's
-    own ``hot_supply`` is linearised at the temperature before the move and misses the
-    share of the cold valve, so it is not used to decide here.) Confidence: the direction
-    match times the gap between the two candidates' held-out reductions.
+    The three move the temperature alone at steady state. A sensor offset is a step in the
+    period means (``stepped``: a step fits them better than a settle through the thermal
+    time constant, :func:`_step_or_settle` on :func:`mean_deviations`), or it changes no
+    response, so that the windows after the onset need no effect (the held-out error is
+    not material, or no candidate removes ``min_reduction`` of it; in open loop, where the
+    true temperature stays put). For a mixing tank a supply-temperature change scales both
+    valves' temperature responses by one factor ``1 + Δt/(t − t_cold)`` with the time
+    constant unchanged, an output ``gain`` on the temperature of the move's sign; a heat
+    loss also makes the temperature settle faster, which the catalogue's ``heat_loss``
+    fits. (The catalogue's own ``hot_supply`` is linearised at the temperature before the
+    move and misses the share of the cold valve, so it is not used to decide here.)
+    Confidence: the direction match and the step-or-settle contrast, times the gap between
+    the two candidates' held-out reductions for a plant cause.
     """
     reds: dict[str, tuple[float, float]] = {}  # kind -> (held-out reduction, first value)
     for e in d.candidates:
@@ -307,9 +323,11 @@ def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
             reds[e.spec.kind] = (float(e.reduction), float(e.values[0]))
     gain, loss = reds.get("gain", (-math.inf, 0.0)), reds.get("heat_loss", (-math.inf, 0.0))
     material = d.noise_ratio >= cfg.material
-    if not material or max(gain[0], loss[0]) < cfg.min_reduction:
+    if stepped or not material or max(gain[0], loss[0]) < cfg.min_reduction:
         text = (
-            f"the {out} sensor reads {size:+.3g} off: its mean moved while the responses "
+            f"the {out} sensor reads {size:+.3g} off: its mean stepped at the onset"
+            if stepped
+            else f"the {out} sensor reads {size:+.3g} off: its mean moved while the responses "
             "stayed as before"
         )
         return _answer(job, "offset", out, {"offset": size}, conf, text)
@@ -393,8 +411,7 @@ def change_onset(job: DiagnosisJob, nominal: Nominal) -> int | None:
     """
     if len(job.means_end_ns) < 3:
         return None
-    g0 = dc_gain(nominal)
-    dev = job.means_y - job.means_u @ g0.T  # (k, ny)
+    dev = mean_deviations(job, nominal)
     best: tuple[float, float] | None = None  # (|size|, t0)
     for c in range(dev.shape[1]):
         fits = [_shape_fit(job, dev[:, c], nominal, c, s) for s in ("step", "settle")]
@@ -404,6 +421,31 @@ def change_onset(job: DiagnosisJob, nominal: Nominal) -> int | None:
     if best is None or best[1] <= 0.0:
         return None
     return int(job.means_end_ns[0] + round(best[1] * 1e9))
+
+
+def mean_deviations(job: DiagnosisJob, nominal: Nominal) -> np.ndarray:
+    """Each output's period mean less the nominal's response to the input means: (k, ny).
+
+    ``d_k = ȳ_k − ȳ_0 − (P ∗ (ū − ū_0))(t_k)``, model units, at the end stamps
+    ``job.means_end_ns``. A period mean is a moving average, which commutes with the plant,
+    so the output means are the plant's response to the input means: simulated here
+    (scipy.signal.lsim, the input means interpolated linearly between hops, from rest at
+    the first), so that what the inputs did, a feedback loop's compensation or a setpoint
+    change included, leaves the deviation in its settling as at steady state. Constant
+    while the plant is the nominal; a fault shows in it with its own time course. With
+    input means that never moved, or stamps not evenly spaced (a gap in the judged
+    windows), the steady-state version ``ȳ − ȳ_0 − G(0)(ū − ū_0)``.
+    """
+    du = job.means_u - job.means_u[0]
+    dy = job.means_y - job.means_y[0]
+    t = (job.means_end_ns - job.means_end_ns[0]) * 1e-9
+    steps = np.diff(t)
+    even = steps.size > 0 and np.allclose(steps, steps[0], rtol=1e-6) and steps[0] > 0
+    if not even or not np.any(du):
+        return np.asarray(dy - du @ dc_gain(nominal).T)
+    sys = scipy.signal.StateSpace(nominal.a, nominal.b, nominal.c, nominal.d)
+    _, ysim, _ = scipy.signal.lsim(sys, du, t, interp=True)
+    return np.asarray(dy - np.reshape(ysim, dy.shape))
 
 
 def dated(job: DiagnosisJob, nominal: Nominal) -> DiagnosisJob:

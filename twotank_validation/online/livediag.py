@@ -126,7 +126,8 @@ class DiagnosisJob:
         trigger_end_ns: end stamp of the window whose report started the job.
         pre: non-overlapping judged windows before the onset, oldest first (may be empty).
         post: non-overlapping judged windows after the onset, oldest first (at least one).
-        means_end_ns: (k,) end stamps of the recent judged windows (hop apart), oldest first.
+        means_end_ns: (k,) end stamps of the recent windows (hop apart; judged or not, with
+            complete samples), oldest first.
         means_u: (k, nu) input means of each of those windows' last period.
         means_y: (k, ny) output means of the same.
         raised_by: what made the windows since the onset invalidating
@@ -300,7 +301,8 @@ class LiveDiagnoser:
         data = WindowData(int(stamps_ns[0]), int(stamps_ns[-1]), u, y)
         st.windows.append(data)
         p = self._period or len(u)
-        st.means.append((data.end_ns, u[-p:].mean(axis=0), y[-p:].mean(axis=0)))
+        if not st.means or data.end_ns > st.means[-1][0]:
+            st.means.append((data.end_ns, u[-p:].mean(axis=0), y[-p:].mean(axis=0)))
         if rep.raised_by:  # what invalidated the windows since the last valid one
             st.raised_since_valid.update(rep.raised_by.replace(" and ", ",").split(","))
         if rep.alarm is not Alarm.ERROR:
@@ -322,6 +324,31 @@ class LiveDiagnoser:
         if (grew or ep.updates == 0) and ep.post and ep.updates < self.config.max_updates:
             ep.updates += 1
             self._start(st, ep, rep)
+
+    def note_means(self, rep: Report, stamps_ns: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
+        """A window that was not judged: only its last period's means are kept.
+
+        A window spoiled by a transient (the plant or a feedback loop still settling after
+        a change) is not judged, yet its means show how the operating point moved, which
+        dates and shapes the change (:attr:`DiagnosisJob.means_y`). Windows shorter than a
+        period, with non-finite samples, or not newer than the last kept are ignored.
+
+        Args:
+            rep: the report (not judged).
+            stamps_ns: (n,) int sample stamps of the window.
+            u: (n, nu) float inputs.
+            y: (n, ny) float outputs.
+        """
+        if not self.wants(rep.model) or len(stamps_ns) == 0:
+            return
+        p = self._period or len(u)
+        if len(u) < p or not (np.all(np.isfinite(u[-p:])) and np.all(np.isfinite(y[-p:]))):
+            return
+        st = self._state(rep.model)
+        end = int(stamps_ns[-1])
+        if st.means and end <= st.means[-1][0]:
+            return
+        st.means.append((end, u[-p:].mean(axis=0), y[-p:].mean(axis=0)))
 
     def _before(self, st: _ModelState, onset_ns: int) -> tuple[WindowData, ...]:
         """Non-overlapping windows ending at or before the onset, oldest first.

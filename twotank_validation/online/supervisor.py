@@ -21,8 +21,9 @@ The rules, evaluated at every event (the node adds a :class:`Tick` every ``check
   ``latch`` the SAFE mode is latched.
 * **Hysteresis.** The validator is *good* while there is no fault. SAFE returns to NORMAL at
   the first event at which it has been good for at least ``clear_after_s`` without a break
-  *and* each watched model has delivered at least ``clear_reports`` reports in that good spell
-  (the report that starts the spell, e.g. the first after a silence, counts), and it is not
+  *and* each watched model has delivered at least ``clear_reports`` judged reports in that
+  good spell (the report that starts the spell, e.g. the first after a silence, counts; a
+  window the validator could not judge is no evidence that the model holds), and it is not
   latched. Reason: ``"recovered: valid for 210.0 s and 3 report(s) of each watched model"``.
 * **Reset** (:class:`Reset`) clears the latch only when there is no fault: a reset while a
   fault is present is refused (counted; the mode and latch stay); an accepted reset returns
@@ -124,10 +125,16 @@ class Invalidated:
 
 @dataclass(frozen=True)
 class Report:
-    """A model's window report arrived; ``stamp_s`` is its stamp (end of its window, s)."""
+    """A model's window report arrived; ``stamp_s`` is its stamp (end of its window, s).
+
+    ``judged`` false: the window was not fit to judge (gaps, a transient, too little
+    excitation): it shows the validator is alive, but it is no evidence that the model holds,
+    so it does not count towards the reports that clear SAFE.
+    """
 
     model: str
     stamp_s: float
+    judged: bool = True
 
 
 @dataclass(frozen=True)
@@ -311,7 +318,7 @@ def step(
     else:
         if state.good_since_s is None:
             state = replace(state, good_since_s=now_s, good_reports={})
-        if watched and isinstance(event, Report):
+        if watched and isinstance(event, Report) and event.judged:
             n = state.good_reports.get(event.model, 0) + 1
             state = replace(state, good_reports={**state.good_reports, event.model: n})
 
@@ -411,11 +418,15 @@ class Supervisor:
 
 @dataclass(frozen=True)
 class ReportRecord:
-    """One report as the supervisor sees it: stamp (s), model, and the model's flag after it."""
+    """One report as the supervisor sees it.
+
+    Stamp (s), model, the model's flag after it, and whether the window was judged.
+    """
 
     stamp_s: float
     model: str
     invalidated: bool
+    judged: bool = True
 
 
 def report_records(reports: Iterable[WindowReport]) -> list[ReportRecord]:
@@ -424,7 +435,10 @@ def report_records(reports: Iterable[WindowReport]) -> list[ReportRecord]:
     The node publishes each report, then the model's ``invalidated`` flag, true exactly while
     the report's debounced alarm is ERROR.
     """
-    return [ReportRecord(r.end_ns / NS_PER_S, r.model, r.alarm is Alarm.ERROR) for r in reports]
+    return [
+        ReportRecord(r.end_ns / NS_PER_S, r.model, r.alarm is Alarm.ERROR, r.judged)
+        for r in reports
+    ]
 
 
 def replay(
@@ -463,7 +477,7 @@ def replay(
         while t0 + k * tick_s < rec.stamp_s:
             sup.step(t0 + k * tick_s, Tick())
             k += 1
-        sup.step(rec.stamp_s, Report(rec.model, rec.stamp_s))
+        sup.step(rec.stamp_s, Report(rec.model, rec.stamp_s, rec.judged))
         sup.step(rec.stamp_s, Invalidated(rec.model, rec.invalidated))
     if end_s is not None:
         while t0 + k * tick_s <= end_s:

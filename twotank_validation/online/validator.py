@@ -189,6 +189,8 @@ class OnlineValidator:
             if diagnoser is not None:
                 if rep.judged and diagnoser.wants(rep.model):
                     diagnoser.observe(rep, *monitor.last_window())
+                elif diagnoser.wants(rep.model):
+                    diagnoser.note_means(rep, *monitor.last_window())
                 answer = diagnoser.attach(rep)
                 if answer is not None:
                     rep = dataclasses.replace(rep, diagnosis=answer)

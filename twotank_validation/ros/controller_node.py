@@ -11,8 +11,11 @@ is fed the same ``flow_cmd`` as before.
 last mode) switches it:
 
 * ``"safe"``: the valves are held at the mean command of the last excitation period (one
-  period of commands averages the zero-mean excitation out: the last good operating point),
-  the excitation stops and the PI state is frozen;
+  period of commands averages the zero-mean excitation out: the last good operating point)
+  and the PI state is frozen; with ``excitation_entry = "output"`` and ``excite_when_held``
+  (the default) the excitation goes on around the held commands, so that the validator keeps
+  judging the model (open loop, the paper's experiment) and the supervisor sees whether the
+  fault lasts;
 * ``"normal"``: the PI loops resume bumplessly (integrators re-initialised from the held
   output) and the excitation goes on at the phase time has reached.
 
@@ -95,6 +98,11 @@ CONTROLLER_PARAMS = (
         choices=control.EXCITATION_ENTRIES,
     ),
     Param(
+        "excite_when_held",
+        _CC.excite_when_held,
+        "safe mode: keep the output excitation on the held valves (the validator keeps judging)",
+    ),
+    Param(
         "kind", "filtered_noise", "filtered_noise or multisine", choices=excitation.EXCITATION_KINDS
     ),
     Param("rms_hot", 0.05, "output entry: hot valve RMS deviation (model units)", 0.0, 0.5),
@@ -144,6 +152,7 @@ class ControllerNode(Node):
                 excitation_entry=entry,
                 hold_samples=period,
                 filter_s=float(v["filter_s"]),
+                excite_when_held=bool(v["excite_when_held"]),
             )
             rms = (
                 (float(v["rms_hot"]), float(v["rms_cold"]))
@@ -226,6 +235,12 @@ class ControllerNode(Node):
             self.get_logger().warning(
                 f"safe mode: valves held at hot {held[0]:.4f}, cold {held[1]:.4f} (mean of the "
                 "last excitation period), PI frozen"
+                + (
+                    ", excitation on"
+                    if self.controller.config.excite_when_held
+                    and self.controller.config.excitation_entry == "output"
+                    else ""
+                )
             )
         else:
             self.controller.resume()

@@ -7,7 +7,9 @@ validator gets everything. In closed loop (``LiveConfig.closed_loop``) the contr
 takes the excitation node's place: its command at each instant comes from the measurement of
 the sample before (which the driver waits for), with the excitation added; the validator is
 fed its ``flow_cmd`` and the measurements as in open loop, with the input periodicity gate
-opened (:data:`~twotank_validation.sim.control.CLOSED_LOOP_INPUT_PERIODIC_RTOL`). All three
+opened (:data:`~twotank_validation.sim.control.CLOSED_LOOP_INPUT_PERIODIC_RTOL`); with
+``LiveConfig.supervisor`` the supervisor node switches the controller to its safe mode on the
+alarm. All the
 nodes run with ``use_sim_time`` and talk over their ordinary topics (loopback DDS), so this
 exercises the same code as a deployment, faster than real time and deterministically.
 """
@@ -33,9 +35,11 @@ from rosgraph_msgs.msg import Clock
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.online import Sample, SampleBlock, WindowReport
 from twotank_validation.online import streams as itf
+from twotank_validation.online.supervisor import Transition
 from twotank_validation.ros.controller_node import ControllerNode
 from twotank_validation.ros.excitation_node import ExcitationNode
 from twotank_validation.ros.plant_node import PlantNode
+from twotank_validation.ros.supervisor_node import SupervisorNode
 from twotank_validation.ros.validator_node import ValidatorNode
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 
@@ -57,6 +61,10 @@ class LiveConfig:
         excitation: extra excitation parameters.
         closed_loop: run the controller node (PI loops, excitation added) instead of the
             excitation node.
+        supervisor: closed loop: also run the supervisor node, which switches the
+            controller to its safe mode on the watched models' alarm (docs/ros.md); its
+            transitions are in the result.
+        supervisor_params: extra supervisor parameters (e.g. ``models``, ``stale_after_s``).
         controller: extra controller parameters (closed loop; e.g. ``excitation_entry``,
             gains, setpoints).
         record_samples: keep every aligned sample in the result (parity checks; memory
@@ -77,6 +85,8 @@ class LiveConfig:
     plant: dict[str, Any] = field(default_factory=dict)
     excitation: dict[str, Any] = field(default_factory=dict)
     closed_loop: bool = False
+    supervisor: bool = False
+    supervisor_params: dict[str, Any] = field(default_factory=dict)
     controller: dict[str, Any] = field(default_factory=dict)
     record_samples: bool = True
     keep_reports: bool = True
@@ -96,12 +106,14 @@ class LiveResult:
         samples: the aligned samples the validator consumed (for offline parity).
         wall_s: wall time of the run.
         counters: aligner counters (duplicates, gaps, ...).
+        transitions: the supervisor's mode changes (with ``LiveConfig.supervisor``).
     """
 
     reports: list[WindowReport]
     samples: list[Sample]
     wall_s: float
     counters: dict[str, int]
+    transitions: list[Transition] = field(default_factory=list)
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter[Any]]:
@@ -177,6 +189,11 @@ def run_live(
             awaited once more for the last sample after the validator's last reports went
             to ``on_report``, so a predicate that also counts reports sees them all.
     """
+    if config.supervisor and not config.closed_loop:
+        raise ValueError(
+            "the supervisor switches the controller's mode: run it in closed loop "
+            "(closed_loop=True, `live --closed-loop --supervisor`)"
+        )
     own = context is None
     ctx = context or Context()
     if own:
@@ -225,6 +242,12 @@ def run_live(
         driver = Node("twotank_clock", context=ctx)
         extra_nodes, synced = attach(ctx) if attach is not None else ((), None)
         nodes = [exc, plant, val, driver, *extra_nodes]
+        supervisor = None
+        if config.supervisor:
+            supervisor = SupervisorNode(
+                context=ctx, parameter_overrides=[sim, *_overrides(config.supervisor_params)]
+            )
+            nodes.append(supervisor)
         n_extra = 1 if attach is not None else 0
         clock_pub = driver.create_publisher(Clock, "/clock", 10)
         executor = SingleThreadedExecutor(context=ctx)
@@ -291,7 +314,8 @@ def run_live(
             raise RuntimeError("attached nodes did not receive everything by the end of the run")
         wall = time.monotonic() - start
         counters = dataclasses.asdict(val.core.counters())
-        return LiveResult(kept, list(val.samples), wall, counters)
+        log = list(supervisor.machine.log) if supervisor is not None else []
+        return LiveResult(kept, list(val.samples), wall, counters, log)
     finally:
         for n in nodes:
             n.destroy_node()

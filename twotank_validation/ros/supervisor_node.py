@@ -233,7 +233,7 @@ class SupervisorNode(Node):
                 f"reports of {model} {stamp_s - last:.1f} s apart: stale_after_s = {stale_s} s "
                 "leaves little margin; set it to about 3 report intervals (the validator's hop)"
             )
-        self._step(Report(model, stamp_s))
+        self._step(Report(model, stamp_s, bool(msg.judged)))
 
     def _on_diagnosis(self, model: str, msg: String) -> None:
         self._count(f"validation/{model}/diagnosis_text")

@@ -48,7 +48,9 @@ temperature setpoints. Either way the validator is fed the valve commands actual
 
 **Hold (safe mode).** :meth:`PIController.hold` freezes the PI state and holds the valves at
 the mean command of the last ``hold_samples`` samples (one excitation period: the excitation
-averages out, so this is the last good operating point); :meth:`PIController.resume`
+averages out, so this is the last good operating point), with the output excitation still
+added (``excite_when_held``: the open-loop periodic experiment, which the validator keeps
+judging); :meth:`PIController.resume`
 re-initialises the integrators from the held output so that the PI part of the next command
 equals it (bumpless transfer).
 
@@ -130,6 +132,11 @@ class ControllerConfig:
             (added to the setpoints).
         hold_samples: Commands averaged into the held value of the safe mode (one
             excitation period), >= 1.
+        excite_when_held: In the safe mode, keep adding the output excitation to the held
+            commands (``excitation_entry = "output"``): the plant then runs the open-loop
+            periodic experiment, so the validator keeps judging the model and can see the
+            fault persist or go. False: the valves are held still (no window can be judged
+            until the loops resume).
         filter_s: Time constant (s) of a first-order low-pass filter on both measurements
             before the PI laws, >= 0; 0 switches it off. It keeps the sensor noise out of the
             valve commands (the proportional gains would pass it straight through).
@@ -152,6 +159,7 @@ class ControllerConfig:
     excitation_entry: str = "output"
     hold_samples: int = PERIOD_SAMPLES
     filter_s: float = 2.0
+    excite_when_held: bool = True
 
     def __post_init__(self) -> None:
         for name in ("ts_s", "kp_level", "ti_level_s", "kp_temperature", "ti_temperature_s"):
@@ -295,8 +303,9 @@ class PIController:
                 for ``"setpoint"``.
 
         Returns:
-            (2,) [hot, cold] valve commands in [u_min, u_max]; the held value in the safe
-            mode (the measurement filter keeps running, the PI state is frozen).
+            (2,) [hot, cold] valve commands in [u_min, u_max]; in the safe mode the held
+            value, plus the output excitation with ``excite_when_held`` (the measurement
+            filter keeps running, the PI state is frozen).
 
         Raises:
             ControllerError: non-finite or misshaped arguments.
@@ -309,7 +318,7 @@ class PIController:
             y = (old[0] + a * (raw[0] - old[0]), old[1] + a * (raw[1] - old[1]))
         self._last_measured, self._last_excitation = y, exc
         if self._held is not None:
-            return np.array(self._held)
+            return self._held_command(exc)
         cfg = self.config
         e_h, e_t = self._errors(y, exc)
         v_flow = cfg.kp_level * e_h + self._i_flow
@@ -339,10 +348,11 @@ class PIController:
 
         The PI part is the current integrator state (the initial commands at the start),
         output excitation added and clipped to [u_min, u_max]; the state does not change.
-        In the safe mode, the held value.
+        In the safe mode, the held value (with the output excitation, see
+        ``excite_when_held``).
         """
         if self._held is not None:
-            return np.array(self._held)
+            return self._held_command(_as_pair(excitation, "excitation"))
         exc = _as_pair(excitation, "excitation")
         if self.config.excitation_entry != "output":
             exc = (0.0, 0.0)
@@ -353,6 +363,15 @@ class PIController:
         return np.array([min(max(hot + exc[0], lo), hi), min(max(cold + exc[1], lo), hi)])
 
     # --- safe mode ------------------------------------------------------------------------
+
+    def _held_command(self, exc: tuple[float, float]) -> FloatArray:
+        """(2,) the safe mode's command: the held value, plus the output excitation."""
+        assert self._held is not None
+        cfg = self.config
+        if not (cfg.excite_when_held and cfg.excitation_entry == "output"):
+            return np.array(self._held)
+        lo, hi = cfg.u_min, cfg.u_max
+        return np.array([min(max(h + e, lo), hi) for h, e in zip(self._held, exc, strict=True)])
 
     def hold(self) -> FloatArray:
         """Enter the safe mode: hold the valves at the mean command of the last period.
