@@ -10,7 +10,8 @@ default alarm, Models A and B). Model B's reports then go through the supervisor
 receives them (``online.supervisor.false_transitions``: each report at its stamp, then its
 ``invalidated`` flag, the staleness timer every second) with the node's default settings. On
 nominal data every switch to SAFE is false (goal: 0 per 24 h); the 95 % upper bound of the
-rate when none is seen is 3 / exposure. ``--setpoints`` moves the controller's setpoints every
+rate when none is seen is 3 / exposure. The longest spell between judged windows is printed
+beside it (the supervisor's ``unjudged_after_s`` must exceed it). ``--setpoints`` moves the controller's setpoints every
 two hours (level 0.44-0.52, temperature 0.47-0.55), as an operator would.
 """
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import statistics
 import time
 
@@ -59,7 +61,9 @@ def one_seed(seed: int, hours: float, setpoints: bool) -> dict:
     mine = [r for r in reports if r.model == "B"]
     judged = [r for r in mine if r.judged]
     out = false_transitions(report_records(mine), SupervisorConfig(), end_s=float(stamps[-1]) / 1e9)
+    ends = [r.end_ns / 1e9 for r in judged]
     return {
+        "longest_unjudged_s": max((b - a for a, b in itertools.pairwise(ends)), default=0.0),
         "seed": seed,
         "reports": len(mine),
         "judged": len(judged),
@@ -83,7 +87,8 @@ def main() -> None:
         print(
             f"seed {r['seed']}: {args.hours:g} h closed loop, {r['setpoint_changes']} setpoint "
             f"changes; Model B {r['reports']} reports, {r['judged']} judged, "
-            f"{r['invalidating']} invalidating, beta_total max {r['beta_max']:.3f}; "
+            f"{r['invalidating']} invalidating, beta_total max {r['beta_max']:.3f}, longest "
+            f"spell without a judged window {r['longest_unjudged_s']:.0f} s; "
             f"supervisor: {r['false']} false transitions ({r['wall_s']:.0f} s wall, "
             f"{r['sim_s']:.0f} s simulating)"
         )

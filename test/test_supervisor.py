@@ -63,23 +63,29 @@ def ref_faults(cfg, history, i, t):
         flags = [ev[2] for _, ev in history[: i + 1] if ev[0] == "flag" and ev[1] == m]
         if flags and flags[-1]:
             out.append(("invalidated", m, None))
-        stamps = [ev[2] for _, ev in history[restart : i + 1] if ev[0] == "report" and ev[1] == m]
+        since = history[restart : i + 1]
+        stamps = [ev[2] for _, ev in since if ev[0] == "report" and ev[1] == m]
+        judged = [ev[2] for _, ev in since if ev[0] == "report" and ev[1] == m and ev[3]]
         if stamps:
             age = t - max(stamps)
             if age > cfg.stale_after_s:
                 out.append(("stale", m, age))
+            elif judged and t - max(judged) > cfg.unjudged_after_s:
+                out.append(("unjudged", m, t - max(judged)))
+            elif not judged and t - start > max(cfg.unjudged_after_s, cfg.startup_grace_s):
+                out.append(("unjudged", m, t - start))
         elif t - start > cfg.startup_grace_s:
             out.append(("stale", m, t - start))
     return out
 
 
 def ref_text(faults):
-    return "; ".join(
-        f"invalidated: model {m}"
-        if k == "invalidated"
-        else f"stale: no report from {m} for {a:.1f} s"
-        for k, m, a in faults
-    )
+    text = {
+        "invalidated": "invalidated: model {m}",
+        "stale": "stale: no report from {m} for {a:.1f} s",
+        "unjudged": "unjudged: no judged window of {m} for {a:.1f} s",
+    }
+    return "; ".join(text[k].format(m=m, a=a) for k, m, a in faults)
 
 
 @dataclass
@@ -93,7 +99,7 @@ def reference(cfg, events):
     """Run the documented rules over [(t, event)]; events: ("flag", m, v), ("report", m, stamp,
     judged), ("reset",), ("tick",), ("restart",)."""
     mode, latched = "normal", False
-    to_safe = to_normal = n_inv = n_stale = acc = ref = 0
+    to_safe = to_normal = n_inv = n_stale = n_unj = acc = ref = 0
     faults_at = []
     run = RefRun()
     for i, (t, ev) in enumerate(events):
@@ -118,6 +124,7 @@ def reference(cfg, events):
             kinds = {f[0] for f in faults}
             n_inv += "invalidated" in kinds
             n_stale += "stale" in kinds
+            n_unj += "unjudged" in kinds
             run.log.append((t, "normal", "safe", ref_text(faults)))
         elif mode == "safe" and not faults and not latched:
             since = events[k][0]
@@ -146,7 +153,7 @@ def reference(cfg, events):
                     )
                 )
         run.modes.append(mode)
-        run.counters.append((to_safe, to_normal, n_inv, n_stale, acc, ref))
+        run.counters.append((to_safe, to_normal, n_inv, n_stale, n_unj, acc, ref))
     return run
 
 
@@ -167,7 +174,15 @@ def run_machine(cfg, events):
         modes.append(sup.mode.value)
         c = sup.counters
         counters.append(
-            (c.to_safe, c.to_normal, c.invalidated, c.stale, c.resets_accepted, c.resets_refused)
+            (
+                c.to_safe,
+                c.to_normal,
+                c.invalidated,
+                c.stale,
+                c.unjudged,
+                c.resets_accepted,
+                c.resets_refused,
+            )
         )
     log = [(tr.time_s, tr.from_mode.value, tr.to_mode.value, tr.reason) for tr in sup.log]
     return sup, modes, counters, log
@@ -183,6 +198,7 @@ configs = st.builds(
     latch=st.booleans(),
     stale_after_s=st.sampled_from([4.0, 15.0, 60.0]),
     startup_grace_s=st.sampled_from([0.0, 8.0, 30.0, 200.0]),
+    unjudged_after_s=st.sampled_from([5.0, 25.0, 100.0, math.inf]),
 )
 # weighted draws: reports, flags and ticks often, resets now and then, restarts rarely
 KINDS = ["report"] * 8 + ["flag"] * 4 + ["tick"] * 4 + ["reset"] * 2 + ["restart"]
@@ -274,6 +290,32 @@ def test_unjudged_reports_keep_the_validator_alive_but_do_not_clear_safe() -> No
     sup.step(105.0, Report("B", 105.0))
     assert sup.mode is Mode.NORMAL
     assert "2 report(s)" in sup.log[-1].reason
+
+
+def test_a_validator_that_reports_but_judges_nothing_switches_to_safe() -> None:
+    """Alive but blind (e.g. a valve at its limit leaves no excitation): after
+    unjudged_after_s without a judged window the model is not being checked."""
+    cfg = SupervisorConfig(stale_after_s=30.0, unjudged_after_s=100.0, startup_grace_s=50.0)
+    sup = Supervisor(cfg)
+    sup.step(0.0, Report("B", 0.0))
+    for t in range(10, 101, 10):
+        sup.step(float(t), Report("B", float(t), judged=False))
+    assert sup.mode is Mode.NORMAL  # 100 s without a judged window: not more than the limit
+    sup.step(110.0, Report("B", 110.0, judged=False))
+    assert sup.mode is Mode.SAFE
+    assert sup.log[-1].reason == "unjudged: no judged window of B for 110.0 s"
+    assert sup.counters.unjudged == 1
+    # judged windows again, and valid: back to normal after the hysteresis
+    for t in range(120, 400, 50):
+        sup.step(float(t), Report("B", float(t)))
+    assert sup.mode is Mode.NORMAL
+    # never judged from the start: the startup grace applies if it is longer
+    late = Supervisor(SupervisorConfig(unjudged_after_s=10.0, startup_grace_s=60.0))
+    for t in range(0, 61, 5):
+        late.step(float(t), Report("B", float(t), judged=False))
+    assert late.mode is Mode.NORMAL
+    late.step(61.0, Report("B", 61.0, judged=False))
+    assert late.mode is Mode.SAFE
 
 
 def test_latch_holds_until_an_accepted_reset() -> None:

@@ -165,9 +165,7 @@ class CatalogueDiagnosis:
             )
             conf = float(np.clip(f.heldout_reduction, 0.0, 1.0))
             return _answer(job, kind, f.target, dict(f.parameters), conf, text)
-        # the operating point names the fault only when it (also) invalidated the model: a
-        # delay in a feedback loop can shift the means a little without doing so
-        if reference is not None and "operating point" in job.raised_by:
+        if reference is not None:
             move = operating_point_move(job, d, nominal, reference, self.config)
             if move is not None:
                 return move
@@ -248,6 +246,10 @@ def operating_point_move(
     move = dev[-1]
     if not np.any(np.abs(move) > MATERIAL_MOVE):
         return None
+    if "operating point" not in job.raised_by and not np.any(np.abs(move) > 2 * MATERIAL_MOVE):
+        # a small move that did not itself invalidate the model (a delay inside a feedback
+        # loop shifts the means of a nonlinear plant a little): the dynamics name the fault
+        return None
     cands: list[tuple[str, int, np.ndarray]] = [("output", c, np.eye(ny)[c]) for c in range(ny)]
     cands += [("input", i, g0[:, i]) for i in range(nu)]
     norm = float(np.linalg.norm(move))
@@ -274,8 +276,13 @@ def operating_point_move(
     chosen, other = (step, settle) if step <= settle else (settle, step)
     conf *= 1.0 - chosen / max(other, 1e-300)
     if out != "height":
+        # with the inputs held (open loop) a sensor offset leaves the plant where it was,
+        # so the dynamics tell it from a plant effect; where the inputs moved (a feedback
+        # loop compensating) the plant moved either way and the time course decides
+        inputs_moved = bool(np.any(np.abs(job.means_u[-1] - reference.u) > MATERIAL_MOVE))
         cfg = config or DiagnosisConfig()
-        return _thermal_or_offset(job, d, out, size, conf, cfg, stepped=step <= settle)
+        stepped = inputs_moved and step <= settle
+        return _thermal_or_offset(job, d, out, size, conf, cfg, stepped=stepped)
     if step <= settle:
         text = f"the {out} sensor reads {size:+.3g} off: its mean stepped at the onset"
         return _answer(job, "offset", out, {"offset": size}, conf, text)
@@ -300,17 +307,20 @@ def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
 ) -> LiveDiagnosis:
     """A temperature that moved alone: a sensor offset, a heat loss or a hot-supply change.
 
-    The three move the temperature alone at steady state. A sensor offset is a step in the
-    period means (``stepped``: a step fits them better than a settle through the thermal
-    time constant, :func:`_step_or_settle` on :func:`mean_deviations`), or it changes no
-    response, so that the windows after the onset need no effect (the held-out error is
-    not material, or no candidate removes ``min_reduction`` of it; in open loop, where the
-    true temperature stays put). For a mixing tank a supply-temperature change scales both
-    valves' temperature responses by one factor ``1 + Δt/(t − t_cold)`` with the time
-    constant unchanged, an output ``gain`` on the temperature of the move's sign; a heat
-    loss also makes the temperature settle faster, which the catalogue's ``heat_loss``
-    fits. (The catalogue's own ``hot_supply`` is linearised at the temperature before the
-    move and misses the share of the cold valve, so it is not used to decide here.)
+    The three move the temperature alone at steady state. A sensor offset changes no
+    response where the inputs stay put (open loop: the true temperature does not move), so
+    that the windows after the onset need no effect (the held-out error is not material, or
+    no candidate removes ``min_reduction`` of it). Where the inputs moved (a feedback loop
+    holds the measured temperature, so a sensor offset moves the true one and the responses
+    with it) it is told by its time course: a step in the period means (``stepped``: a step
+    fits them better than a settle through the thermal time constant,
+    :func:`_step_or_settle` on :func:`mean_deviations`). For a mixing tank a
+    supply-temperature change scales both valves' temperature responses by one factor ``1 +
+    Δt/(t − t_cold)`` with the time constant unchanged, an output ``gain`` on the
+    temperature of the move's sign; a heat loss also makes the temperature settle faster,
+    which the catalogue's ``heat_loss`` fits. (The catalogue's own ``hot_supply`` is
+    linearised at the temperature before the move and misses the share of the cold valve, so
+    it is not used to decide here.)
     Confidence: the direction match and the step-or-settle contrast, times the gap between
     the two candidates' held-out reductions for a plant cause.
     """

@@ -14,7 +14,11 @@ The rules, evaluated at every event (the node adds a :class:`Tick` every ``check
   flag is true (``"invalidated: model B"``); *stale* when its newest report stamp is more than
   ``stale_after_s`` before now, or, before its first report, when more than
   ``startup_grace_s`` have passed since the supervisor started (its first event)
-  (``"stale: no report from B for 181.0 s"``, the age from the start if none came yet).
+  (``"stale: no report from B for 181.0 s"``, the age from the start if none came yet);
+  *unjudged* when it is not stale but its newest judged report is more than
+  ``unjudged_after_s`` old (from the start, and at least ``startup_grace_s``, if none was
+  judged yet): the validator is alive but cannot check the model
+  (``"unjudged: no judged window of B for 1850.0 s"``).
   Flags and reports of models that are not watched are ignored.
 * **Entering SAFE.** In NORMAL, any fault switches to SAFE at once (the validator has already
   debounced the alarm); the transition's reason is the faults' texts joined by ``"; "``. With
@@ -66,6 +70,7 @@ class Mode(enum.Enum):
 
 INVALIDATED = "invalidated"
 STALE = "stale"
+UNJUDGED = "unjudged"
 """The kinds of fault."""
 
 
@@ -84,6 +89,11 @@ class SupervisorConfig:
         startup_grace_s: time (s) after the supervisor's first event within which a model that
             has not reported yet is not stale (the validator's first window takes a few
             periods).
+        unjudged_after_s: a watched model that keeps reporting but whose newest *judged*
+            report is older than this (s) is a fault: the validator is alive but blind (no
+            excitation, a valve at its limit, gaps), so the model is not being checked. It
+            must exceed the unjudged spells of normal operation (a setpoint change leaves
+            the windows spanning the move unjudged); ``inf`` switches the rule off.
     """
 
     watched: tuple[str, ...] = ("B",)
@@ -92,6 +102,7 @@ class SupervisorConfig:
     latch: bool = False
     stale_after_s: float = 180.0
     startup_grace_s: float = 900.0
+    unjudged_after_s: float = 1800.0
 
     def __post_init__(self) -> None:
         if not self.watched:
@@ -107,6 +118,10 @@ class SupervisorConfig:
         if not (math.isfinite(self.stale_after_s) and self.stale_after_s > 0):
             raise SupervisorError(
                 f"stale_after_s must be finite and > 0 (s), found {self.stale_after_s}"
+            )
+        if not (self.unjudged_after_s > 0):  # inf allowed: the rule off
+            raise SupervisorError(
+                f"unjudged_after_s must be > 0 (s; inf: off), found {self.unjudged_after_s}"
             )
         if self.clear_reports < 0:
             raise SupervisorError(f"clear_reports must be >= 0, found {self.clear_reports}")
@@ -177,6 +192,7 @@ class Counters:
         to_normal: switches SAFE -> NORMAL.
         invalidated: switches to SAFE with an invalidated model among the reasons.
         stale: switches to SAFE with a stale model among the reasons.
+        unjudged: switches to SAFE with an unjudged model among the reasons.
         resets_accepted: reset requests accepted.
         resets_refused: reset requests refused (a fault was present).
     """
@@ -185,6 +201,7 @@ class Counters:
     to_normal: int = 0
     invalidated: int = 0
     stale: int = 0
+    unjudged: int = 0
     resets_accepted: int = 0
     resets_refused: int = 0
 
@@ -203,9 +220,10 @@ class SupervisorState:
         reason: the reason of the last transition (``"start"`` before any).
         latched: SAFE is latched (waits for an accepted reset).
         faults: the current faults, ``(kind, model)`` in watched order, invalidated before
-            stale.
+            stale or unjudged.
         invalidated: the watched models whose last flag is true.
         last_report_s: per watched model, its newest report stamp (s); absent before any.
+        last_judged_s: per watched model, its newest judged report's stamp (s).
         good_since_s: start of the current good spell (no fault), None while a fault is present.
         good_reports: per watched model, reports received in the current good spell.
         start_s: time of the first event (or of the last clock restart); None before any.
@@ -220,12 +238,20 @@ class SupervisorState:
     faults: tuple[tuple[str, str], ...] = ()
     invalidated: frozenset[str] = frozenset()
     last_report_s: dict[str, float] = field(default_factory=dict)
+    last_judged_s: dict[str, float] = field(default_factory=dict)
     good_since_s: float | None = None
     good_reports: dict[str, int] = field(default_factory=dict)
     start_s: float | None = None
     now_s: float | None = None
     counters: Counters = Counters()
     last_reset: str = ""
+
+
+def judged_age_s(state: SupervisorState, model: str, now_s: float) -> float:
+    """Seconds since the model's newest judged report stamp, or since the start if none."""
+    last = state.last_judged_s.get(model)
+    ref = last if last is not None else state.start_s
+    return now_s - (ref if ref is not None else now_s)
 
 
 def report_age_s(state: SupervisorState, model: str, now_s: float) -> float:
@@ -245,6 +271,12 @@ def _faults(
         limit = config.stale_after_s if m in state.last_report_s else config.startup_grace_s
         if report_age_s(state, m, now_s) > limit:
             out.append((STALE, m))
+        elif m in state.last_report_s:
+            limit = config.unjudged_after_s
+            if m not in state.last_judged_s:
+                limit = max(limit, config.startup_grace_s)
+            if judged_age_s(state, m, now_s) > limit:
+                out.append((UNJUDGED, m))
     return tuple(out)
 
 
@@ -254,6 +286,10 @@ def fault_text(state: SupervisorState, now_s: float) -> str:
     for kind, m in state.faults:
         if kind == INVALIDATED:
             parts.append(f"invalidated: model {m}")
+        elif kind == UNJUDGED:
+            parts.append(
+                f"unjudged: no judged window of {m} for {judged_age_s(state, m, now_s):.1f} s"
+            )
         else:
             parts.append(f"stale: no report from {m} for {report_age_s(state, m, now_s):.1f} s")
     return "; ".join(parts)
@@ -288,7 +324,14 @@ def step(
     if not math.isfinite(now_s):
         raise SupervisorError(f"the current time must be finite, found {now_s}")
     if isinstance(event, Restart):
-        state = replace(state, last_report_s={}, good_since_s=None, good_reports={}, start_s=now_s)
+        state = replace(
+            state,
+            last_report_s={},
+            last_judged_s={},
+            good_since_s=None,
+            good_reports={},
+            start_s=now_s,
+        )
     elif state.now_s is not None and now_s < state.now_s:
         raise SupervisorError(
             f"time went back from {state.now_s} s to {now_s} s: send a Restart event after a "
@@ -310,6 +353,10 @@ def step(
         state = replace(
             state, last_report_s={**state.last_report_s, event.model: max(last, event.stamp_s)}
         )
+        if event.judged:
+            last = state.last_judged_s.get(event.model, -math.inf)
+            judged = {**state.last_judged_s, event.model: max(last, event.stamp_s)}
+            state = replace(state, last_judged_s=judged)
 
     faults = _faults(state, config, now_s)
     state = replace(state, faults=faults)
@@ -350,6 +397,7 @@ def step(
             to_safe=c.to_safe + 1,
             invalidated=c.invalidated + (INVALIDATED in kinds),
             stale=c.stale + (STALE in kinds),
+            unjudged=c.unjudged + (UNJUDGED in kinds),
         )
         tr = Transition(now_s, Mode.NORMAL, Mode.SAFE, reason)
         return replace(

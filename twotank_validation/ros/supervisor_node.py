@@ -22,6 +22,7 @@ topics.
 
 from __future__ import annotations
 
+import math
 import sys
 from functools import partial
 from typing import Any
@@ -47,6 +48,7 @@ from twotank_validation.online.supervisor import (
     Tick,
     Transition,
     fault_text,
+    judged_age_s,
     report_age_s,
 )
 from twotank_validation.ros import messages
@@ -86,6 +88,14 @@ SUPERVISOR_PARAMS = (
         1e6,
     ),
     Param(
+        "unjudged_after_s",
+        _DEFAULTS.unjudged_after_s,
+        "a watched model that reports but has no judged window this long (s) switches to safe "
+        "(0: off)",
+        0.0,
+        1e9,
+    ),
+    Param(
         "check_period_s",
         1.0,
         "period (s, node clock) of the stale and hysteresis check",
@@ -109,6 +119,7 @@ def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:
             latch=bool(values["latch"]),
             stale_after_s=float(values["stale_after_s"]),
             startup_grace_s=float(values["startup_grace_s"]),
+            unjudged_after_s=float(values["unjudged_after_s"]) or math.inf,
         )
     except SupervisorError as err:
         raise ParameterError(f"cannot start the supervisor: {err}") from err
@@ -278,12 +289,14 @@ class SupervisorNode(Node):
             "to_normal": str(c.to_normal),
             "to_safe_invalidated": str(c.invalidated),
             "to_safe_stale": str(c.stale),
+            "to_safe_unjudged": str(c.unjudged),
             "resets_accepted": str(c.resets_accepted),
             "resets_refused": str(c.resets_refused),
             "last_transition_s": f"{self.machine.log[-1].time_s:.3f}" if self.machine.log else "",
         }
         for m in self.machine.config.watched:
             values[f"report_age_s/{m}"] = f"{report_age_s(s, m, now):.1f}"
+            values[f"judged_age_s/{m}"] = f"{judged_age_s(s, m, now):.1f}"
             values[f"invalidated/{m}"] = str(m in s.invalidated).lower()
             if m in self.diagnosis:
                 values[f"diagnosis/{m}"] = self.diagnosis[m]
