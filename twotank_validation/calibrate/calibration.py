@@ -331,8 +331,9 @@ def calibrate(
                 note = "no factor explains the fit windows: the weight is left as it is"
         elif not np.all(np.isfinite(required_mag)):
             note = (
-                "some bins cannot be explained by this block within their share of beta: the "
-                "other blocks (the noise) must grow first; the weight is left as it is"
+                "some bins cannot be explained by this block within their share of beta^2 "
+                "(the error there is on another channel, or the noise alone exceeds the "
+                "share): the weight is left as it is"
             )
         else:
             fitted = fit_weight(

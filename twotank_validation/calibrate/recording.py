@@ -238,7 +238,7 @@ def _weight_axes(
     ok = np.isfinite(req) & (req > 0) & (b.freqs_hz > 0)
     if np.any(ok):
         ax.loglog(b.freqs_hz[ok], req[ok], ".", ms=3, color="tab:red", label="per-bin requirement")
-    if band_hz[1] > 0:
+    if band_hz[1] > 0 and b.kind != "noise":  # a noise weight is judged at every bin
         ax.axvspan(f[0], band_hz[0], color="0.9", lw=0)
         ax.axvspan(band_hz[1], f[-1], color="0.9", lw=0, label="extrapolated (not excited)")
     ax.set_ylabel("|W|")
