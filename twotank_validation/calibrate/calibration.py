@@ -39,6 +39,7 @@ from twotank_validation.calibrate.scaling import (
     window_scaling,
 )
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
+from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum, NormConvention, make_datum
 from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.core.validate import validate
@@ -409,8 +410,6 @@ def _extrapolation(
     fitted: FittedWeight, band_hz: tuple[float, float], ts_s: float
 ) -> dict[str, float]:
     """The fitted weight's magnitude outside the excited band (DC, a decade below, Nyquist)."""
-    from twotank_validation.core import lti  # noqa: PLC0415
-
     sys = lti.discretise(fitted.system(), ts_s)
     points = {"dc": 0.0, "decade_below_band": band_hz[0] / 10.0, "nyquist": 0.5 / ts_s}
     theta = np.array([2 * np.pi * f * ts_s for f in points.values()])
