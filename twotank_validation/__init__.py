@@ -16,8 +16,8 @@ below it: ``errors``/``defaults``; ``core`` (datum, LTI systems, LFT models, per
 and the fast path, validate, the probabilistic tests: numpy, scipy, cvxpy, numba);
 ``online`` (streams, alignment, whole-period windows, the alarm, :class:`OnlineValidator`);
 ``sim`` (the simulated rig, excitation, faults, scenarios); ``bags`` (rosbag2 reading and
-writing: rosbags, mcap); ``diagnose``; ``replay``; ``experiment``; ``report`` (matplotlib);
-``ros`` (the only layer that imports rclpy); ``cli``.
+writing: rosbags, mcap); ``diagnose``; ``replay``; ``experiment``; ``calibrate``;
+``report`` (matplotlib); ``ros`` (the only layer that imports rclpy); ``cli``.
 """
 
 from __future__ import annotations

@@ -671,7 +671,87 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_bag_options(dia)
     dia.set_defaults(func=_cmd_diagnose)
+    _add_calibrate_parser(command)
     return parser
+
+
+# --------------------------------------------------------------------------- calibrate
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    """``calibrate``: the smallest uncertainty the recording demands, and a fitted model."""
+    import yaml  # noqa: PLC0415
+
+    from twotank_validation import calibrate as cb  # noqa: PLC0415
+    from twotank_validation import replay  # noqa: PLC0415
+    from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
+
+    doc, source = load_model_document(args.model)
+    model = model_from_dict(doc, source)
+    cb.choose_blocks(model, args.block)  # an unknown block is an error before the replay
+    config = cb.CalibrationConfig(margin=args.margin, max_order=args.max_order)
+    cfg, timing = _timed_config(args)
+    assert isinstance(cfg, replay.ReplayConfig)
+    assert isinstance(timing, replay.Timing)
+    windows, replayed = replay.windows_from_recording(args.bag, model, cfg)
+    for problem in replayed.problems:
+        print(f"WARNING: {problem}", file=sys.stderr)
+    summary = replay.summary_json(replayed, [model.name])
+    if unjudged := replay.unjudged_models(summary, timing, cfg):
+        return _exit_code(replayed.complete, unjudged, timing)
+    cal = cb.calibrate(
+        windows, doc, config, blocks=args.block, source=source, convention=NormConvention(args.norm)
+    )
+    model_file = None
+    if args.out_model:
+        if cal.document is None:
+            raise cb.CalibrationError(
+                "no weight could be changed (see each block's note): no model file written"
+            )
+        Path(args.out_model).write_text(
+            "# Written by twotank-validation calibrate; validate with --model this file.\n"
+            + yaml.safe_dump(cal.document, sort_keys=False, width=100)
+        )
+        model_file = str(args.out_model)
+    _out(cb.calibration_text(cal, model_file))
+    if args.json:
+        out = cal.to_json(model_file)
+        out["timing"] = timing.to_json()
+        Path(args.json).write_text(json.dumps(out, indent=2))
+    if args.report:
+        cb.write_calibration_report(cal, model, timing.ts_s, Path(args.report), model_file)
+        _out(f"figures in {args.report}")
+    return EXIT_OK if replayed.complete else EXIT_INCOMPLETE
+
+
+def _add_calibrate_parser(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """The ``calibrate`` sub-command's arguments."""
+    cal = command(
+        "calibrate",
+        "the smallest uncertainty weights a bag demands of a model, and a model file with "
+        "fitted weights",
+    )
+    cal.add_argument(
+        "bag",
+        help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
+        "table (with --map of its columns)",
+    )
+    cal.add_argument("--model", required=True, help="model name (A, B) or YAML path")
+    cal.add_argument(
+        "--block",
+        action="append",
+        help="a perturbation or noise block to calibrate, by its name (repeat, in order); "
+        "None: every block",
+    )
+    cal.add_argument("--json", help="write the calibration as JSON to this file")
+    cal.add_argument("--report", help="write the figures (beta, weights) to this folder")
+    cal.add_argument("--out-model", help="write the calibrated model (YAML) to this file")
+    cal.add_argument(
+        "--margin", type=float, default=1.2, help="the new weights cover this x the requirement"
+    )
+    cal.add_argument("--max-order", type=int, default=2, help="largest order of a fitted weight")
+    _add_bag_options(cal)
+    cal.set_defaults(func=_cmd_calibrate)
 
 
 def _add_bag_options(val: argparse.ArgumentParser) -> None:

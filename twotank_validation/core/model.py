@@ -35,6 +35,7 @@ import numpy as np
 import yaml
 
 from twotank_validation.core import lti
+from twotank_validation.core.control_lti import from_control, is_control_system
 from twotank_validation.core.lti import StateSpace
 from twotank_validation.errors import DimensionError, ModelError, ModelFileError
 
@@ -372,8 +373,15 @@ def _check_keys(node: Mapping[str, Any], allowed: set[str], source: str, where: 
 def parse_lti(node: Any, source: str, where: str) -> StateSpace:
     """Parse an LTI description: ``{gain: K}``, ``{tf: {num, den}}`` or ``{ss: {A, B, C, D}}``.
 
-    A number alone is a static gain; ``ss`` may carry ``dt_s`` for a discrete system.
+    A number alone is a static gain; ``ss`` may carry ``dt_s`` for a discrete system. A
+    python-control ``StateSpace`` or ``TransferFunction`` (continuous, or discrete with its
+    ``dt`` in seconds) is taken as it is.
     """
+    if is_control_system(node):
+        try:
+            return from_control(node, where)
+        except ModelError as err:
+            raise _err(source, where, str(err)) from err
     if isinstance(node, bool):
         raise _err(source, where, f"expected a number or an LTI mapping, found {node!r}")
     if isinstance(node, int | float):
@@ -628,12 +636,17 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
     )
 
 
-def load_model(path_or_name: str | Path) -> LFTModel:
-    """Load a model from a YAML file, or a built-in model by name (``"A"``, ``"B"``).
+def load_model(path_or_name: str | Path | Mapping[str, Any]) -> LFTModel:
+    """Load a model from a YAML file, a built-in model by name (``"A"``, ``"B"``), or a document.
+
+    A document is a mapping of the YAML schema; its ``nominal`` and ``weight`` entries may be
+    python-control ``StateSpace`` / ``TransferFunction`` objects.
 
     Raises:
         ModelFileError: missing file, YAML syntax error, schema violation.
     """
+    if isinstance(path_or_name, Mapping):
+        return model_from_dict(path_or_name, "<document>")
     doc, source = load_model_document(path_or_name)
     return model_from_dict(doc, source)
 
