@@ -149,6 +149,13 @@ def main() -> None:
     print()
     print(f"top-1 accuracy, last answer:  {last_ok}/{n} = {last_ok / n:.0%} (goal >= 90 %)")
     print(f"top-1 accuracy, first answer: {first_ok}/{n} = {first_ok / n:.0%}")
+    alarmed = [r for _, r in rows if r["alarm_s"] is not None]
+    if alarmed and len(alarmed) < n:
+        ok = sum(r["last"] == r["want"] for r in alarmed)
+        print(
+            f"over the {len(alarmed)} runs whose alarm rose (the others: no window judged "
+            f"after the onset, or none invalid): {ok}/{len(alarmed)} = {ok / len(alarmed):.0%}"
+        )
     print()
     header = f"{'fault':<30}{'runs':>5}{'last ok':>9}{'first ok':>9}{'alarm (s)':>11}"
     header += f"{'1st answer (s)':>16}{'1st right (s)':>15}{'worst (s)':>11}{'conf':>6}"
