@@ -145,13 +145,13 @@ class _Fallback(Exception):  # noqa: N818 - internal signal, never leaves bags/
 
 def _u64(u: np.ndarray, at: np.ndarray) -> np.ndarray:
     """Little-endian uint64 at byte offsets ``at`` of the uint8 array ``u``."""
-    return u[at[:, None] + np.arange(8)].view("<u8").ravel()
+    return np.lib.stride_tricks.sliding_window_view(u, 8)[at].view("<u8").ravel()
 
 
 def _chain(u: np.ndarray, offs: np.ndarray) -> np.ndarray | None:
-    """Record lengths if the records at ``offs`` (sorted) tile ``u`` exactly, else None."""
+    """Record lengths if the records at ``offs`` (sorted) tile ``u`` from there to its end."""
     size = len(u)
-    if len(offs) == 0 or offs[0] != 0 or offs[-1] + _RECORD_HEAD > size:
+    if len(offs) == 0 or offs[-1] + _RECORD_HEAD > size:
         return None
     lens = _u64(u, offs + 1)
     if (lens > size).any():
@@ -162,12 +162,17 @@ def _chain(u: np.ndarray, offs: np.ndarray) -> np.ndarray | None:
     return lens.astype(np.int64)
 
 
-def _walk(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets and lengths of the message records, record by record (rosbags' walk)."""
+def _walk(raw: bytes, stop: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Message records, record by record (rosbags' walk), up to ``stop`` (the end if None).
+
+    Returns the offsets and lengths of the message records and where the walk ended (a
+    record boundary at or past ``stop``).
+    """
     offs, lens = [], []
     pos, size = 0, len(raw)
+    end = size if stop is None else min(stop, size)
     unpack = struct.Struct("<Q").unpack_from
-    while pos < size:
+    while pos < end:
         if pos + _RECORD_HEAD > size:
             raise _Fallback("truncated record head")
         (length,) = unpack(raw, pos + 1)
@@ -177,17 +182,25 @@ def _walk(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
             offs.append(pos)
             lens.append(length)
         pos += _RECORD_HEAD + length
-    return np.array(offs, dtype=np.int64), np.array(lens, dtype=np.int64)
+    return np.array(offs, dtype=np.int64), np.array(lens, dtype=np.int64), pos
 
 
 def _records(u: np.ndarray, raw: bytes, index: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets and lengths of a chunk's message records: from its index if it tiles them."""
+    """Offsets and lengths of a chunk's message records.
+
+    The records before the first one the message index lists (a writer may put schemas and
+    channels there) are walked one by one; from there on, the index must list every record
+    and they must tile the chunk to its end, else the whole chunk is walked.
+    """
     offs = _index_offsets(index)
-    if offs is not None:
-        lens = _chain(u, offs)
-        if lens is not None and (u[offs] == _MESSAGE_OP).all():
-            return offs, lens
-    return _walk(raw)
+    if offs is not None and len(offs):
+        head_offs, _, pos = _walk(raw, int(offs[0]))
+        if pos == offs[0] and not len(head_offs):
+            lens = _chain(u, offs)
+            if lens is not None and (u[offs] == _MESSAGE_OP).all():
+                return offs, lens
+    offs, lens, _ = _walk(raw)
+    return offs, lens
 
 
 def _index_offsets(data: bytes) -> np.ndarray | None:
@@ -366,7 +379,8 @@ class _McapColumns:
             return None
         if (lens < _MESSAGE_HEAD).any():
             raise _Fallback("a message record shorter than its header")
-        cid = u[offs[:, None] + _RECORD_HEAD + np.arange(2)].view("<u2").ravel()
+        cid = np.lib.stride_tricks.sliding_window_view(u, 2)[offs + _RECORD_HEAD]
+        cid = cid.view("<u2").ravel()
         t = _u64(u, offs + _RECORD_HEAD + 6)
         if (t >= _MAX_NS).any():
             raise _Fallback("a log time beyond int64")

@@ -86,6 +86,7 @@ from twotank_validation.bags.storage_rosbags import _RosbagsBackend
 __all__ = ["BagReader", "expected_types", "open_bag"]
 
 _SQLITE_MAGIC: Final = b"SQLite format 3\x00"
+_YAML_LOADER: Final = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's, if built
 
 
 _REPAIR_HINT: Final = (
@@ -126,7 +127,7 @@ def _load_metadata(bagdir: Path) -> dict[str, Any]:
         "file inside the directory directly"
     )
     try:
-        doc = yaml.safe_load(meta.read_text(encoding="utf-8"))
+        doc = yaml.load(meta.read_text(encoding="utf-8"), Loader=_YAML_LOADER)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         raise BagFormatError(
             f"bag {bagdir}: cannot read {meta.name} ({_short(err)}); {hint}"
