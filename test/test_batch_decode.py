@@ -28,15 +28,23 @@ from hypothesis import strategies as st
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
-from twotank_validation import bags
+from twotank_validation import bags, replay
 from twotank_validation.bags import columnar, decode
+from twotank_validation.core.model import load_model
+from twotank_validation.online import MonitorConfig
 from twotank_validation.online import streams as itf
+from twotank_validation.online.interface import (
+    InterfaceMap,
+    default_interface_map,
+    interface_map_from_text,
+)
 from twotank_validation.sim import scenario as sc
 from twotank_validation.sim.faults import parse_fault
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE / "data"))
 import make_bags as mb  # noqa: E402
+from report_checks import assert_same_reports  # noqa: E402
 
 STORE = mb.typestore()
 NS = 1_000_000_000
@@ -446,3 +454,112 @@ def chunk_reader_lenient(path: Path) -> columnar._McapColumns:
             for _ in it:
                 pass
     return it
+
+
+# ------------------------------------------------------------------ replay through a map
+
+FAST = MonitorConfig(ts_s=0.8, period_samples=256)
+
+
+def replay_both(path: Path, imap: InterfaceMap) -> tuple[replay.ReplayResult, replay.ReplayResult]:
+    """The replay through ``imap`` in bulk, and through the per-message mapped path."""
+    cfg = replay.ReplayConfig(monitor=FAST, interface=imap)
+    models = [load_model("A"), load_model("B")]
+    bulk = replay.replay_bag(path, models, cfg)
+    replay._COLUMNAR = False
+    try:
+        per_message = replay.replay_bag(path, models, cfg)
+    finally:
+        replay._COLUMNAR = True
+    return bulk, per_message
+
+
+def assert_same_result(a: replay.ReplayResult, b: replay.ReplayResult) -> None:
+    assert len(a.reports) == len(b.reports)
+    assert_same_reports(a.reports, b.reports)
+    assert (a.messages, a.complete, a.problems, a.counters) == (
+        b.messages,
+        b.complete,
+        b.problems,
+        b.counters,
+    )
+
+
+def mapped_bag(path: Path, cut: float | None = None) -> Path:
+    """The nominal scenario at 0.8 s with a few bad samples, optionally cut short."""
+    stamps, u, y = sc.simulate_scenario(
+        dataclasses.replace(
+            sc.load_scenario("nominal"), ts_s=0.8, period_samples=256, duration_s=5 * 204.8
+        )
+    )
+    units = itf.RigUnits()
+    with bags.BagWriter(path, "mcap") as bag:
+        for topic, msgtype in mb.TOPIC_TYPES.items():
+            bag.add_topic(topic, msgtype)
+        for k, t in enumerate(stamps.tolist()):
+            if 500 <= k < 505:
+                continue
+            level = math.nan if k == 700 else y[k, 0]
+            bag.write("flow_cmd", t, bags.flow_command(t, *u[k]))
+            bag.write("height", t + 1, bags.fluid_pressure(t, level, units))
+            bag.write("temperature", t + 2, bags.temperature_msg(t, y[k, 1], units))
+    if cut is not None:
+        data = next(path.glob("*.mcap"))
+        raw = data.read_bytes()
+        data.write_bytes(raw[: int(len(raw) * cut)])
+    return path
+
+
+MAPS = {
+    "shipped": None,
+    "receive stamps, other units": (
+        [
+            "hot=flow_cmd:twotank_validation_msgs/msg/FlowCommand:hot,stamp=receive",
+            "cold=flow_cmd:twotank_validation_msgs/msg/FlowCommand:cold,offset=0,stamp=receive",
+        ],
+        [
+            "height=height:sensor_msgs/msg/FluidPressure:fluid_pressure,scale=9806.65",
+            "temperature=temperature:sensor_msgs/msg/Temperature:temperature,offset=15,scale=50",
+        ],
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(MAPS))
+@pytest.mark.parametrize("cut", [None, 0.6])
+def test_replay_through_a_map_in_bulk_equals_the_per_message_mapped_replay(
+    tmp_path, name, cut
+) -> None:
+    """Sources on plain float64 fields of the interface types are read in bulk: the same
+    reports, counters, problems and message count as reading them message by message."""
+    texts = MAPS[name]
+    imap = default_interface_map() if texts is None else interface_map_from_text(*texts)
+    path = mapped_bag(tmp_path / "bag", cut)
+    with bags.open_bag(path) as bag:
+        assert bag.float_fields("height") == ("fluid_pressure", "variance")
+        assert bag.float_fields("flow_cmd") == ("hot", "cold")
+        topics = imap.topics()
+        assert replay._bulk_fields(bag, list(topics), topics) is not None  # bulk taken
+    bulk, per_message = replay_both(path, imap)
+    assert_same_result(bulk, per_message)
+    assert sum(r.judged for r in bulk.reports) >= (2 if cut else 4)
+    assert bulk.complete is (cut is None)
+
+
+def test_a_map_reading_a_header_field_goes_message_by_message(tmp_path) -> None:
+    """A source on ``header.stamp.sec`` is no plain float64 field: the per-message path."""
+    texts = MAPS["receive stamps, other units"]
+    odd = (
+        texts[0],
+        [texts[1][0], "temperature=temperature:sensor_msgs/msg/Temperature:header.stamp.sec"],
+    )
+    path = mapped_bag(tmp_path / "bag")
+    with bags.open_bag(path) as bag:
+        topics = interface_map_from_text(*odd).topics()
+        assert replay._bulk_fields(bag, list(topics), topics) is None
+        topics = interface_map_from_text(*texts).topics()
+        assert replay._bulk_fields(bag, list(topics), topics) == {
+            "flow_cmd": ("hot", "cold"),
+            "height": ("fluid_pressure",),
+            "temperature": ("temperature",),
+        }

@@ -74,6 +74,10 @@ class _Backend:
         """
         return _rows_to_columns(self.iter(topics), channels)
 
+    def topic_codecs(self, topic: str) -> list[_Codec] | None:
+        """The codecs ``topic``'s messages are decoded with (None: not known before reading)."""
+        return None
+
     def close(self) -> None:  # pragma: no cover - overridden
         """Release files."""
         raise NotImplementedError

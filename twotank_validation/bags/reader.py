@@ -390,6 +390,26 @@ class BagReader:
             return f"/{name}"
         return None
 
+    def float_fields(self, topic: str) -> tuple[str, ...] | None:
+        """The float64 fields of ``topic``'s type if it is ``Header header`` + float64 fields.
+
+        Those are the types :meth:`field_batches` decodes in bulk (the validator's three
+        interface types among them), as the bag's own definitions describe them; None for
+        any other type, a topic of several types or definitions, or one not in the bag.
+        """
+        self._check_open()
+        name = self.resolve_topic(topic)
+        if name is None:
+            return None
+        try:
+            codecs = self._backend.topic_codecs(name)
+        except Exception:  # a broken definition: not a fixed layout
+            return None
+        if not codecs:
+            return None
+        layouts = {c.layout() for c in codecs}
+        return layouts.pop() if len(layouts) == 1 else None
+
     def _listing(self) -> str:
         if not self.info.topics:
             return "no topics"

@@ -83,6 +83,10 @@ class _RosbagsBackend(_Backend):
             )
         return codecs
 
+    def topic_codecs(self, topic: str) -> list[_Codec] | None:
+        conns = [c for c in self._reader.connections if c.topic == topic]
+        return [codec for _, _, codec in self._codecs(conns).values()]
+
     def _rows(self, conns: list[Any], codecs: dict[int, _Channel]) -> Iterator[_Raw]:
         for conn, log_ns, raw in self._reader.messages(connections=conns):
             topic, msgtype, codec = codecs[id(conn)]
