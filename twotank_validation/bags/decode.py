@@ -468,8 +468,11 @@ def _bulk_group(
             break
         first = int(left[0])
         got = _layout_rows(rows[first : first + 1], n_floats)
-        if got is None:  # same head as the first: the same misfit, generic
-            same = (rows[left, :16] == rows[first, :16]).all(axis=1) if size >= 16 else True
+        if got is None:  # the encapsulation and frame_id length of the first: generic
+            if size < 16:
+                break
+            head = np.r_[0:4, 12:16]
+            same = (rows[np.ix_(left, head)] == rows[first, head]).all(axis=1)
             todo[left[same]] = False
             continue
         order, at, fixed = got
