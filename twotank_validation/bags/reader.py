@@ -37,8 +37,9 @@ Layout (as rosbags splits its own): this module is the facade (:func:`open_bag`,
 :mod:`~twotank_validation.bags.scan` (MCAP without its index) and
 :mod:`~twotank_validation.bags.recovery` (SQLite3 row by row), behind
 :mod:`~twotank_validation.bags.backend`; decoding is :mod:`~twotank_validation.bags.decode`;
-the errors are in :mod:`~twotank_validation.bags.errors`, what comes out in
-:mod:`~twotank_validation.bags.records`.
+:meth:`BagReader.field_batches` moves the messages as arrays
+(:mod:`~twotank_validation.bags.columnar`: indexed MCAP chunks whole); the errors are in
+:mod:`~twotank_validation.bags.errors`, what comes out in :mod:`~twotank_validation.bags.records`.
 
 This module (through those) imports rosbags, mcap and mcap-ros2-support, never rclpy.
 """
