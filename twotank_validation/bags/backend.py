@@ -17,6 +17,7 @@ from typing import Any, Final
 
 import zstandard
 
+from twotank_validation.bags.columnar import _Channel, _Columns, _rows_to_columns
 from twotank_validation.bags.decode import _Codec
 
 _MAX_CHUNK_BYTES: Final = 1 << 31  # a chunk header claiming more is corrupt
@@ -64,6 +65,18 @@ class _Backend:
     def iter(self, topics: frozenset[str]) -> Iterator[_Raw]:  # pragma: no cover - overridden
         """Decoded messages of ``topics``; may raise anything, or _Damage."""
         raise NotImplementedError
+
+    def iter_columns(self, topics: frozenset[str], channels: list[_Channel]) -> Iterator[_Columns]:
+        """The messages of :meth:`iter`, many at a time as arrays (``channels`` fills up).
+
+        The same messages in the same order, and the same errors at the same place: an
+        error is raised after the columns of the messages before it.
+        """
+        return _rows_to_columns(self.iter(topics), channels)
+
+    def topic_codecs(self, topic: str) -> list[_Codec] | None:
+        """The codecs ``topic``'s messages are decoded with (None: not known before reading)."""
+        return None
 
     def close(self) -> None:  # pragma: no cover - overridden
         """Release files."""

@@ -403,3 +403,169 @@ def _fixed_layout(
     if not same:
         return None
     return ok, stamps, values[:, [layout.index(f) for f in wanted]]
+
+
+# --------------------------------------------------------------------------- columns
+
+_MAX_PATTERNS: Final = 8  # distinct headers read in bulk per group; more go generically
+_ENCAPSULATION: Final = {(0, 1): "<", (0, 0): ">"}  # CDR little / big endian
+
+
+def _layout_rows(rows: np.ndarray, n_floats: int) -> tuple[str, int, np.ndarray] | None:
+    """Where the stamp and the float64 fields of ``rows`` (m, size) sit, read off row 0.
+
+    Returns ``(byte order, offset of the first float64, fixed)`` where ``fixed`` (size,) bool
+    marks every byte that is neither the stamp nor a float64 field, or None if row 0 is not
+    ``Header header`` + ``n_floats`` float64 in CDR (encapsulation, a terminated frame_id,
+    the floats 8-aligned after it and nothing after them).
+    """
+    size = rows.shape[1]
+    if size < 16:
+        return None
+    order = _ENCAPSULATION.get((int(rows[0, 0]), int(rows[0, 1])))
+    if order is None:
+        return None
+    strlen = int(rows[0, 12:16].view(f"{order}u4")[0])
+    at = 4 + ((12 + strlen + 7) & ~7)  # first float64, 8-aligned after the frame_id
+    if strlen < 1 or at + 8 * n_floats != size:
+        return None
+    fixed = np.ones(size, dtype=bool)
+    fixed[4:12] = False
+    fixed[at:] = False
+    return order, at, fixed
+
+
+def _bulk_group(
+    rows: np.ndarray, codec: _Codec, n_floats: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Decode equal-size messages of one codec in bulk, header by header.
+
+    Rows are grouped by their bytes outside the stamp and the float64 fields (encapsulation,
+    frame_id, padding): within such a group the generic deserialiser reads every message
+    alike, so it decodes the group's first message and the others are read at the same
+    offsets with numpy (the stamp as int32 sec + uint32 nanosec, the floats as float64, in
+    the encapsulation's byte order). A group whose first message the generic deserialiser
+    reads otherwise (or refuses) is left to it, message by message.
+
+    Args:
+        rows: (m, size) uint8, the messages' CDR bytes.
+        codec: their codec (``codec.layout()`` gives ``n_floats`` names).
+        n_floats: float64 fields after the header.
+
+    Returns:
+        ``(ok (m,) bool, stamp_ns (m,) int64, values (m, n_floats) float64)``: the rows read
+        in bulk and their stamps and fields (meaningless where not ok).
+    """
+    m, size = rows.shape
+    ok = np.zeros(m, dtype=bool)
+    stamps = np.zeros(m, dtype=np.int64)
+    values = np.zeros((m, n_floats))
+    todo = np.ones(m, dtype=bool)
+    names = codec.layout() or ()
+    for _ in range(_MAX_PATTERNS):
+        left = np.flatnonzero(todo)
+        if len(left) == 0:
+            break
+        first = int(left[0])
+        got = _layout_rows(rows[first : first + 1], n_floats)
+        if got is None:  # the encapsulation and frame_id length of the first: generic
+            if size < 16:
+                break
+            head = np.r_[0:4, 12:16]
+            same = (rows[np.ix_(left, head)] == rows[first, head]).all(axis=1)
+            todo[left[same]] = False
+            continue
+        order, at, fixed = got
+        part = rows[left]
+        same = (part[:, fixed] == rows[first, fixed]).all(axis=1)
+        members = left[same]
+        todo[members] = False
+        block = np.ascontiguousarray(rows[members])
+        k = len(members)
+        sec = np.ndarray((k,), dtype=f"{order}i4", buffer=block, offset=4, strides=(size,))
+        nsec = np.ndarray((k,), dtype=f"{order}u4", buffer=block, offset=8, strides=(size,))
+        vals = np.ndarray(
+            (k, n_floats), dtype=f"{order}f8", buffer=block, offset=at, strides=(size, 8)
+        ).astype(np.float64)
+        st = sec.astype(np.int64) * NS_PER_S + nsec.astype(np.int64)
+        try:  # the first of them, through the generic deserialiser, must read the same
+            msg = codec.decode(rows[first].tobytes())
+            agree = _header_stamp_ns(msg) == int(st[0]) and np.array_equal(
+                np.array([float(getattr(msg, f)) for f in names]).view(np.int64),
+                vals[0].view(np.int64),
+            )
+        except Exception:  # undecodable: the generic path finds and reports it
+            agree = False
+        if agree:
+            ok[members] = True
+            stamps[members] = st
+            values[members] = vals
+    return ok, stamps, values
+
+
+def _decode_columns(
+    cols: Any,
+    index: Mapping[str, int],
+    spec: Mapping[str, tuple[str, ...]],
+    width: int,
+    names: tuple[str, ...],
+) -> tuple[FieldBatch, Exception | None]:
+    """Columns of undecoded messages as a FieldBatch; the first undecodable message ends it.
+
+    ``cols`` is a :class:`~twotank_validation.bags.columnar._Columns`. Messages of a channel
+    whose type is ``Header header`` + float64 fields are grouped by size and decoded in bulk
+    (:func:`_bulk_group`); the rest go through the channel's generic deserialiser, in
+    message order. The same stamps and values, bit for bit, as the generic deserialiser.
+    """
+    n = len(cols)
+    stamps = np.zeros(n, dtype=np.int64)
+    values = np.full((n, width), np.nan)
+    chans = cols.channels
+    slow = np.ones(n, dtype=bool)
+    if n:
+        key = cols.chan.astype(np.int64) * (len(cols.bufs) + 1) + cols.buf
+        order = np.lexsort((cols.size, key))
+        ks, ss = key[order], cols.size[order]
+        cuts = np.flatnonzero((ks[1:] != ks[:-1]) | (ss[1:] != ss[:-1])) + 1
+        for rows in np.split(order, cuts):
+            first = int(rows[0])
+            topic, _, codec = chans[int(cols.chan[first])]
+            wanted = spec[topic]
+            layout = codec.layout()
+            if layout is None or any(f not in layout for f in wanted) or len(rows) < 2:
+                continue
+            size = int(cols.size[first])
+            buf = cols.bufs[int(cols.buf[first])]
+            windows = np.lib.stride_tricks.sliding_window_view(buf, size)  # a view, no copy
+            block = windows[cols.start[rows]]
+            ok, group_stamps, group_values = _bulk_group(block, codec, len(layout))
+            done = rows[ok]
+            stamps[done] = group_stamps[ok]
+            pick = [layout.index(f) for f in wanted]
+            values[done, : len(pick)] = group_values[ok][:, pick]
+            slow[done] = False
+    if cols.beyond is not None:
+        slow[cols.beyond] = True
+    failure: Exception | None = None
+    for i in np.flatnonzero(slow).tolist():
+        topic, _, codec = chans[int(cols.chan[i])]
+        try:
+            msg = codec.decode(cols.data(i))
+        except BagError:
+            raise
+        except Exception as err:  # an undecodable message is damage here
+            failure = err
+            n = i
+            break
+        if cols.beyond is not None and cols.beyond[i]:
+            failure = OverflowError("a log time past 2**63 ns (the year 2262)")
+            n = i
+            break
+        stamps[i] = _header_stamp_ns(msg)
+        for j, name in enumerate(spec[topic]):
+            values[i, j] = float(getattr(msg, name))
+    chan_topic = np.array([index[c[0]] for c in chans], dtype=np.intp)
+    topic_idx = chan_topic[cols.chan[:n]] if n else np.zeros(0, dtype=np.intp)
+    log = np.asarray(cols.log_time_ns[:n], dtype=np.int64)
+    fast = n - int(np.count_nonzero(slow[:n]))
+    return FieldBatch(names, topic_idx, log, stamps[:n], values[:n], fast), failure

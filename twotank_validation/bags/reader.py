@@ -37,8 +37,9 @@ Layout (as rosbags splits its own): this module is the facade (:func:`open_bag`,
 :mod:`~twotank_validation.bags.scan` (MCAP without its index) and
 :mod:`~twotank_validation.bags.recovery` (SQLite3 row by row), behind
 :mod:`~twotank_validation.bags.backend`; decoding is :mod:`~twotank_validation.bags.decode`;
-the errors are in :mod:`~twotank_validation.bags.errors`, what comes out in
-:mod:`~twotank_validation.bags.records`.
+:meth:`BagReader.field_batches` moves the messages as arrays
+(:mod:`~twotank_validation.bags.columnar`: indexed MCAP chunks whole); the errors are in
+:mod:`~twotank_validation.bags.errors`, what comes out in :mod:`~twotank_validation.bags.records`.
 
 This module (through those) imports rosbags, mcap and mcap-ros2-support, never rclpy.
 """
@@ -52,10 +53,12 @@ from pathlib import Path, PurePath
 from types import TracebackType
 from typing import Any, Final, Self
 
+import numpy as np
 import yaml
 
 from twotank_validation.bags.backend import _Backend, _Damage, _NeedScan
-from twotank_validation.bags.decode import _decode_fields, _RawBatch
+from twotank_validation.bags.columnar import _Channel, _Columns
+from twotank_validation.bags.decode import _decode_columns, _decode_fields, _RawBatch
 from twotank_validation.bags.errors import (
     BagCorruptError,
     BagEmptyError,
@@ -84,6 +87,7 @@ from twotank_validation.bags.storage_rosbags import _RosbagsBackend
 __all__ = ["BagReader", "expected_types", "open_bag"]
 
 _SQLITE_MAGIC: Final = b"SQLite format 3\x00"
+_YAML_LOADER: Final = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's, if built
 
 
 _REPAIR_HINT: Final = (
@@ -124,7 +128,7 @@ def _load_metadata(bagdir: Path) -> dict[str, Any]:
         "file inside the directory directly"
     )
     try:
-        doc = yaml.safe_load(meta.read_text(encoding="utf-8"))
+        doc = yaml.load(meta.read_text(encoding="utf-8"), Loader=_YAML_LOADER)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         raise BagFormatError(
             f"bag {bagdir}: cannot read {meta.name} ({_short(err)}); {hint}"
@@ -387,6 +391,26 @@ class BagReader:
             return f"/{name}"
         return None
 
+    def float_fields(self, topic: str) -> tuple[str, ...] | None:
+        """The float64 fields of ``topic``'s type if it is ``Header header`` + float64 fields.
+
+        Those are the types :meth:`field_batches` decodes in bulk (the validator's three
+        interface types among them), as the bag's own definitions describe them; None for
+        any other type, a topic of several types or definitions, or one not in the bag.
+        """
+        self._check_open()
+        name = self.resolve_topic(topic)
+        if name is None:
+            return None
+        try:
+            codecs = self._backend.topic_codecs(name)
+        except Exception:  # a broken definition: not a fixed layout
+            return None
+        if not codecs:
+            return None
+        layouts = {c.layout() for c in codecs}
+        return layouts.pop() if len(layouts) == 1 else None
+
     def _listing(self) -> str:
         if not self.info.topics:
             return "no topics"
@@ -513,7 +537,12 @@ class BagReader:
         return self._stream(self._wanted(topics))
 
     def field_batches(
-        self, topics: Sequence[str], fields: Mapping[str, Sequence[str]], *, size: int = 4096
+        self,
+        topics: Sequence[str],
+        fields: Mapping[str, Sequence[str]],
+        *,
+        size: int = 4096,
+        columnar: bool = True,
     ) -> Iterator[FieldBatch]:
         """Stream the header stamps and float fields of ``topics``, many messages at a time.
 
@@ -522,19 +551,26 @@ class BagReader:
         Messages of a type whose definition is ``std_msgs/Header header`` followed by
         float64 fields (e.g. sensor_msgs/FluidPressure and Temperature) are decoded in bulk
         with numpy; any message that does not fit that layout goes through the generic
-        deserialiser, as in :meth:`messages`.
+        deserialiser, as in :meth:`messages`. The messages themselves are read as arrays
+        too: the chunks of an indexed rosbag2 MCAP bag whole, through their message index
+        (any other storage message by message, then packed).
 
         Args:
             topics: topic names.
             fields: requested topic name -> names of float fields to read (a topic not
                 listed reads none).
             size: messages per batch, at most.
+            columnar: False reads and decodes row by row (the messages of :meth:`messages`,
+                packed into lists, each group of equal layout decoded in bulk): the same
+                batches, slower; kept as a reference.
 
         Raises:
             BagEmptyError, TopicMissingError, BagFormatError, BagCorruptError: as
                 :meth:`messages`.
         """
         wanted = self._wanted(topics)
+        if columnar:
+            return self._column_stream(wanted, fields, max(1, size))
         return self._field_stream(wanted, fields, max(1, size))
 
     def _corrupt(
@@ -667,6 +703,95 @@ class BagReader:
         for batch in self._raw_batches(wanted, size):
             self._check_open()
             out, failure = _decode_fields(batch, index, spec, width, names)
+            if len(out):
+                yield out
+                read += len(out)
+                last = int(out.log_time_ns[-1])
+            if failure is not None:
+                raise self._undecodable(failure, read, last) from failure
+
+    def _column_batches(self, wanted: dict[str, str], size: int) -> Iterator[_Columns]:
+        """The undecoded messages as columns: the checks and errors of :meth:`_raw_batches`."""
+        backend = self._backend
+        channels: list[_Channel] = []
+        it = backend.iter_columns(frozenset(wanted), channels)
+        read = 0
+        last: int | None = None
+        per_topic: Counter[str] = Counter()
+        failure: BagError | None = None
+        cause: BaseException | None = None
+        ordered = backend.ordered
+        try:
+            while failure is None:
+                self._check_open()
+                try:
+                    cols = next(it, None)
+                except _Damage as err:
+                    failure, cause = self._corrupt(err.where(), read, last, err.offset), err
+                    break
+                except BagError:
+                    raise
+                except Exception as err:  # any library error is damage here
+                    failure, cause = self._undecodable(err, read, last), err
+                    break
+                if cols is None:
+                    break
+                t = cols.log_time_ns
+                if ordered and len(t):
+                    prev = np.empty(len(t), dtype=np.int64)
+                    prev[0] = t[0] if last is None else last
+                    prev[1:] = t[:-1]
+                    back = np.flatnonzero(t < prev)
+                    if len(back):
+                        k = int(back[0])
+                        was = int(prev[k])
+                        cols = cols.take(slice(0, k))
+                        failure = self._corrupt(
+                            f"its index is inconsistent: log time goes back from "
+                            f"{_fmt_ns(was)} to {_fmt_ns(int(t[k]))}",
+                            read + k,
+                            was,
+                            None,
+                        )
+                for lo in range(0, len(cols), size):
+                    part = cols.take(slice(lo, lo + size))
+                    read += len(part)
+                    last = int(part.log_time_ns[-1])
+                    counts = np.bincount(part.chan, minlength=len(channels))
+                    for c in np.flatnonzero(counts).tolist():
+                        per_topic[channels[c][0]] += int(counts[c])
+                    yield part
+            if failure is not None:
+                raise failure from cause
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                with contextlib.suppress(Exception):  # the stream is being abandoned
+                    close()
+        if backend.indexed:
+            short = {t: (per_topic[t], backend.counts.get(t, 0)) for t in wanted}
+            short = {t: v for t, v in short.items() if v[0] < v[1]}
+            if short:
+                detail = ", ".join(f"{t}: {got} of {want}" for t, (got, want) in short.items())
+                raise self._corrupt(
+                    f"fewer messages could be read than its index lists ({detail})",
+                    read,
+                    last,
+                    None,
+                )
+
+    def _column_stream(
+        self, wanted: dict[str, str], fields: Mapping[str, Sequence[str]], size: int
+    ) -> Iterator[FieldBatch]:
+        names = tuple(dict.fromkeys(wanted.values()))
+        index = {bag: names.index(name) for bag, name in wanted.items()}
+        spec = {bag: tuple(fields.get(name, ())) for bag, name in wanted.items()}
+        width = max((len(v) for v in spec.values()), default=0)
+        read = 0
+        last: int | None = None
+        for cols in self._column_batches(wanted, size):
+            self._check_open()
+            out, failure = _decode_columns(cols, index, spec, width, names)
             if len(out):
                 yield out
                 read += len(out)

@@ -192,6 +192,11 @@ class _McapScanBackend(_Backend):
         schema = self._schemas.get((key[0], schema_id))
         return self._decoders.get(key, enc, schema, self._msgtype(key))
 
+    def topic_codecs(self, topic: str) -> list[_Codec] | None:
+        keys = [key for key, (t, _, _) in self._channels.items() if t == topic]
+        codecs = [c for c in map(self._decoder, keys) if not isinstance(c, str)]
+        return codecs if len(codecs) == len(keys) else None
+
     def problem(self, topic: str) -> str | None:
         for key, (t, _, _) in self._channels.items():
             if t == topic and isinstance(found := self._decoder(key), str):

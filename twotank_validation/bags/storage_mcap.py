@@ -92,6 +92,11 @@ class _PlainMcapBackend(_Backend):
             (0, ch.id), ch.message_encoding, schema, self._msgtype(ch.schema_id)
         )
 
+    def topic_codecs(self, topic: str) -> list[_Codec] | None:
+        keys = [ch.id for ch in self._channels.values() if ch.topic == topic]
+        codecs = [c for c in map(self._decoder, keys) if not isinstance(c, str)]
+        return codecs if len(codecs) == len(keys) else None
+
     def problem(self, topic: str) -> str | None:
         for ch in self._channels.values():
             if ch.topic == topic and isinstance(found := self._decoder(ch.id), str):

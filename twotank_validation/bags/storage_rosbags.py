@@ -15,8 +15,11 @@ from typing import Any
 
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import ConnectionExtRosbag2
+from rosbags.rosbag2.reader import DirectoryReader
+from rosbags.rosbag2.storage_mcap import McapReader, decompress
 
 from twotank_validation.bags.backend import _Backend, _check_index, _NeedScan, _Raw
+from twotank_validation.bags.columnar import _Channel, _Columns, _McapColumns, _rows_to_columns
 from twotank_validation.bags.decode import (
     _Codec,
     _default_typestore,
@@ -67,13 +70,10 @@ class _RosbagsBackend(_Backend):
                 return _unknown_type(c.msgtype)
         return None
 
-    def iter(self, topics: frozenset[str]) -> Iterator[_Raw]:
-        conns = [c for c in self._reader.connections if c.topic in topics]
-        if not conns:
-            return
+    def _codecs(self, conns: list[Any]) -> dict[int, _Channel]:
         reader = self._reader
         store = reader.typestore
-        codecs: dict[int, tuple[str, str, _Codec]] = {}
+        codecs: dict[int, _Channel] = {}
         for c in conns:
             dec = functools.partial(_rosbags_decode, reader, c.msgtype)
             codecs[id(c)] = (
@@ -81,9 +81,55 @@ class _RosbagsBackend(_Backend):
                 _norm_type(c.msgtype),
                 _Codec(dec, c.msgtype, lambda: store.fielddefs),
             )
-        for conn, log_ns, raw in reader.messages(connections=conns):
+        return codecs
+
+    def topic_codecs(self, topic: str) -> list[_Codec] | None:
+        conns = [c for c in self._reader.connections if c.topic == topic]
+        return [codec for _, _, codec in self._codecs(conns).values()]
+
+    def _rows(self, conns: list[Any], codecs: dict[int, _Channel]) -> Iterator[_Raw]:
+        for conn, log_ns, raw in self._reader.messages(connections=conns):
             topic, msgtype, codec = codecs[id(conn)]
             yield topic, msgtype, int(log_ns), raw, codec
+
+    def iter(self, topics: frozenset[str]) -> Iterator[_Raw]:
+        conns = [c for c in self._reader.connections if c.topic in topics]
+        if not conns:
+            return iter(())
+        return self._rows(conns, self._codecs(conns))
+
+    def _mcap_storages(self) -> list[McapReader] | None:
+        """Rosbags' readers of the bag's MCAP files, if the chunks can be read in bulk."""
+        readers = self._reader.readers
+        if len(readers) != 1:
+            return None
+        storage = getattr(readers[0], "storage", None)
+        if isinstance(storage, McapReader):
+            storages = [storage]
+        elif isinstance(storage, DirectoryReader):
+            if storage.metadata.compression_mode == "message":
+                return None
+            storages = [s for s in storage.storages if isinstance(s, McapReader)]
+            if len(storages) != len(storage.storages):
+                return None
+        else:
+            return None
+        if not storages or not all(s.chunks and s.bio is not None for s in storages):
+            return None
+        return storages
+
+    def iter_columns(self, topics: frozenset[str], channels: list[_Channel]) -> Iterator[_Columns]:
+        conns = [c for c in self._reader.connections if c.topic in topics]
+        if not conns:
+            return iter(())
+        codecs = self._codecs(conns)
+        storages = self._mcap_storages()
+        if storages is None:
+            return _rows_to_columns(self._rows(conns, codecs), channels)
+        channels.extend(codecs[id(c)] for c in conns)
+        return iter(
+            _McapColumns(storages, conns, channels, decompress, lambda: self._rows(conns, codecs))
+        )
 
     def close(self) -> None:
         self._reader.close()
