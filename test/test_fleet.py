@@ -12,6 +12,7 @@ import dataclasses
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import time
@@ -329,3 +330,26 @@ def test_fleet_options_are_checked(archive, tmp_path, capsys):
     code = cli.main(["validate", str(tmp_path / "none*"), "--out", str(tmp_path), *FAST_ARGS])
     assert code == cli.EXIT_ERROR
     assert "matches nothing" in capsys.readouterr().err
+
+
+def test_an_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):
+    import dask  # noqa: PLC0415
+
+    with socket.socket() as s:  # a loopback port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        code = cli.main(
+            [
+                "validate",
+                str(archive / "leaky"),
+                "--out",
+                str(tmp_path),
+                "--scheduler",
+                f"tcp://127.0.0.1:{port}",
+                *FAST_ARGS,
+            ]
+        )
+    assert code == cli.EXIT_ERROR
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.json"))
