@@ -314,25 +314,45 @@ def worker_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
     return env
 
 
+def local_cluster(workers: int = 0, env: Mapping[str, str] | None = None) -> Any:
+    """The embedded ``distributed.LocalCluster``: processes of one thread on 127.0.0.1.
+
+    Args:
+        workers: worker processes; 0: as many as cores.
+        env: extra environment of the workers (:func:`worker_env`).
+
+    Returns:
+        The cluster, started (close it, or use it as a context manager). No dashboard; the
+        workers' statistical profiler is off (it samples the task thread every 10 ms, taking
+        the GIL from the replay, for a dashboard nobody looks at).
+    """
+    import dask  # noqa: PLC0415
+    from distributed import LocalCluster  # noqa: PLC0415
+
+    with dask.config.set({"distributed.worker.profile.enabled": False}):  # given to workers
+        return LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            # no dashboard; the scheduler's health and metrics routes on loopback, any port
+            scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+            silence_logs=40,
+            env=worker_env(env),
+        )
+
+
 def run_dask(job: Job, paths: Sequence[str], settings: DaskSettings) -> Iterator[RecordingOutcome]:
     """The tasks on Dask, one per recording (it opens its own file), as they finish.
 
     A task that raises or whose worker is lost gives a failed outcome for its recording.
     """
-    from distributed import Client, LocalCluster, as_completed  # noqa: PLC0415
+    from distributed import Client, as_completed  # noqa: PLC0415
 
     cluster = None
     if settings.scheduler is None:
-        n = settings.workers or os.cpu_count() or 1
-        cluster = LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            silence_logs=40,
-            env=worker_env(settings.env),
-        )
+        cluster = local_cluster(settings.workers, settings.env)
     try:
         client = Client(cluster if cluster is not None else settings.scheduler)
     except (OSError, TimeoutError) as err:
@@ -550,7 +570,7 @@ def plot_fleet(
     fig, axes = plt.subplots(
         1,
         cols,
-        figsize=(5.5 * cols + 1.5, 0.32 * n + 1.6),
+        figsize=(5.5 * cols + 1.5, min(0.32 * n + 1.6, 120.0)),  # under 2**16 pixels
         sharey=True,
         squeeze=False,
         layout="constrained",
