@@ -3,7 +3,7 @@
 The layers, lowest first (a module may import its own layer and the layers below it):
 
     errors, defaults -> core -> online -> sim -> bags -> tables -> diagnose -> replay
-    -> experiment -> calibrate -> report -> ros -> cli
+    -> experiment -> calibrate -> report -> fleet -> ros -> cli
 
 The package root (``twotank_validation/__init__.py``) is the public surface above them all; it
 loads its names on first use and imports nothing at import time. Every ``import`` statement
@@ -33,6 +33,7 @@ LAYERS = (
     ("experiment",),
     ("calibrate",),
     ("report",),
+    ("fleet",),
     ("ros",),
     ("cli",),
 )

@@ -8,7 +8,7 @@ import math
 import os
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -292,11 +292,18 @@ def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
     return interface.interface_map_from_text(args.input, args.output, args.time)
 
 
-def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+def _timed_config(
+    args: argparse.Namespace, say: Callable[[str], None] = _stderr
+) -> tuple[object, object]:
     """The replay config with the sample and excitation periods resolved, and the timing.
 
     ``--ts``/``--period`` win; else the bag's metadata, else what the data show
-    (``replay.resolve_timing``). What was taken is said on stderr, contradictions as warnings.
+    (``replay.resolve_timing``). What was taken is said (``say``, default stderr),
+    contradictions as warnings.
     """
     from twotank_validation import replay  # noqa: PLC0415
 
@@ -310,19 +317,22 @@ def _timed_config(args: argparse.Namespace) -> tuple[object, object]:
         )
     timing = replay.resolve_timing(args.bag, base, ts_s=args.ts, period_samples=args.period)
     for note in timing.notes:
-        print(f"note: {note}", file=sys.stderr)
+        say(f"note: {note}")
     for conflict in timing.conflicts:
-        print(f"WARNING: {conflict}", file=sys.stderr)
+        say(f"WARNING: {conflict}")
     return _replay_config(args, timing.ts_s, timing.period_samples, timing.oversampling), timing
 
 
-def _cmd_validate(args: argparse.Namespace) -> int:
-    from twotank_validation import replay, report  # noqa: PLC0415
+def _validate_setup(
+    args: argparse.Namespace, say: Callable[[str], None] = _stderr
+) -> tuple[list[Any], Any, Any]:
+    """``(models, replay config, timing)`` of ``validate`` on the recording ``args.bag``."""
+    from twotank_validation import replay  # noqa: PLC0415
     from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
 
     docs = [load_model_document(m) for m in (args.model or ["A", "B"])]
     models = [model_from_dict(doc, source) for doc, source in docs]
-    cfg, timing = _timed_config(args)
+    cfg, timing = _timed_config(args, say)
     assert isinstance(cfg, replay.ReplayConfig)
     assert isinstance(timing, replay.Timing)
     if not args.no_diagnosis:
@@ -331,6 +341,24 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             diagnosis=True,
             documents={m.name: doc for m, (doc, _) in zip(models, docs, strict=True)},
         )
+    return models, cfg, timing
+
+
+def _validate_summary(result: Any, models: Sequence[Any], timing: Any) -> dict[str, Any]:
+    """The ``validate --json`` document of a replay."""
+    from twotank_validation import replay  # noqa: PLC0415
+
+    summary = replay.summary_json(result, [m.name for m in models])
+    summary["timing"] = timing.to_json()
+    return summary
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from twotank_validation import replay, report  # noqa: PLC0415
+
+    if not _single_recording(args):
+        return _cmd_fleet(args, _validate_job)
+    models, cfg, timing = _validate_setup(args)
     bar = None
     if not args.quiet:
         bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5, disable=None)
@@ -344,8 +372,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     result = replay.replay_recording(args.bag, models, cfg, progress=progress)
     if bar is not None:
         bar.close()
-    summary = replay.summary_json(result, [m.name for m in models])
-    summary["timing"] = timing.to_json()
+    summary = _validate_summary(result, models, timing)
     _out(f"{'window (s)':>21}  {'model':<6} {'beta':>7} {'beta_op':>7}  {'verdict':<30} alarm")
     for name, entry in summary["models"].items():
         for w in entry["windows"]:
@@ -411,56 +438,85 @@ def _exit_code(complete: bool, unjudged: Sequence[str], timing: object) -> int:
         unjudged: one line per model without a judged window (``replay.unjudged_models``).
         timing: the ``replay.Timing`` used.
     """
+    code, lines = _exit_status(complete, unjudged, timing)
+    for line in lines:
+        print(line, file=sys.stderr)
+    return code
+
+
+def _exit_status(complete: bool, unjudged: Sequence[str], timing: object) -> tuple[int, list[str]]:
+    """:func:`_exit_code` without printing: the code and its ``ERROR:`` lines."""
     from twotank_validation import replay  # noqa: PLC0415
 
-    for line in unjudged:
-        print(f"ERROR: {line}", file=sys.stderr)
+    lines = [f"ERROR: {line}" for line in unjudged]
     if unjudged:
         assert isinstance(timing, replay.Timing)
-        print(
+        lines.append(
             f"ERROR: judged with ts {timing.ts_s:.9g} s ({timing.ts_from}) and period "
-            f"{timing.period_samples} samples ({timing.period_from})",
-            file=sys.stderr,
+            f"{timing.period_samples} samples ({timing.period_from})"
         )
     if not complete:
-        return EXIT_INCOMPLETE
-    return EXIT_NOT_JUDGED if unjudged else EXIT_OK
+        return EXIT_INCOMPLETE, lines
+    return (EXIT_NOT_JUDGED if unjudged else EXIT_OK), lines
 
 
-def _cmd_diagnose(args: argparse.Namespace) -> int:
-    import yaml  # noqa: PLC0415
+@dataclass
+class _DiagnoseReplay:
+    """What ``diagnose`` read from one recording before diagnosing it."""
 
-    from twotank_validation import diagnose as dg  # noqa: PLC0415
-    from twotank_validation import replay, report  # noqa: PLC0415
+    doc: Any
+    source: str
+    model: Any
+    cfg: Any
+    timing: Any
+    windows: list[Any]
+    findings: list[Any]
+    replayed: Any
+    summary: dict[str, Any]
+    unjudged: list[str]
+
+
+def _diagnose_replay(
+    args: argparse.Namespace, say: Callable[[str], None] = _stderr
+) -> _DiagnoseReplay:
+    """Replay ``args.bag`` for ``diagnose``: its judged windows, findings and summary."""
+    from twotank_validation import replay  # noqa: PLC0415
     from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
-    from twotank_validation.diagnose import stretches  # noqa: PLC0415
 
     doc, source = load_model_document(args.model)
     model = model_from_dict(doc, source)
-    cfg, timing = _timed_config(args)
+    cfg, timing = _timed_config(args, say)
     assert isinstance(cfg, replay.ReplayConfig)
     assert isinstance(timing, replay.Timing)
     windows, findings, replayed = replay.windows_with_findings(
         args.bag, model, cfg, start=args.start, end=args.end
     )
     for problem in replayed.problems:
-        print(f"WARNING: {problem}", file=sys.stderr)
+        say(f"WARNING: {problem}")
     summary = replay.summary_json(replayed, [model.name])
-    if unjudged := replay.unjudged_models(summary, timing, cfg):
-        return _exit_code(replayed.complete, unjudged, timing)
-    ranged = args.start is not None or args.end is not None
-    split = args.segment or not ranged
-    _out(
-        f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}"
-        + (f" ({windows[0].start_s:.1f} .. {windows[-1].start_s:.1f} s)" if ranged else "")
+    unjudged = replay.unjudged_models(summary, timing, cfg)
+    return _DiagnoseReplay(
+        doc, source, model, cfg, timing, windows, findings, replayed, summary, unjudged
     )
+
+
+def _diagnose_recording(args: argparse.Namespace, run: _DiagnoseReplay) -> tuple[Any, Any]:
+    """``(recording diagnosis, diagnosis of its current stretch)`` of the replayed windows.
+
+    Raises:
+        DiagnosisError: no stretch could be diagnosed (the reasons per stretch).
+    """
+    from twotank_validation import diagnose as dg  # noqa: PLC0415
+    from twotank_validation.diagnose import stretches  # noqa: PLC0415
+
+    ranged = args.start is not None or args.end is not None
     recording = stretches.diagnose_stretches(
-        windows,
-        doc,
-        findings,
+        run.windows,
+        run.doc,
+        run.findings,
         dg.DiagnosisConfig(max_effects=args.max_effects),
-        split=split,
-        source=source,
+        split=args.segment or not ranged,
+        source=run.source,
         convention=NormConvention(args.norm),
     )
     current = recording.current
@@ -470,7 +526,38 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             for s in recording.stretches
         )
         raise dg.DiagnosisError(f"no stretch of the recording could be diagnosed ({why})")
-    diag = current.relative_to_model
+    return recording, current.relative_to_model
+
+
+def _diagnosis_document(
+    recording: Any, diag: Any, timing: Any, model_file: str | None
+) -> dict[str, Any]:
+    """The ``diagnose --json`` document."""
+    out: dict[str, Any] = diag.to_json(model_file)
+    out.update(recording.to_json())
+    out["stretch"] = recording.stretches.index(recording.current)
+    out["timing"] = timing.to_json()
+    return out
+
+
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    import yaml  # noqa: PLC0415
+
+    from twotank_validation import report  # noqa: PLC0415
+
+    if not _single_recording(args):
+        return _cmd_fleet(args, _diagnose_job)
+    run = _diagnose_replay(args)
+    if run.unjudged:
+        return _exit_code(run.replayed.complete, run.unjudged, run.timing)
+    ranged = args.start is not None or args.end is not None
+    windows, model = run.windows, run.model
+    _out(
+        f"{len(windows)} non-overlapping judged window(s) of model {model.name} in {args.bag}"
+        + (f" ({windows[0].start_s:.1f} .. {windows[-1].start_s:.1f} s)" if ranged else "")
+    )
+    recording, diag = _diagnose_recording(args, run)
+    replayed, timing = run.replayed, run.timing
     model_file = None
     if diag.document is not None and args.out_model:
         Path(args.out_model).write_text(
@@ -478,10 +565,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             + yaml.safe_dump(diag.document, sort_keys=False, width=100)
         )
         model_file = str(args.out_model)
-    out = diag.to_json(model_file)
-    out.update(recording.to_json())
-    out["stretch"] = recording.stretches.index(current)
-    out["timing"] = timing.to_json()
+    out = _diagnosis_document(recording, diag, timing, model_file)
     _out(_stretches_text(recording))
     _out(report.diagnosis_text(diag, model_file))
     if args.json:
@@ -490,6 +574,209 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         report.write_diagnosis_report(diag, Path(args.report))
         _out(f"figures in {args.report}")
     return EXIT_OK if replayed.complete else EXIT_INCOMPLETE
+
+
+# --------------------------------------------------------------------------- many recordings
+
+
+def _single_recording(args: argparse.Namespace) -> bool:
+    """One recording named directly and no ``--out``: the single-recording command.
+
+    Sets ``args.bag`` to it. Several paths, a directory of recordings, a glob or ``--out``
+    make a fleet run (:func:`_cmd_fleet`).
+    """
+    from twotank_validation import fleet  # noqa: PLC0415
+
+    if args.out is None and fleet.is_single(args.bags):
+        args.bag = args.bags[0]
+        return True
+    return False
+
+
+def _absolute(value: str | None) -> str | None:
+    """An existing file's absolute path (a task may run in another folder), else as given."""
+    return os.path.abspath(value) if value is not None and os.path.exists(value) else value
+
+
+def _fleet_args(args: argparse.Namespace) -> argparse.Namespace:
+    """The options every task gets: files made absolute, single-recording outputs off."""
+    one = argparse.Namespace(**vars(args))
+    one.quiet = True
+    one.json = one.report = None
+    if hasattr(one, "out_model"):
+        one.out_model = None
+    if isinstance(one.model, list):
+        one.model = [_absolute(m) for m in one.model]
+    else:
+        one.model = _absolute(one.model)
+    one.map = _absolute(one.map)
+    return one
+
+
+def _validate_job(args: argparse.Namespace, path: str) -> Any:
+    """One recording of ``validate`` in a fleet: a ``fleet.RecordingOutcome``.
+
+    The document is the one ``validate --json`` writes for that recording alone.
+    """
+    from twotank_validation import fleet, replay  # noqa: PLC0415
+
+    one = argparse.Namespace(**vars(args))
+    one.bag = path
+    said: list[str] = []
+    try:
+        models, cfg, timing = _validate_setup(one, said.append)
+        result = replay.replay_recording(path, models, cfg)
+    except TwotankError as err:
+        return fleet.RecordingOutcome(
+            path, fleet.STATUS_UNREADABLE, EXIT_ERROR, messages=(*said, f"ERROR: {err}")
+        )
+    summary = _validate_summary(result, models, timing)
+    said += [f"WARNING: {problem}" for problem in result.problems]
+    code, lines = _exit_status(
+        result.complete, replay.unjudged_models(summary, timing, cfg), timing
+    )
+    return fleet.RecordingOutcome(path, _STATUS[code], code, summary, summary, (*said, *lines))
+
+
+def _diagnose_job(args: argparse.Namespace, path: str) -> Any:
+    """One recording of ``diagnose`` in a fleet: a ``fleet.RecordingOutcome``.
+
+    The document is the one ``diagnose --json`` writes for that recording alone (None where
+    it writes none: no window judged, nothing diagnosed).
+    """
+    from twotank_validation import fleet  # noqa: PLC0415
+
+    one = argparse.Namespace(**vars(args))
+    one.bag = path
+    said: list[str] = []
+    try:
+        run = _diagnose_replay(one, said.append)
+    except TwotankError as err:
+        return fleet.RecordingOutcome(
+            path, fleet.STATUS_UNREADABLE, EXIT_ERROR, messages=(*said, f"ERROR: {err}")
+        )
+    if run.unjudged:
+        code, lines = _exit_status(run.replayed.complete, run.unjudged, run.timing)
+        return fleet.RecordingOutcome(path, _STATUS[code], code, None, run.summary, (*said, *lines))
+    try:
+        recording, diag = _diagnose_recording(one, run)
+    except TwotankError as err:
+        return fleet.RecordingOutcome(
+            path,
+            fleet.STATUS_NOT_JUDGED,
+            EXIT_ERROR,
+            None,
+            run.summary,
+            (*said, f"ERROR: {err}"),
+        )
+    doc = _diagnosis_document(recording, diag, run.timing, None)
+    code = EXIT_OK if run.replayed.complete else EXIT_INCOMPLETE
+    return fleet.RecordingOutcome(path, _STATUS[code], code, doc, run.summary, tuple(said))
+
+
+_STATUS = {
+    EXIT_OK: "complete",
+    EXIT_INCOMPLETE: "incomplete",
+    EXIT_NOT_JUDGED: "not judged",
+}
+"""A recording's status in a fleet by its single-recording exit code (fleet.STATUS_*)."""
+
+
+def _cmd_fleet(args: argparse.Namespace, job: Callable[[argparse.Namespace, str], Any]) -> int:
+    """``validate``/``diagnose`` of several recordings: one task each, then the summary."""
+    import functools  # noqa: PLC0415
+
+    from twotank_validation import fleet  # noqa: PLC0415
+
+    single_only = [
+        opt
+        for opt, value in (
+            ("--json", args.json),
+            ("--report", args.report),
+            ("--out-model", getattr(args, "out_model", None)),
+        )
+        if value
+    ]
+    if single_only:
+        raise UsageError(
+            f"{', '.join(single_only)} write(s) one recording's results; with several "
+            "recordings give --out DIR (one JSON per recording, summary.csv, fleet.png)"
+        )
+    if args.out is None:
+        raise UsageError(
+            "several recordings: give --out DIR for one JSON per recording, the summary "
+            "table (summary.csv) and the figure (fleet.png)"
+        )
+    if args.scheduler and (args.serial or args.workers is not None):
+        raise UsageError(
+            "--scheduler runs on that cluster's workers: drop --workers/--serial, or drop "
+            "--scheduler to run on this machine"
+        )
+    if args.workers is not None and args.workers < 0:
+        raise UsageError(f"--workers must be 0 (in this process) or more, found {args.workers}")
+    one = _fleet_args(args)
+    names = _model_names(one)  # bad models and maps fail here, before any task
+    _replay_config(one, TS_S, PERIOD_SAMPLES)
+    expansion = fleet.expand_paths(args.bags)
+    paths = [os.path.abspath(p) for p in expansion.recordings]
+    expansion = fleet.Expansion(tuple(paths), expansion.skipped)
+    settings = None
+    if args.scheduler or not (args.serial or args.workers == 0):
+        settings = fleet.DaskSettings(workers=args.workers or 0, scheduler=args.scheduler)
+    where = (
+        "in this process"
+        if settings is None
+        else f"on {args.scheduler}"
+        if args.scheduler
+        else f"on a local cluster of {settings.workers or os.cpu_count()} worker(s)"
+    )
+    print(f"{len(paths)} recording(s) {where}", file=sys.stderr)
+    bar = tqdm(total=len(paths), desc=args.command, unit="recording", disable=args.quiet or None)
+
+    def arrived(outcome: Any) -> None:
+        bar.update(1)
+        bar.set_postfix_str(f"{Path(outcome.path).name}: {outcome.status}", refresh=False)
+
+    try:
+        res = fleet.run_fleet(
+            functools.partial(job, one),
+            expansion,
+            Path(args.out),
+            names,
+            dask=settings,
+            progress=arrived,
+        )
+    finally:
+        bar.close()
+    for o in res.outcomes:
+        for line in o.messages:
+            kind, sep, text = line.partition(": ")
+            if kind in ("WARNING", "ERROR") and sep:
+                print(f"{kind}: {o.path}: {text}", file=sys.stderr)
+    for path, why in res.skipped:
+        print(f"note: skipped {path}: {why}", file=sys.stderr)
+    shown = res.table.drop(columns=["json"], errors="ignore")
+    _out(shown.to_string(index=False, max_colwidth=48, float_format=lambda x: f"{x:.3f}"))
+    counts: dict[str, int] = {}
+    for o in res.outcomes:
+        counts[o.status] = counts.get(o.status, 0) + 1
+    told = ", ".join(f"{n} {status}" for status, n in counts.items())
+    alarmed = sum(1 for o in res.outcomes if o.alarms())
+    _out(
+        f"{len(res.outcomes)} recording(s): {told}; {alarmed} with an alarm; "
+        f"written to {Path(args.out).resolve()} (summary.csv, fleet.png, one JSON each)"
+    )
+    return res.code
+
+
+def _model_names(args: argparse.Namespace) -> list[str]:
+    """The names of the models of ``--model`` (loading them: bad ones fail here)."""
+    from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
+
+    given = args.model if isinstance(args.model, list) else [args.model]
+    return [
+        model_from_dict(*load_model_document(m)).name for m in (given if given[0] else ["A", "B"])
+    ]
 
 
 def _stretches_text(recording: object) -> str:
@@ -623,9 +910,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     val = command("validate", "validate recorded bags through the live validator's code")
     val.add_argument(
-        "bag",
+        "bags",
+        nargs="+",
+        metavar="BAG",
         help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
-        "table (with --map of its columns)",
+        "table (with --map of its columns); several, a directory of them or a glob: one "
+        "task each, results in --out (docs/fleet.md)",
     )
     val.add_argument(
         "--model", action="append", help="model name or YAML path (repeat; default A and B)"
@@ -644,9 +934,12 @@ def build_parser() -> argparse.ArgumentParser:
         "diagnose", "trace a model's residual on a bag to the effect it lacks, add it, compare"
     )
     dia.add_argument(
-        "bag",
+        "bags",
+        nargs="+",
+        metavar="BAG",
         help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
-        "table (with --map of its columns)",
+        "table (with --map of its columns); several, a directory of them or a glob: one "
+        "task each, results in --out (docs/fleet.md)",
     )
     dia.add_argument("--model", required=True, help="model name (A, B) or YAML path")
     dia.add_argument("--json", help="write the diagnosis as JSON to this file")
@@ -845,6 +1138,26 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
         help="degC per model unit",
     )
     val.add_argument("--quiet", action="store_true", help="no progress bar")
+    fleet = val.add_argument_group("many recordings (docs/fleet.md)")
+    fleet.add_argument(
+        "--out",
+        help="folder for one JSON per recording, summary.csv and fleet.png (needed with "
+        "several recordings; with one, runs it as a fleet of one)",
+    )
+    fleet.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes of the local Dask cluster (one thread each); 0: in this process; "
+        "None: one per core",
+    )
+    fleet.add_argument(
+        "--serial", action="store_true", help="run in this process, without Dask (--workers 0)"
+    )
+    fleet.add_argument(
+        "--scheduler",
+        help="address of an existing Dask scheduler (tcp://HOST:PORT) to run the tasks on",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,646 @@
+"""Many recordings in one command: one task per recording, in process or on Dask.
+
+A fleet is a list of recordings (rosbag2 directories, ``.mcap``/``.db3`` files, CSV/Parquet
+tables) found from the paths, directories and globs a user gives (:func:`expand_paths`). Each
+recording is one task that opens its own file and returns a :class:`RecordingOutcome`: its
+status, the exit code it would have had alone, and the JSON document the single-recording
+command writes. The tasks run in this process (:func:`run_serial`, the reference) or on
+``dask.distributed`` (:func:`run_dask`: an embedded ``LocalCluster`` on 127.0.0.1, or an
+existing scheduler); they come back as they finish. :func:`run_fleet` writes one JSON per
+recording as it arrives, then the summary table (``summary.csv``) and the figure
+(``fleet.png``: every recording's beta and alarm timeline per model, recordings with an
+alarm first).
+
+What a task does is given by the caller (the command line's ``validate`` or ``diagnose``) as
+a picklable callable ``job(path) -> RecordingOutcome``; this module only runs, collects and
+summarises.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import math
+import os
+import re
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from twotank_validation import tables
+from twotank_validation.errors import TwotankError
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+BAG_SUFFIXES = (".mcap", ".db3")
+"""Storage files read as bags (a plain MCAP file, or the storage file of a rosbag2 bag)."""
+RECORDING_SUFFIXES = BAG_SUFFIXES + tuple(tables.TABLE_SUFFIXES)
+"""File suffixes taken as recordings when a directory is searched."""
+
+STATUS_COMPLETE = "complete"
+"""Read completely and every model judged (a diagnosis: diagnosed)."""
+STATUS_NOT_JUDGED = "not judged"
+"""Read completely, but a model had no judged window (a diagnosis: nothing diagnosed)."""
+STATUS_INCOMPLETE = "incomplete"
+"""Not read completely (damage, a topic missing); windows before the damage are judged."""
+STATUS_UNREADABLE = "unreadable"
+"""Nothing could be read (not a recording, empty, unusable settings): the error says why."""
+STATUS_FAILED = "failed"
+"""The task itself failed (an unexpected error or a lost worker): the error says which."""
+STATUS_SKIPPED = "skipped"
+"""A file in a searched directory that is not a recording (listed, not judged)."""
+
+_ORDER = {
+    STATUS_COMPLETE: 0,
+    STATUS_NOT_JUDGED: 1,
+    STATUS_INCOMPLETE: 2,
+    STATUS_UNREADABLE: 3,
+    STATUS_FAILED: 3,
+    STATUS_SKIPPED: 4,
+}
+
+WORKER_ENV = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+"""Set in every embedded worker's environment (with this process's ``ROS_DOMAIN_ID``)."""
+
+
+class FleetError(TwotankError, ValueError):
+    """The paths name no recording, or the fleet settings cannot be used (says the fix)."""
+
+
+@dataclass(frozen=True)
+class RecordingOutcome:
+    """What one task found in one recording.
+
+    Attributes:
+        path: the recording as it was given to the task.
+        status: one of the ``STATUS_*`` values.
+        code: the exit code the single-recording command would have returned.
+        document: the JSON the single-recording command writes (``validate --json``,
+            ``diagnose --json``), or None where it writes none.
+        timeline: the replay's ``replay.summary_json`` (windows per model: start, end,
+            beta, alarm; s from the recording start), or None where nothing was read.
+        messages: the warnings and errors the single-recording command prints on stderr,
+            each with its ``WARNING:``/``ERROR:`` prefix.
+    """
+
+    path: str
+    status: str
+    code: int
+    document: dict[str, Any] | None = None
+    timeline: dict[str, Any] | None = None
+    messages: tuple[str, ...] = ()
+
+    @property
+    def problem(self) -> str:
+        """The first error, else the first warning, without its prefix ("" if none)."""
+        for prefix in ("ERROR: ", "WARNING: "):
+            for m in self.messages:
+                if m.startswith(prefix):
+                    return m[len(prefix) :]
+        return ""
+
+    def alarms(self) -> dict[str, float]:
+        """Model -> time of its first alarm (s from the recording start), models with one."""
+        if self.timeline is None:
+            return {}
+        return {
+            name: float(e["first_alarm"])
+            for name, e in self.timeline["models"].items()
+            if e["first_alarm"] is not None
+        }
+
+
+Job = Callable[[str], RecordingOutcome]
+"""A picklable ``path -> RecordingOutcome`` (a module-level function or a partial of one)."""
+
+
+# --------------------------------------------------------------------------- finding recordings
+
+
+@dataclass(frozen=True)
+class Expansion:
+    """The recordings found in the paths, and the files passed over.
+
+    Attributes:
+        recordings: paths of recordings, in the order given (a directory's and a glob's
+            sorted), each once.
+        skipped: (path, why) of files in searched directories that are not recordings.
+    """
+
+    recordings: tuple[str, ...]
+    skipped: tuple[tuple[str, str], ...] = ()
+
+
+def is_bag_dir(path: Path) -> bool:
+    """A rosbag2 directory: it holds ``metadata.yaml`` (one recording, however many files)."""
+    return (path / "metadata.yaml").is_file()
+
+
+def is_fleet_dir(path: Path) -> bool:
+    """A directory of recordings (not itself a bag), holding at least one recording."""
+    return path.is_dir() and not is_bag_dir(path) and bool(_search(path)[0])
+
+
+def _has_magic(text: str) -> bool:
+    return glob.has_magic(text)
+
+
+def is_single(paths: Sequence[str]) -> bool:
+    """One recording named directly: the single-recording command's case.
+
+    That is one path that exists or is no glob pattern (a missing path is the single
+    command's error), and is not a directory of recordings.
+    """
+    if len(paths) != 1:
+        return False
+    p = Path(paths[0])
+    if _has_magic(paths[0]) and not p.exists():
+        return False
+    return not is_fleet_dir(p)
+
+
+def _search(root: Path) -> tuple[list[str], list[tuple[str, str]]]:
+    """Recordings under a directory (sorted, recursive; a bag directory is not entered)."""
+    found: list[str] = []
+    skipped: list[tuple[str, str]] = []
+    for p in sorted(root.iterdir()):
+        if p.name.startswith("."):
+            continue
+        if p.is_dir():
+            if is_bag_dir(p):
+                found.append(str(p))
+            else:
+                inner, passed = _search(p)
+                found += inner
+                skipped += passed
+        elif p.suffix.lower() in RECORDING_SUFFIXES:
+            found.append(str(p))
+        else:
+            skipped.append(
+                (
+                    str(p),
+                    f"not a recording (suffix not one of {', '.join(RECORDING_SUFFIXES)}, and "
+                    "not a bag directory)",
+                )
+            )
+    return found, skipped
+
+
+def expand_paths(paths: Iterable[str]) -> Expansion:
+    """The recordings named by paths, directories and glob patterns.
+
+    A bag directory (``metadata.yaml`` inside), a file named directly (a ``.mcap``/``.db3``
+    file, a table; a file that is not a recording is judged unreadable, with the reason) is
+    one recording; another directory is searched recursively for bag directories and files
+    with a recording's suffix (other files are listed as skipped); a pattern (``*``, ``?``,
+    ``[``; ``**`` for any depth) names what it matches.
+
+    Raises:
+        FleetError: a path that does not exist, a pattern that matches nothing, or no
+            recording at all.
+    """
+    found: list[str] = []
+    skipped: list[tuple[str, str]] = []
+    for text in paths:
+        p = Path(text)
+        if p.exists():
+            names = [text]
+        elif _has_magic(text):
+            names = sorted(glob.glob(text, recursive=True))
+            if not names:
+                raise FleetError(f"the pattern {text!r} matches nothing: check it (quote it)")
+        else:
+            raise FleetError(f"{text} does not exist: check the path")
+        for name in names:
+            q = Path(name)
+            if q.is_dir() and not is_bag_dir(q):
+                inner, passed = _search(q)
+                found += inner
+                skipped += passed
+            else:
+                found.append(name)
+    seen: set[str] = set()
+    unique = []
+    for name in found:
+        key = os.path.realpath(name)
+        if key not in seen:
+            seen.add(key)
+            unique.append(name)
+    if not unique:
+        given = ", ".join(paths)
+        raise FleetError(
+            f"no recording found in {given}: give bag directories, .mcap/.db3 files or "
+            "CSV/Parquet tables, or a directory holding them"
+        )
+    return Expansion(tuple(unique), tuple(skipped))
+
+
+def output_names(paths: Sequence[str]) -> dict[str, str]:
+    """Recording -> a file stem unique among them (its path below their common folder).
+
+    ``day1/run3`` -> ``day1__run3``; a file keeps its suffix (``a.mcap`` -> ``a.mcap``) so a
+    file and a directory of the same stem do not collide.
+    """
+    real = [os.path.realpath(p) for p in paths]
+    parents = [os.path.dirname(r) for r in real]
+    base = os.path.commonpath(parents) if parents else ""
+    out: dict[str, str] = {}
+    used: set[str] = set()
+    for p, r in zip(paths, real, strict=True):
+        rel = os.path.relpath(r, base) if base else os.path.basename(r)
+        stem = re.sub(r"[^\w.+-]", "_", rel.replace(os.sep, "__"))
+        name, k = stem, 1
+        while name in used:
+            k += 1
+            name = f"{stem}~{k}"
+        used.add(name)
+        out[p] = name
+    return out
+
+
+# --------------------------------------------------------------------------- running
+
+
+def run_task(job: Job, path: str) -> RecordingOutcome:
+    """``job(path)``; an unexpected error becomes a failed outcome (the others go on)."""
+    try:
+        return job(path)
+    except Exception as err:  # one recording's bug must not stop the fleet
+        return failed(path, f"{type(err).__name__}: {err}")
+
+
+def failed(path: str, why: str) -> RecordingOutcome:
+    """The outcome of a task that did not finish (a bug or a lost worker)."""
+    return RecordingOutcome(
+        path,
+        STATUS_FAILED,
+        -1,
+        messages=(f"ERROR: the task failed ({why}); please report it with the recording",),
+    )
+
+
+def run_serial(job: Job, paths: Sequence[str]) -> Iterator[RecordingOutcome]:
+    """The tasks one after the other in this process (the reference of every other way)."""
+    for path in paths:
+        yield run_task(job, path)
+
+
+@dataclass(frozen=True)
+class DaskSettings:
+    """Where the tasks run on Dask.
+
+    Attributes:
+        workers: processes of the embedded cluster (one thread each); 0: as many as cores.
+        scheduler: address of an existing scheduler (``tcp://host:port``); None: start an
+            embedded ``LocalCluster`` on 127.0.0.1 (no dashboard).
+        env: extra environment of the embedded workers (``WORKER_ENV`` and this process's
+            ``ROS_DOMAIN_ID`` are always set).
+    """
+
+    workers: int = 0
+    scheduler: str | None = None
+    env: Mapping[str, str] = field(default_factory=dict)
+
+
+def worker_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The embedded workers' environment: loopback DDS, this domain, single-threaded BLAS."""
+    env = dict(WORKER_ENV)
+    env["ROS_DOMAIN_ID"] = os.environ.get("ROS_DOMAIN_ID", "77")
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = "1"  # one core per worker: the cluster is sized to the cores
+    env.update(extra or {})
+    return env
+
+
+def local_cluster(workers: int = 0, env: Mapping[str, str] | None = None) -> Any:
+    """The embedded ``distributed.LocalCluster``: processes of one thread on 127.0.0.1.
+
+    Args:
+        workers: worker processes; 0: as many as cores.
+        env: extra environment of the workers (:func:`worker_env`).
+
+    Returns:
+        The cluster, started (close it, or use it as a context manager). No dashboard; the
+        workers' statistical profiler is off (it samples the task thread every 10 ms, taking
+        the GIL from the replay, for a dashboard nobody looks at).
+    """
+    import dask  # noqa: PLC0415
+    from distributed import LocalCluster  # noqa: PLC0415
+
+    with dask.config.set({"distributed.worker.profile.enabled": False}):  # given to workers
+        return LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            # no dashboard; the scheduler's health and metrics routes on loopback, any port
+            scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+            silence_logs=40,
+            env=worker_env(env),
+        )
+
+
+def run_dask(job: Job, paths: Sequence[str], settings: DaskSettings) -> Iterator[RecordingOutcome]:
+    """The tasks on Dask, one per recording (it opens its own file), as they finish.
+
+    A task that raises or whose worker is lost gives a failed outcome for its recording.
+    """
+    from distributed import Client, as_completed  # noqa: PLC0415
+
+    cluster = None
+    if settings.scheduler is None:
+        cluster = local_cluster(settings.workers, settings.env)
+    try:
+        client = Client(cluster if cluster is not None else settings.scheduler)
+    except (OSError, TimeoutError) as err:
+        if cluster is not None:
+            cluster.close()
+        raise FleetError(
+            f"cannot reach the Dask scheduler {settings.scheduler} ({err}): start one "
+            "(`dask scheduler --host 127.0.0.1`, docs/fleet.md) or drop --scheduler"
+        ) from err
+    try:
+        futures = {
+            client.submit(run_task, job, path, key=f"twotank-recording-{i}", pure=False): path
+            for i, path in enumerate(paths)
+        }
+        for fut in as_completed(futures):
+            if fut.status == "finished":
+                yield fut.result()
+            else:
+                why: BaseException | None
+                try:
+                    why = fut.exception()
+                except Exception as lost:  # cancelled: the reason is its text
+                    why = lost
+                yield failed(futures[fut], f"{type(why).__name__}: {why}")
+            fut.release()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+# --------------------------------------------------------------------------- the fleet
+
+
+@dataclass(frozen=True)
+class FleetResult:
+    """A fleet run: the outcomes in summary order, the table, the files written."""
+
+    outcomes: tuple[RecordingOutcome, ...]
+    skipped: tuple[tuple[str, str], ...]
+    table: pd.DataFrame
+    code: int
+    written: tuple[Path, ...]
+
+
+def run_fleet(
+    job: Job,
+    expansion: Expansion,
+    out_dir: Path,
+    model_names: Sequence[str],
+    *,
+    dask: DaskSettings | None = None,
+    progress: Callable[[RecordingOutcome], None] | None = None,
+    figure: bool = True,
+) -> FleetResult:
+    """Run the job on every recording and write what it found.
+
+    Writes ``out_dir/<name>.json`` per recording with a document (as it arrives),
+    ``summary.csv`` (:func:`summary_table`) and ``fleet.png`` (:func:`plot_fleet`).
+
+    Args:
+        job: ``path -> RecordingOutcome``, picklable for Dask.
+        expansion: the recordings (:func:`expand_paths`).
+        out_dir: folder to write into (made if missing).
+        model_names: the models, in the table's and the figure's order.
+        dask: where to run on Dask; None: serially in this process.
+        progress: called with each outcome as it arrives.
+        figure: write ``fleet.png``.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    names = output_names(expansion.recordings)
+    paths = list(expansion.recordings)
+    runs = run_serial(job, paths) if dask is None else run_dask(job, paths, dask)
+    got: dict[str, RecordingOutcome] = {}
+    written: list[Path] = []
+    for outcome in runs:
+        got[outcome.path] = outcome
+        if outcome.document is not None:
+            target = out_dir / f"{names[outcome.path]}.json"
+            target.write_text(json.dumps(outcome.document, indent=2))
+            written.append(target)
+        if progress is not None:
+            progress(outcome)
+    for path in paths:  # a result that never came back is not lost silently
+        got.setdefault(path, failed(path, "no result came back"))
+    ordered = order_outcomes([got[p] for p in paths])
+    table = summary_table(ordered, model_names, names, expansion.skipped)
+    csv = out_dir / "summary.csv"
+    table.to_csv(csv, index=False)
+    written.append(csv)
+    if figure:
+        png = out_dir / "fleet.png"
+        plot_fleet(ordered, model_names, png, names)
+        written.append(png)
+    return FleetResult(
+        tuple(ordered), expansion.skipped, table, fleet_exit_code(ordered), tuple(written)
+    )
+
+
+def order_outcomes(outcomes: Iterable[RecordingOutcome]) -> list[RecordingOutcome]:
+    """Recordings with an alarm first, then judged ones, then the rest; each group by path."""
+
+    def key(o: RecordingOutcome) -> tuple[int, int, str]:
+        return (0 if o.alarms() else 1, _ORDER[o.status], o.path)
+
+    return sorted(outcomes, key=key)
+
+
+EXIT_CODE_ORDER = (0, 4, 3, 5)
+"""Fleet exit codes, least to most severe (the fleet's is its most severe recording's)."""
+EXIT_UNREADABLE = 5
+"""Some recording could not be read at all (or its task failed); the others were judged."""
+
+
+def fleet_exit_code(outcomes: Iterable[RecordingOutcome]) -> int:
+    """The most severe code: 5 unreadable or failed > 3 incomplete > 4 not judged > 0.
+
+    0 only when every recording was read completely and judged; a fleet of which nothing was
+    judged never gets 0 (each such recording is 3, 4 or 5).
+    """
+    codes = [0]
+    for o in outcomes:
+        if o.status == STATUS_SKIPPED:
+            continue
+        if o.status in (STATUS_UNREADABLE, STATUS_FAILED):
+            codes.append(EXIT_UNREADABLE)
+        elif o.status == STATUS_INCOMPLETE:
+            codes.append(3)
+        elif o.status == STATUS_NOT_JUDGED:
+            codes.append(4)
+    return max(codes, key=EXIT_CODE_ORDER.index)
+
+
+def _num(x: object) -> float:
+    return math.nan if x is None else float(x)  # type: ignore[arg-type]
+
+
+def summary_table(
+    outcomes: Sequence[RecordingOutcome],
+    model_names: Sequence[str],
+    names: Mapping[str, str] | None = None,
+    skipped: Sequence[tuple[str, str]] = (),
+) -> pd.DataFrame:
+    """One row per recording (and per skipped file), in the given order.
+
+    Columns: ``recording``, ``status``, ``code`` (the single command's exit code),
+    ``messages`` (messages or rows read), per model ``<M> judged``, ``<M> not judged``,
+    ``<M> beta_max``, ``<M> first_alarm_s`` (NaN: none), ``json`` (the file written, "" if
+    none) and ``problem`` (the first error or warning).
+    """
+    import pandas as pd  # noqa: PLC0415 (imported on first use)
+
+    rows = []
+    for o in outcomes:
+        row: dict[str, Any] = {
+            "recording": o.path,
+            "status": o.status,
+            "code": o.code,
+            "messages": o.timeline["messages"] if o.timeline is not None else 0,
+        }
+        for m in model_names:
+            e = (o.timeline or {}).get("models", {}).get(m)
+            row[f"{m} judged"] = e["judged"] if e else 0
+            row[f"{m} not judged"] = e["not_judged"] if e else 0
+            row[f"{m} beta_max"] = _num(e["beta_max"]) if e else math.nan
+            row[f"{m} first_alarm_s"] = _num(e["first_alarm"]) if e else math.nan
+        row["json"] = f"{names[o.path]}.json" if names and o.document is not None else ""
+        row["problem"] = o.problem
+        rows.append(row)
+    for path, why in skipped:
+        rows.append({"recording": path, "status": STATUS_SKIPPED, "code": 0, "problem": why})
+    frame = pd.DataFrame(rows)
+    counts = ["code", "messages"] + [f"{m} {k}" for m in model_names for k in _COUNTS]
+    return frame.astype({c: "Int64" for c in counts if c in frame})  # blank where skipped
+
+
+_COUNTS = ("judged", "not judged")
+
+
+def plot_fleet(
+    outcomes: Sequence[RecordingOutcome],
+    model_names: Sequence[str],
+    out: Path,
+    names: Mapping[str, str] | None = None,
+) -> Path:
+    """Every recording's beta and alarm timeline, one panel per model, a row per recording.
+
+    Each report holds from its time (its window's end) to the next report's: a bar coloured
+    by beta (white at 1, blue below, red above), grey where the
+    window was not judged; a black line under the row where the alarm was at ERROR, a
+    triangle at the first alarm. Recordings with an
+    alarm are at the top (the order given); a recording that could not be read shows its
+    status.
+    """
+    import matplotlib as mpl  # noqa: PLC0415
+
+    mpl.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.collections import LineCollection  # noqa: PLC0415
+    from matplotlib.colors import TwoSlopeNorm  # noqa: PLC0415
+
+    n = max(len(outcomes), 1)
+    betas = [
+        w["beta"]
+        for o in outcomes
+        if o.timeline is not None
+        for e in o.timeline["models"].values()
+        for w in e["windows"]
+        if w["beta"] is not None
+    ]
+    top = max([2.0, *(b for b in betas if math.isfinite(b))])
+    norm = TwoSlopeNorm(vmin=0.0, vcenter=1.0, vmax=top)
+    cmap = plt.get_cmap("coolwarm")
+    cols = max(len(model_names), 1)
+    fig, axes = plt.subplots(
+        1,
+        cols,
+        figsize=(5.5 * cols + 1.5, min(0.32 * n + 1.6, 120.0)),  # under 2**16 pixels
+        sharey=True,
+        squeeze=False,
+        layout="constrained",
+    )
+    labels = [
+        (names or {}).get(o.path, Path(o.path).name)
+        + ("" if o.status in (STATUS_COMPLETE,) else f" ({o.status})")
+        for o in outcomes
+    ]
+    for ax, model in zip(axes[0], model_names, strict=False):
+        judged_segs, judged_b, grey_segs, alarm_segs, firsts = [], [], [], [], []
+        for row, o in enumerate(outcomes):
+            e = (o.timeline or {}).get("models", {}).get(model)
+            if not e:
+                continue
+            for t0, t1, w in _report_spans(e["windows"]):
+                seg = [(t0, row), (t1, row)]
+                if w["beta"] is not None:
+                    judged_segs.append(seg)
+                    judged_b.append(w["beta"])
+                else:
+                    grey_segs.append(seg)
+                if w["alarm"] == "ERROR":
+                    alarm_segs.append([(t0, row + 0.32), (t1, row + 0.32)])
+            if e["first_alarm"] is not None:
+                firsts.append((e["first_alarm"], row))
+        ax.add_collection(LineCollection(grey_segs, colors="0.8", linewidths=7))
+        bars = LineCollection(judged_segs, cmap=cmap, norm=norm, linewidths=7)
+        bars.set_array(judged_b)
+        ax.add_collection(bars)
+        ax.add_collection(LineCollection(alarm_segs, colors="k", linewidths=1.5))
+        if firsts:
+            ax.scatter(*zip(*firsts, strict=True), marker="v", color="k", s=30, zorder=3)
+        ax.autoscale_view()
+        ax.set_xlim(left=0.0)
+        ax.set_title(f"model {model}")
+        ax.set_xlabel("time in the recording (s)")
+    fig.colorbar(
+        plt.cm.ScalarMappable(norm=norm, cmap=cmap),
+        ax=axes[0].tolist(),
+        label="beta (1: the limit)",
+        fraction=0.03,
+        pad=0.01,
+    )
+    axes[0][0].set_yticks(range(len(outcomes)), labels, fontsize=8)
+    axes[0][0].set_ylim(len(outcomes) - 0.5, -0.5)
+    fig.suptitle(
+        f"{len(outcomes)} recording(s): beta as reported, alarm at ERROR (black); "
+        "those with an alarm on top"
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _report_spans(
+    windows: Sequence[Mapping[str, Any]],
+) -> Iterator[tuple[float, float, Mapping[str, Any]]]:
+    """``(from, to, window)``: each report from its window's end to the next report's end.
+
+    The last holds for as long as the step before it (a lone report: an eighth of its
+    window), so that every report is seen.
+    """
+    ends = [float(w["end"]) for w in windows]
+    for i, w in enumerate(windows):
+        if i + 1 < len(ends):
+            to = ends[i + 1]
+        elif i > 0:
+            to = ends[i] + (ends[i] - ends[i - 1])
+        else:
+            to = ends[i] + (ends[i] - float(w["start"])) / 8
+        yield ends[i], to, w
