@@ -297,7 +297,7 @@ def calibrate(
     scalings = {b.name: tuple(window_scaling(p, b) for p in problems) for b in chosen}
     current = copy.deepcopy(dict(doc))
     current_model = model
-    results = []
+    results: list[BlockCalibration] = []
     band: list[float] = []
     extrapolated: dict[str, dict[str, float]] = {}
     for block in chosen:
@@ -324,9 +324,10 @@ def calibrate(
                 node = _weight_node(current, block)
                 node["weight"] = scaled_node(node["weight"], factor)
                 current_model = model_from_dict(current, f"{source} (calibrated)")
+                after = "the blocks above as calibrated, " if results else ""
                 note = (
-                    f"scaled uniformly by {factor:.4g} (the fit windows' smallest factor "
-                    f"{fit_scaling:.4g} times the margin {cfg.margin:g})"
+                    f"scaled uniformly by {factor:.4g} ({after}the fit windows need "
+                    f"{fit_scaling:.4g} of it; times the margin {cfg.margin:g})"
                 )
             else:
                 note = "no factor explains the fit windows: the weight is left as it is"
