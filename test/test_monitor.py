@@ -344,12 +344,17 @@ def test_window_data_in_time_order_across_the_ring_end() -> None:
 
 
 def test_model_constants_are_ready_before_the_first_window() -> None:
-    """The pulse-response moment (leakage bound) is computed when the monitor is built, so
-    the first window's report does not wait for it."""
+    """The pulse-response moment (leakage bound) is computed when the monitor is built where
+    the reports need it (the fast path), so the first window's report does not wait for it;
+    the closed form's reports (the tank models under "auto") never need it."""
+    ms = [load_model("A"), load_model("B")]
+    online.WindowMonitor(dataclasses.replace(FAST, method="fast"), ms)
+    for m in ms:
+        assert ("pulse_moment", FAST.ts_s) in m.cache
     ms = [load_model("A"), load_model("B")]
     online.WindowMonitor(FAST, ms)
     for m in ms:
-        assert ("pulse_moment", FAST.ts_s) in m.cache
+        assert ("pulse_moment", FAST.ts_s) not in m.cache
 
 
 def test_fast_path_kernel_is_loaded_before_the_first_window_and_only_then() -> None:

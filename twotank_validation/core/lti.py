@@ -7,6 +7,7 @@ the discrete parts are evaluated on the unit circle at the DFT bins.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -148,8 +149,25 @@ def discretise(sys: StateSpace, dt_s: float) -> StateSpace:
         return sys
     if sys.n_states == 0:
         return StateSpace(sys.a, sys.b, sys.c, sys.d, dt_s, sys.output_delays_s)
-    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((sys.a, sys.b, sys.c, sys.d), dt_s, method="zoh")
-    return StateSpace(ad, bd, cd, dd, dt_s, sys.output_delays_s)
+    mats = tuple((m.shape, m.tobytes()) for m in (sys.a, sys.b, sys.c, sys.d))
+    return _zoh(mats, float(dt_s), sys.output_delays_s)
+
+
+@functools.lru_cache(maxsize=512)
+def _zoh(
+    mats: tuple[tuple[tuple[int, ...], bytes], ...], dt_s: float, delays: tuple[float, ...]
+) -> StateSpace:
+    """:func:`discretise` of a continuous system given by its matrices' shapes and bytes.
+
+    Memoised on that content (a validator built again for the same models, or for models
+    loaded again, does not repeat the matrix exponentials); the arrays it returns are
+    read-only, as every caller shares them.
+    """
+    a, b, c, d = (np.frombuffer(raw, dtype=float).reshape(shape) for shape, raw in mats)
+    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((a, b, c, d), dt_s, method="zoh")
+    for m in (ad, bd, cd, dd):
+        m.setflags(write=False)
+    return StateSpace(ad, bd, cd, dd, dt_s, delays)
 
 
 def check_stable(sys: StateSpace, what: str) -> None:

@@ -111,6 +111,10 @@ class PlantResponse:
     nw: int
     nu: int
     ny: int
+    memo: dict[object, Any] = field(default_factory=dict, init=False, compare=False, repr=False)
+    """What the solvers derive from ``p`` alone (the route, the closed form's gains), kept
+    for the next datum at the same bins (``p`` is not to be changed in place; a response
+    made by ``dataclasses.replace`` starts with an empty memo)."""
 
     def _part(self, row: int, col: int) -> np.ndarray:
         nz, nv = self.blocks.nz, self.blocks.nv

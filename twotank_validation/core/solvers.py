@@ -197,48 +197,109 @@ def solve_closed_form(
         y: (n_bins, ny) complex.
         structure: from :func:`decoupled_structure`.
     """
-    nb = u.shape[0]
-    blocks = resp.blocks
-    z = _mv(resp.p13, u)  # P11 = P12 = 0
-    e = y - _mv(resp.p23, u)
-    v = np.zeros((nb, blocks.nv), dtype=complex)
-    w = np.zeros((nb, resp.nw), dtype=complex)
-    lower = np.zeros(nb)
-    feasible = np.ones(nb, dtype=bool)
-    for i in range(resp.ny):
-        b, k = int(structure.block_of_output[i]), int(structure.noise_of_output[i])
-        ei = e[:, i]
-        mag_e = np.abs(ei)
-        if b >= 0:
-            a = resp.p21[:, i, b]
-            reach = np.abs(a) * np.abs(z[:, b])
-            ok = np.abs(a) > 0
-            ratio = np.where(mag_e > reach, reach / np.maximum(mag_e, _TINY), 1.0)
-            vb = np.where(ok, ei * ratio / np.where(ok, a, 1.0), 0.0)
-            v[:, b] = vb
-            rest = ei - a * vb
-        else:
-            rest = ei
-        if k >= 0:
-            g = resp.p22[:, i, k]
-            has = np.abs(g) > 0
-            w[:, k] = np.where(has, rest / np.where(has, g, 1.0), 0.0)
-            bad = ~has & (np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY))
-        else:
-            bad = np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY)
-        feasible &= ~bad
-    lower = np.where(feasible, np.linalg.norm(w, axis=1), np.inf)
-    delta = rank_one_delta(v, z, blocks)
+    lower, w, v, z = closed_form_bins(resp, u, y, structure)
     return BinSolutions(
         lower=lower,
         upper=lower.copy(),
         w=w,
         v=v,
         z=z,
-        delta=delta,
-        certified=np.ones(nb, dtype=bool),
+        delta=rank_one_delta(v, z, resp.blocks),
+        certified=np.ones(u.shape[0], dtype=bool),
         method=Method.CLOSED_FORM.value,
     )
+
+
+@dataclass(frozen=True)
+class _OutputGains:
+    """What the closed form takes from the response alone for one output.
+
+    See :func:`closed_form_bins`: the block ``b`` and noise entry ``k`` acting on it (``-1``:
+    none), ``a = P21[:, i, b]``, ``|a|``, ``|a| > 0``, ``a`` with 1 where it is 0, and the
+    same of ``g = P22[:, i, k]``; ``all_noise``: ``|g| > 0`` at every bin.
+    """
+
+    b: int
+    k: int
+    a: np.ndarray
+    abs_a: np.ndarray
+    ok: np.ndarray
+    a_safe: np.ndarray
+    g: np.ndarray
+    has: np.ndarray
+    g_safe: np.ndarray
+    all_noise: bool
+
+
+def _output_gains(resp: PlantResponse, structure: DecoupledStructure) -> tuple[_OutputGains, ...]:
+    """The closed form's per-output gains, memoised on the response (they hold no datum)."""
+    key = (
+        "closed_form_gains",
+        structure.block_of_output.tobytes(),
+        structure.noise_of_output.tobytes(),
+    )
+    if key in resp.memo:
+        gains: tuple[_OutputGains, ...] = resp.memo[key]
+        return gains
+    none: np.ndarray = np.zeros(0)
+    out = []
+    p21, p22 = resp.p21, resp.p22
+    for i in range(resp.ny):
+        b, k = int(structure.block_of_output[i]), int(structure.noise_of_output[i])
+        a = abs_a = ok = a_safe = g = has = g_safe = none
+        if b >= 0:
+            a = p21[:, i, b]
+            abs_a = np.abs(a)
+            ok = abs_a > 0
+            a_safe = np.where(ok, a, 1.0)
+        if k >= 0:
+            g = p22[:, i, k]
+            has = np.abs(g) > 0
+            g_safe = np.where(has, g, 1.0)
+        out.append(_OutputGains(b, k, a, abs_a, ok, a_safe, g, has, g_safe, bool(np.all(has))))
+    resp.memo[key] = gains = tuple(out)
+    return gains
+
+
+def closed_form_bins(
+    resp: PlantResponse, u: np.ndarray, y: np.ndarray, structure: DecoupledStructure
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The closed form of :func:`solve_closed_form` without the perturbations Delta.
+
+    What depends on the response alone (the gains and which of them vanish) is computed at
+    the first call and memoised on ``resp``.
+
+    Returns:
+        ``(lower, w, v, z)``: (n_bins,) float, (n_bins, nw), (n_bins, nv), (n_bins, nz)
+        complex, as in :class:`BinSolutions`.
+    """
+    nb = u.shape[0]
+    z = _mv(resp.p13, u)  # P11 = P12 = 0
+    e = y - _mv(resp.p23, u)
+    v = np.zeros((nb, resp.blocks.nv), dtype=complex)
+    w = np.zeros((nb, resp.nw), dtype=complex)
+    feasible = np.ones(nb, dtype=bool)
+    for i, gain in enumerate(_output_gains(resp, structure)):
+        b, k = gain.b, gain.k
+        ei = e[:, i]
+        mag_e = np.abs(ei)
+        if b >= 0:
+            a = gain.a
+            reach = gain.abs_a * np.abs(z[:, b])
+            ratio = np.where(mag_e > reach, reach / np.maximum(mag_e, _TINY), 1.0)
+            vb = np.where(gain.ok, ei * ratio / gain.a_safe, 0.0)
+            v[:, b] = vb
+            rest = ei - a * vb
+        else:
+            rest = ei
+        if k >= 0:
+            w[:, k] = np.where(gain.has, rest / gain.g_safe, 0.0)
+            if not gain.all_noise:
+                feasible &= ~(~gain.has & (np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY)))
+        else:
+            feasible &= ~(np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY))
+    lower = np.where(feasible, np.linalg.norm(w, axis=1), np.inf)
+    return lower, w, v, z
 
 
 # ------------------------------------------------------------------ SDP (general structure)

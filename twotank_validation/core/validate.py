@@ -159,6 +159,77 @@ def pulse_moment(model: LFTModel, ts_s: float) -> np.ndarray:
     return moment
 
 
+def bin_response(model: LFTModel, n_samples: int, ts_s: float) -> PlantResponse:
+    """P at the bins ``2 pi n / N``, ``n = 0 .. N//2``, of a datum of ``n_samples`` samples.
+
+    Memoised on the model per ``(ts_s, n_samples)`` (every window of a monitor has the same
+    bins): the response and what the solvers memoise on it are computed once.
+    """
+    key = ("bin_response", float(ts_s), int(n_samples))
+    if key not in model.cache:
+        theta = 2.0 * np.pi * np.arange(n_samples // 2 + 1) / n_samples
+        model.cache[key] = model.response(theta, ts_s)
+    resp: PlantResponse = model.cache[key]
+    return resp
+
+
+@dataclass(frozen=True)
+class BetaResult:
+    """What a window's report needs of :func:`validate`: the same numbers, bit for bit.
+
+    Attributes:
+        method: solver that ran (``"closed_form"``, ``"fast"`` or ``"sdp"``).
+        freqs_hz: (n_bins,) float, bin frequencies.
+        w_min: (n_bins,) float, lower bound on min ||W(n)|| per bin.
+        beta: ``sqrt(sum_n weight_n w_min(n)^2)``.
+        beta_upper: the same from the witness.
+        warnings: as :attr:`ValidationResult.warnings`.
+    """
+
+    method: str
+    freqs_hz: np.ndarray
+    w_min: np.ndarray
+    beta: float
+    beta_upper: float
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def margin(self) -> float:
+        """``1 - beta``."""
+        return 1.0 - self.beta
+
+
+def validate_beta(
+    datum: Datum, model: LFTModel, *, method: str = "auto", response: PlantResponse | None = None
+) -> BetaResult:
+    """β of :func:`validate` without the witness, the output error and the leakage bound.
+
+    Where the closed form runs, only its per-bin minimum is computed (no perturbations
+    Delta); on the other routes this is :func:`validate`. Same arguments and errors.
+    """
+    if method not in METHODS:
+        raise ModelError(f"unknown method {method!r}; use one of {METHODS}")
+    check_compatible(datum, model)
+    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
+    route = _route(resp, method)
+    if route.method != Method.CLOSED_FORM or route.refused:
+        res = validate(datum, model, method=method, response=resp)
+        return BetaResult(
+            res.method, res.freqs_hz, res.w_min, res.beta, res.beta_upper, res.warnings
+        )
+    assert route.structure is not None
+    lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
+    beta = total_beta(lower, datum.bin_weights)
+    return BetaResult(
+        Method.CLOSED_FORM.value,
+        datum.freqs_hz,
+        lower,
+        beta,
+        beta,  # the closed form's witness attains the minimum: upper = lower
+        result_warnings(datum, model, beta),
+    )
+
+
 def validate(
     datum: Datum,
     model: LFTModel,
@@ -284,6 +355,14 @@ def takes_fast_path(resp: PlantResponse, method: str) -> bool:
     return method in METHODS and _route(resp, method).method == Method.FAST
 
 
+def takes_closed_form(resp: PlantResponse, method: str) -> bool:
+    """Whether :func:`validate` with this ``method`` runs the closed form on ``resp``."""
+    if method not in METHODS:
+        return False
+    route = _route(resp, method)
+    return route.method == Method.CLOSED_FORM and not route.refused
+
+
 @dataclass(frozen=True)
 class _Route:
     """The solver :func:`validate` runs, and why.
@@ -303,7 +382,16 @@ class _Route:
     structure: solvers.DecoupledStructure | None = None
 
 
-def _route(resp: PlantResponse, method: str) -> _Route:  # noqa: PLR0911 - one return per route
+def _route(resp: PlantResponse, method: str) -> _Route:
+    """The solver route of ``method`` on ``resp``, memoised on the response."""
+    key = ("route", str(method))
+    if key not in resp.memo:
+        resp.memo[key] = _find_route(resp, method)
+    route: _Route = resp.memo[key]
+    return route
+
+
+def _find_route(resp: PlantResponse, method: str) -> _Route:  # noqa: PLR0911 - one return per route
     """The solver route, written once: which solver ``method`` (one of METHODS) runs on ``resp``.
 
     ``"sdp"`` and ``"fast"`` as asked (``"fast"`` refused where it does not cover the

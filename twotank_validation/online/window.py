@@ -20,10 +20,12 @@ from twotank_validation.core.datum import NormConvention, make_datum
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
 from twotank_validation.core.validate import (
+    bin_response,
     check_compatible,
     pulse_moment,
+    takes_closed_form,
     takes_fast_path,
-    validate,
+    validate_beta,
 )
 from twotank_validation.defaults import (
     MAX_RECOVERED_FRACTION,
@@ -313,19 +315,21 @@ class WindowMonitor:
         self._flag: list[str | None] = [None] * cap
         self._count = 0
         self._last_index: int | None = None
-        n = config.window_samples
-        theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
         # everything that depends only on the models and the settings is computed now, not in
-        # the first window (whose report would wait for it): P at the window's bins, and the
-        # leakage bound's pulse-response moment (memoised on the model)
+        # the first window (whose report would wait for it), and memoised on the model (a
+        # validator built again for the same models repeats none of it): P at the window's
+        # bins with the solver's route on it, and where the closed form does not run, the
+        # leakage bound's pulse-response moment and the fast path's compiled kernel
         self._responses: dict[str, PlantResponse] = {
-            m.name: m.response(theta, config.ts_s) for m in self.models
+            m.name: bin_response(m, config.window_samples, config.ts_s) for m in self.models
         }
         for m in self.models:
+            resp = self._responses[m.name]
+            if takes_closed_form(resp, config.method):
+                continue
             pulse_moment(m, config.ts_s)
-            # and the fast path's compiled kernel, where validate will use it
-            if takes_fast_path(self._responses[m.name], config.method):
-                fast.warm_up(self._responses[m.name])
+            if takes_fast_path(resp, config.method):
+                fast.warm_up(resp)
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
         self.operating_points: dict[str, OperatingPointTracker] = {
             m.name: OperatingPointTracker(
@@ -517,7 +521,9 @@ class WindowMonitor:
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()
-            res = validate(datum, model, method=cfg.method, response=self._responses[model.name])
+            res = validate_beta(
+                datum, model, method=cfg.method, response=self._responses[model.name]
+            )
             op = self.operating_points[model.name].observe(
                 OperatingPoint(datum.u_bias, datum.y_bias),
                 steady=not datum.periodicity.transient_suspected,
