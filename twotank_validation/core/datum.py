@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from twotank_validation.core.columns import column_max_abs, column_mean, period_mean
 from twotank_validation.errors import DatumError, DimensionError
 
 _INPUT_PERIODIC_RTOL = 1e-6
@@ -212,11 +213,11 @@ def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> Per
     p = u.shape[0] // period_samples
     up = u.reshape(p, period_samples, -1)
     yp = y.reshape(p, period_samples, -1)
-    u_rms = np.sqrt(np.mean(u**2, axis=0)) + np.finfo(float).tiny
-    y_rms = np.sqrt(np.mean(y**2, axis=0)) + np.finfo(float).tiny
-    u_var = np.sqrt(np.mean(np.diff(up, axis=0) ** 2, axis=1)) / u_rms
-    y_var = np.sqrt(np.mean(np.diff(yp, axis=0) ** 2, axis=1)) / y_rms
-    means = yp.mean(axis=1)
+    u_rms = np.sqrt(column_mean(u**2)) + np.finfo(float).tiny
+    y_rms = np.sqrt(column_mean(y**2)) + np.finfo(float).tiny
+    u_var = np.sqrt(period_mean(np.diff(up, axis=0) ** 2)) / u_rms
+    y_var = np.sqrt(period_mean(np.diff(yp, axis=0) ** 2)) / y_rms
+    means = period_mean(yp)
     drift = np.abs(means[-1] - means[0]) / y_rms
     messages: list[str] = []
     input_periodic = bool(np.all(u_var <= _INPUT_PERIODIC_RTOL))
@@ -324,8 +325,8 @@ def make_datum(
         raise DatumError(f"sample period must be positive and finite, found {ts_s} s")
     conv = NormConvention(convention)
     u2, y2 = check_record(u, y, period_samples)
-    u_bias = u2.mean(axis=0)
-    y_bias = y2.mean(axis=0)
+    u_bias = column_mean(u2)
+    y_bias = column_mean(y2)
     uc = u2 - u_bias
     yc = y2 - y_bias
     n = u2.shape[0]
@@ -342,7 +343,7 @@ def make_datum(
         convention=conv,
         u_bias=u_bias,
         y_bias=y_bias,
-        u_max=np.max(np.abs(uc), axis=0),
+        u_max=column_max_abs(uc),
         periodicity=assess_periodicity(uc, yc, int(period_samples)),
         noise_std=noise_estimate(yc, int(period_samples), conv),
     )

@@ -160,13 +160,14 @@ def recover_span(
         The span with the samples filled in, the counts, and the reason if it cannot be.
     """
     n, nu = u.shape
-    if any(f is not None for f in flags):
+    flagged = flags.count(None) != len(flags)
+    if flagged:
         bad = missing_mask(u, y, flags, output_names)
     else:
         bad = np.zeros((n, nu + y.shape[1]), dtype=bool)
     if max_fraction <= 0.0:
         reason = None
-        if bad.any() or any(f is not None for f in flags):
+        if flagged or bad.any():
             reason = "unusable samples (recovery off)"
         return Recovery(u, y, np.zeros(bad.shape[1], int), reason)
     bad[:, :nu] |= _held_commands(u, bad, period, rtol)
