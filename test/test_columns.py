@@ -45,3 +45,18 @@ def test_period_means_are_numpys_bit_for_bit(p, k) -> None:
     diff = np.diff(periods, axis=0) ** 2
     if diff.size:
         assert columns.period_mean(diff).tobytes() == np.mean(diff, axis=1).tobytes()
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_row_norms_are_numpys_bit_for_bit(k) -> None:
+    rng = np.random.default_rng(k)
+    w = rng.standard_normal((5000, k)) + 1j * rng.standard_normal((5000, k))
+    w *= rng.choice([1e-160, 1e-3, 1.0, 1e150], (5000, 1))  # underflow and overflow too
+    w[0] = 0.0
+    w[1] = complex(-0.0, -0.0)
+    w[2, 0] = complex(np.nan, 1.0)
+    w[3, -1] = complex(-np.inf, 0.0)
+    with np.errstate(all="ignore"):
+        got, want = columns.row_norm(w), np.linalg.norm(w, axis=1)
+        assert got.tobytes() == want.tobytes()
+        assert columns.row_norm(w.real).tobytes() == np.linalg.norm(w.real, axis=1).tobytes()

@@ -10,7 +10,8 @@ columns. The functions here give the same numbers in fewer calls:
   the same sequential sum per column, so the same bits (numpy's starts from +0, which
   changes only a sum of -0s; ``x.mean(axis=0)`` is that sum over ``n``);
 * maxima of absolute values: a maximum does not depend on the order (the values are never
-  ``-0``, and a NaN wins either way), so it is taken on the transposed copy.
+  ``-0``, and a NaN wins either way), so it is taken on the transposed copy;
+* Euclidean norms of rows of one or two entries: their squares summed in one call.
 
 Anything else (an odd number of columns, another dtype, no rows) goes to numpy itself.
 ``test/test_columns.py`` holds them to numpy's results.
@@ -97,3 +98,22 @@ def column_max_abs(x: np.ndarray) -> np.ndarray:
         return np.max(np.abs(x), axis=0)
     out: np.ndarray = np.abs(np.ascontiguousarray(x.T)).max(axis=1)
     return out
+
+
+def row_norm(w: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(w, axis=1)``, bit for bit.
+
+    numpy sums the squared magnitudes of each row in its own inner-loop call; of one or two
+    columns (never ``-0``) that sum is the plain sum, taken here for all rows at once.
+
+    Args:
+        w: (n, k) complex or float.
+
+    Returns:
+        (n,) float.
+    """
+    if w.ndim != 2 or w.shape[1] > 2 or w.shape[1] == 0:
+        out: np.ndarray = np.linalg.norm(w, axis=1)
+        return out
+    s = (w.conj() * w).real  # as numpy's norm: |w|^2 >= +0
+    return np.sqrt(s[:, 0] + s[:, 1]) if w.shape[1] == 2 else np.sqrt(s[:, 0])

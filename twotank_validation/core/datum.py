@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -103,9 +104,8 @@ class Datum:
         y_bias: (n_outputs,) removed output means (model units).
         u_max: (n_inputs,) max |u(k) - bias|, for the leakage bound.
         periodicity: periodicity findings.
-        noise_std: (n_bins, n_outputs) float, per-bin noise standard deviation of
-            ``Y(n)`` estimated from the period-to-period variation (harmonic bins of the
-            period; NaN at the other bins and when the record has one period).
+        y_centred: (n_samples, n_outputs) float, the de-biased outputs (what
+            :attr:`noise_std` is estimated from, on first use).
     """
 
     u_bins: np.ndarray
@@ -121,7 +121,16 @@ class Datum:
     y_bias: np.ndarray
     u_max: np.ndarray
     periodicity: PeriodicityReport
-    noise_std: np.ndarray = field(repr=False)
+    y_centred: np.ndarray = field(repr=False)
+
+    @cached_property
+    def noise_std(self) -> np.ndarray:
+        """(n_bins, n_outputs) float, per-bin noise standard deviation of ``Y(n)``.
+
+        Estimated from the period-to-period variation (harmonic bins of the period; NaN at
+        the other bins and when the record has one period), on first use.
+        """
+        return noise_estimate(self.y_centred, self.period_samples, self.convention)
 
     @property
     def n_inputs(self) -> int:
@@ -345,7 +354,7 @@ def make_datum(
         y_bias=y_bias,
         u_max=column_max_abs(uc),
         periodicity=assess_periodicity(uc, yc, int(period_samples)),
-        noise_std=noise_estimate(yc, int(period_samples), conv),
+        y_centred=yc,
     )
 
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel, PlantResponse
-from twotank_validation.core.validate import solve_bins
+from twotank_validation.core.validate import lower_bins
 from twotank_validation.errors import DimensionError
 
 
@@ -128,13 +128,13 @@ def check_operating_point(
         )
     beyond = dead_band(dy, np.broadcast_to(np.asarray(allowance, dtype=float), dy.shape))
     scale = NormConvention(convention).dft_scale(n_samples) * n_samples  # bin 0 = c_N N mean
-    sol = solve_bins(
+    lower = lower_bins(
         dc_response(model, ts_s),
         (scale * du).astype(complex)[None, :],
         (scale * beyond).astype(complex)[None, :],
         method=method,
     )
-    return OperatingPointCheck(beta=float(sol.lower[0]), du=du, dy=dy, dy_beyond=beyond)
+    return OperatingPointCheck(beta=float(lower[0]), du=du, dy=dy, dy_beyond=beyond)
 
 
 def combined_beta(beta: float, beta_op: float) -> float:

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation.core.columns import row_norm
 from twotank_validation.core.model import BlockStructure, PlantResponse
 from twotank_validation.defaults import Method
 
@@ -298,7 +299,7 @@ def closed_form_bins(
                 feasible &= ~(~gain.has & (np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY)))
         else:
             feasible &= ~(np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY))
-    lower = np.where(feasible, np.linalg.norm(w, axis=1), np.inf)
+    lower = np.where(feasible, row_norm(w), np.inf)
     return lower, w, v, z
 
 

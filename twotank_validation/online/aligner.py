@@ -563,10 +563,12 @@ class SampleAligner:
         if top >= 0:
             self._held = tuple(seq_u[top].tolist())
             self._held_finite = bool(seq_finite[top])
+        rest = top + 1  # the commands not yet held stay queued
         self._commands = deque(
             (int(t), tuple(r), True) if k >= d else queued[k]
-            for k, (t, r) in enumerate(zip(seq_t.tolist(), seq_u.tolist(), strict=True))
-            if k > top
+            for k, (t, r) in enumerate(
+                zip(seq_t[rest:].tolist(), seq_u[rest:].tolist(), strict=True), start=rest
+            )
         )
         self.last_command_ns = int(cmd[-1])
         self.next_index = first + m
