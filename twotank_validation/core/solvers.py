@@ -217,7 +217,8 @@ class _OutputGains:
 
     See :func:`closed_form_bins`: the block ``b`` and noise entry ``k`` acting on it (``-1``:
     none), ``a = P21[:, i, b]``, ``|a|``, ``|a| > 0``, ``a`` with 1 where it is 0, and the
-    same of ``g = P22[:, i, k]``; ``all_noise``: ``|g| > 0`` at every bin.
+    same of ``g = P22[:, i, k]``; ``all_block``, ``all_noise``: ``|a| > 0``, ``|g| > 0`` at
+    every bin (then selecting where they vanish selects everything).
     """
 
     b: int
@@ -229,6 +230,7 @@ class _OutputGains:
     g: np.ndarray
     has: np.ndarray
     g_safe: np.ndarray
+    all_block: bool
     all_noise: bool
 
 
@@ -257,9 +259,28 @@ def _output_gains(resp: PlantResponse, structure: DecoupledStructure) -> tuple[_
             g = p22[:, i, k]
             has = np.abs(g) > 0
             g_safe = np.where(has, g, 1.0)
-        out.append(_OutputGains(b, k, a, abs_a, ok, a_safe, g, has, g_safe, bool(np.all(has))))
+        out.append(
+            _OutputGains(
+                b, k, a, abs_a, ok, a_safe, g, has, g_safe, bool(np.all(ok)), bool(np.all(has))
+            )
+        )
     resp.memo[key] = gains = tuple(out)
     return gains
+
+
+def _same_part(resp: PlantResponse, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether ``P13`` and ``P23`` (``a``, ``b``) hold the same bits, memoised on ``resp``.
+
+    Then their products with the same ``U`` are the same bits too (the same numbers through
+    the same loop: the two are views of ``p`` with the same strides).
+    """
+    key = "p13_is_p23"
+    if key not in resp.memo:
+        resp.memo[key] = (
+            a.shape == b.shape and a.strides == b.strides and a.tobytes() == b.tobytes()
+        )
+    same: bool = resp.memo[key]
+    return same
 
 
 def closed_form_bins(
@@ -267,20 +288,23 @@ def closed_form_bins(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The closed form of :func:`solve_closed_form` without the perturbations Delta.
 
-    What depends on the response alone (the gains and which of them vanish) is computed at
-    the first call and memoised on ``resp``.
+    What depends on the response alone (the gains, which of them vanish, and whether
+    ``P13 = P23`` bit for bit, as for output-multiplicative blocks, so that ``P13 U`` is
+    ``P23 U``) is computed at the first call and memoised on ``resp``.
 
     Returns:
         ``(lower, w, v, z)``: (n_bins,) float, (n_bins, nw), (n_bins, nv), (n_bins, nz)
         complex, as in :class:`BinSolutions`.
     """
     nb = u.shape[0]
-    z = _mv(resp.p13, u)  # P11 = P12 = 0
-    e = y - _mv(resp.p23, u)
+    gains = _output_gains(resp, structure)
+    p13 = resp.p13
+    z = _mv(p13, u)  # P11 = P12 = 0
+    e = y - (z if _same_part(resp, p13, resp.p23) else _mv(resp.p23, u))
     v = np.zeros((nb, resp.blocks.nv), dtype=complex)
     w = np.zeros((nb, resp.nw), dtype=complex)
     feasible = np.ones(nb, dtype=bool)
-    for i, gain in enumerate(_output_gains(resp, structure)):
+    for i, gain in enumerate(gains):
         b, k = gain.b, gain.k
         ei = e[:, i]
         mag_e = np.abs(ei)
@@ -288,13 +312,19 @@ def closed_form_bins(
             a = gain.a
             reach = gain.abs_a * np.abs(z[:, b])
             ratio = np.where(mag_e > reach, reach / np.maximum(mag_e, _TINY), 1.0)
-            vb = np.where(gain.ok, ei * ratio / gain.a_safe, 0.0)
+            vb = ei * ratio / gain.a_safe
+            if not gain.all_block:
+                vb = np.where(gain.ok, vb, 0.0)
             v[:, b] = vb
             rest = ei - a * vb
         else:
             rest = ei
         if k >= 0:
-            w[:, k] = np.where(gain.has, rest / gain.g_safe, 0.0)
+            w[:, k] = (
+                rest / gain.g_safe
+                if gain.all_noise
+                else np.where(gain.has, rest / gain.g_safe, 0.0)
+            )
             if not gain.all_noise:
                 feasible &= ~(~gain.has & (np.abs(rest) > _CONSISTENCY_RTOL * (mag_e + _TINY)))
         else:
