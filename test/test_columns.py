@@ -32,6 +32,11 @@ def test_column_reductions_are_numpys_bit_for_bit(x) -> None:
         assert columns.column_sum(x).tobytes() == np.sum(x, axis=0).tobytes()
         assert columns.column_mean(x).tobytes() == np.mean(x, axis=0).tobytes()
         assert columns.column_max_abs(x).tobytes() == np.max(np.abs(x), axis=0).tobytes()
+        row = np.mean(x, axis=0)
+        got = columns.centred(x, row)
+        assert got.shape == x.shape
+        assert got.tobytes() == (x - row).tobytes()
+        assert columns.centred(x, -row).tobytes() == (x - (-row)).tobytes()
 
 
 @pytest.mark.parametrize(("p", "k"), [(2, 2), (3, 2), (4, 4), (2, 3), (1, 2)])

@@ -11,6 +11,8 @@ columns. The functions here give the same numbers in fewer calls:
   changes only a sum of -0s; ``x.mean(axis=0)`` is that sum over ``n``);
 * maxima of absolute values: a maximum does not depend on the order (the values are never
   ``-0``, and a NaN wins either way), so it is taken on the transposed copy;
+* a row subtracted from every row (``x - mean``): the same IEEE subtractions, one complex
+  number per pair of columns, in one call;
 * Euclidean norms of rows of one or two entries: their squares summed in one call.
 
 Anything else (an odd number of columns, another dtype, no rows) goes to numpy itself.
@@ -66,6 +68,24 @@ def column_mean(x: np.ndarray) -> np.ndarray:
         return np.mean(x, axis=0)
     out: np.ndarray = column_sum(x) / x.shape[0]
     return out
+
+
+def centred(x: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """``x - mean`` of a record and a row, bit for bit.
+
+    Args:
+        x: (n, k) float.
+        mean: (k,) float.
+
+    Returns:
+        (n, k) float, a new array.
+    """
+    mean = np.asarray(mean)
+    if x.ndim != 2 or not _pairs(x) or mean.shape != x.shape[1:] or mean.dtype != np.float64:
+        out: np.ndarray = x - mean
+        return out
+    c = np.ascontiguousarray(x).view(np.complex128)  # (n, k/2)
+    return (c - np.ascontiguousarray(mean).view(np.complex128)).view(np.float64)
 
 
 def period_mean(x: np.ndarray) -> np.ndarray:

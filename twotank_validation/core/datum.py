@@ -25,7 +25,7 @@ from functools import cached_property
 
 import numpy as np
 
-from twotank_validation.core.columns import column_max_abs, column_mean, period_mean
+from twotank_validation.core.columns import centred, column_max_abs, column_mean, period_mean
 from twotank_validation.errors import DatumError, DimensionError
 
 _INPUT_PERIODIC_RTOL = 1e-6
@@ -336,8 +336,8 @@ def make_datum(
     u2, y2 = check_record(u, y, period_samples)
     u_bias = column_mean(u2)
     y_bias = column_mean(y2)
-    uc = u2 - u_bias
-    yc = y2 - y_bias
+    uc = centred(u2, u_bias)
+    yc = centred(y2, y_bias)
     n = u2.shape[0]
     theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
     return Datum(

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from twotank_validation.core import fast
-from twotank_validation.core.columns import column_max_abs, column_mean
+from twotank_validation.core.columns import centred, column_max_abs, column_mean
 from twotank_validation.core.datum import NormConvention, make_datum
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
@@ -471,7 +471,7 @@ class WindowMonitor:
                 f"settling: {cfg.settle_periods} period(s) of periodic input are needed before "
                 f"the window ({self._count // L - cfg.periods_per_window} so far)"
             )
-        rms = np.sqrt(column_mean((u - column_mean(u)) ** 2))
+        rms = np.sqrt(column_mean(centred(u, column_mean(u)) ** 2))
         change = column_max_abs(u[L:] - u[:-L]) if span > L else np.zeros(self.n_inputs)
         if np.any(change > cfg.input_periodic_rtol * np.maximum(rms, 1e-12)):
             j = int(np.argmax(change / np.maximum(rms, 1e-12)))
@@ -480,7 +480,7 @@ class WindowMonitor:
                 "the next (excitation started or changed; waiting for the plant to settle)"
             )
         win_u = u[-cfg.window_samples :]
-        win_rms = np.sqrt(column_mean((win_u - column_mean(win_u)) ** 2))
+        win_rms = np.sqrt(column_mean(centred(win_u, column_mean(win_u)) ** 2))
         if float(np.max(win_rms)) < cfg.min_excitation_rms:
             return (
                 f"too little excitation: input RMS {np.array2string(win_rms, precision=4)} below "
