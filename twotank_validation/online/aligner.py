@@ -497,7 +497,10 @@ class SampleAligner:
         t0, ts, tol, first = self.t0_ns, self.ts_ns, self.tol_ns, self.next_index
         assert t0 is not None
         rows = np.arange(m)
-        ok = (np.sort(kk, axis=1) == np.arange(-1, ny)).all(axis=1)
+        # one event of each kind per group (group events, ny + 1 kinds: each present once)
+        ok = _rows_any(kk == COMMAND)
+        for kind in range(ny):
+            ok &= _rows_any(kk == kind)
         cmd_pos = np.argmin(kk, axis=1)
         grid = t0 + (first + rows) * ts  # t of each group
         is_meas = kk != COMMAND
@@ -506,10 +509,10 @@ class SampleAligner:
         dev = offset - (first + rows)[:, None] * ts
         meas_ok = (index == (first + rows)[:, None]) & (np.abs(dev) <= tol)
         meas_ok &= np.abs(vv[:, :, 0]) <= self.max_abs  # False for NaN and inf too
-        ok &= (meas_ok | ~is_meas).all(axis=1)
+        ok &= _rows_all(meas_ok | ~is_meas)
         cmd = ss[rows, cmd_pos]
         cmd_u = vv[rows, cmd_pos, :nu]
-        ok &= (np.abs(cmd_u) <= self.max_abs).all(axis=1)
+        ok &= _rows_all(np.abs(cmd_u) <= self.max_abs)
         last = self.last_command_ns
         prev = np.empty(m, dtype=np.int64)
         prev[1:] = cmd[:-1]
@@ -574,3 +577,22 @@ class SampleAligner:
         self.next_index = first + m
         self._newest = first + m - 1
         return SampleBlock(first, grid.astype(np.int64), u, y, flags)
+
+
+def _rows_all(x: np.ndarray) -> np.ndarray:
+    """``x.all(axis=1)`` of a tall (m, k) bool array, column by column.
+
+    One call per column instead of one per row.
+    """
+    out = x[:, 0].copy()
+    for c in range(1, x.shape[1]):
+        out &= x[:, c]
+    return out
+
+
+def _rows_any(x: np.ndarray) -> np.ndarray:
+    """``x.any(axis=1)`` of a tall (m, k) bool array, column by column."""
+    out = x[:, 0].copy()
+    for c in range(1, x.shape[1]):
+        out |= x[:, c]
+    return out
