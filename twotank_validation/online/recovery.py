@@ -93,10 +93,16 @@ def missing_mask(
     return bad
 
 
-def _held_commands(u: np.ndarray, bad: np.ndarray, period: int, rtol: float) -> np.ndarray:
+def _held_commands(u: np.ndarray, bad_u: np.ndarray, period: int, rtol: float) -> np.ndarray:
     """Commands held from the previous sample where the other periods agree on another value.
 
     That is how a lost command message shows in the record (the valve holds its command).
+
+    Args:
+        u: (n, nu) float, commands.
+        bad_u: (n, nu) bool, unusable commands.
+        period: samples per period.
+        rtol: tolerance of "the commands agree", relative to each command's RMS.
 
     Returns:
         (n, nu) bool.
@@ -106,7 +112,7 @@ def _held_commands(u: np.ndarray, bad: np.ndarray, period: int, rtol: float) -> 
     q = n // period
     if q < 2 or n % period:
         return held
-    ok = ~bad[:, :nu]
+    ok = ~bad_u
     same_as_before = np.zeros((n, nu), dtype=bool)
     same_as_before[1:] = (u[1:] == u[:-1]) & ok[1:] & ok[:-1]
     for j in range(nu):
@@ -160,19 +166,22 @@ def recover_span(
         The span with the samples filled in, the counts, and the reason if it cannot be.
     """
     n, nu = u.shape
+    n_signals = nu + y.shape[1]
     flagged = flags.count(None) != len(flags)
+    if max_fraction <= 0.0:
+        reason = "unusable samples (recovery off)" if flagged else None
+        return Recovery(u, y, np.zeros(n_signals, int), reason)
     if flagged:
         bad = missing_mask(u, y, flags, output_names)
-    else:
-        bad = np.zeros((n, nu + y.shape[1]), dtype=bool)
-    if max_fraction <= 0.0:
-        reason = None
-        if flagged or bad.any():
-            reason = "unusable samples (recovery off)"
-        return Recovery(u, y, np.zeros(bad.shape[1], int), reason)
-    bad[:, :nu] |= _held_commands(u, bad, period, rtol)
+        bad[:, :nu] |= _held_commands(u, bad[:, :nu], period, rtol)
+    else:  # nothing flagged: only held commands can be unusable
+        held = _held_commands(u, np.zeros((n, nu), dtype=bool), period, rtol)
+        if not held.any():
+            return Recovery(u, y, np.zeros(n_signals, int), None)
+        bad = np.zeros((n, n_signals), dtype=bool)
+        bad[:, :nu] = held
     if not bad.any():
-        return Recovery(u, y, np.zeros(bad.shape[1], int), None)
+        return Recovery(u, y, np.zeros(n_signals, int), None)
     in_window = np.arange(n) >= n - window
     # outputs matter only in the window (the settling periods' are not used); commands are
     # recovered in the whole span (the periodicity gate reads it), exactly, and count
