@@ -559,6 +559,8 @@ class Harness:
                 and self.pub_flag.get_subscription_count() >= 1
                 and self.pub_text.get_subscription_count() >= 1
                 and self.modes == ["normal"]
+                and len(self.states) >= 1  # the initial state, latched (a loaded machine
+                # may match the subscription after the first spin)
             )
         )
         self.t = 0.0
