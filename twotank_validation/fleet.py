@@ -329,7 +329,18 @@ def local_cluster(workers: int = 0, env: Mapping[str, str] | None = None) -> Any
     import dask  # noqa: PLC0415
     from distributed import LocalCluster  # noqa: PLC0415
 
-    with dask.config.set({"distributed.worker.profile.enabled": False}):  # given to workers
+    quiet = {  # given to the workers too
+        "distributed.worker.profile.enabled": False,
+        # the housekeeping loops of every process, at rates a dashboard would want: each
+        # wakes its process (and the GIL) while a replay runs on the worker's one thread
+        "distributed.admin.system-monitor.interval": "2s",
+        "distributed.admin.tick.interval": "200ms",
+        "distributed.worker.memory.monitor-interval": "1s",
+        # tasks of one kind, one per recording: nothing to rebalance
+        "distributed.scheduler.work-stealing": False,
+        "distributed.scheduler.active-memory-manager.start": False,
+    }
+    with dask.config.set(quiet):
         return LocalCluster(
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
