@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import contextlib
 from collections import Counter
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path, PurePath
 from types import TracebackType
 from typing import Any, Final, Self
@@ -694,15 +694,29 @@ class BagReader:
     def _field_stream(
         self, wanted: dict[str, str], fields: Mapping[str, Sequence[str]], size: int
     ) -> Iterator[FieldBatch]:
+        return self._decoded(self._raw_batches(wanted, size), _decode_fields, wanted, fields)
+
+    def _decoded(
+        self,
+        batches: Iterator[Any],
+        decode: Callable[..., tuple[FieldBatch, Exception | None]],
+        wanted: dict[str, str],
+        fields: Mapping[str, Sequence[str]],
+    ) -> Iterator[FieldBatch]:
+        """Undecoded batches (rows or columns) decoded into field batches.
+
+        An undecodable message ends the stream with :class:`BagCorruptError`, after the
+        messages before it.
+        """
         names = tuple(dict.fromkeys(wanted.values()))
         index = {bag: names.index(name) for bag, name in wanted.items()}
         spec = {bag: tuple(fields.get(name, ())) for bag, name in wanted.items()}
         width = max((len(v) for v in spec.values()), default=0)
         read = 0
         last: int | None = None
-        for batch in self._raw_batches(wanted, size):
+        for batch in batches:
             self._check_open()
-            out, failure = _decode_fields(batch, index, spec, width, names)
+            out, failure = decode(batch, index, spec, width, names)
             if len(out):
                 yield out
                 read += len(out)
@@ -783,18 +797,4 @@ class BagReader:
     def _column_stream(
         self, wanted: dict[str, str], fields: Mapping[str, Sequence[str]], size: int
     ) -> Iterator[FieldBatch]:
-        names = tuple(dict.fromkeys(wanted.values()))
-        index = {bag: names.index(name) for bag, name in wanted.items()}
-        spec = {bag: tuple(fields.get(name, ())) for bag, name in wanted.items()}
-        width = max((len(v) for v in spec.values()), default=0)
-        read = 0
-        last: int | None = None
-        for cols in self._column_batches(wanted, size):
-            self._check_open()
-            out, failure = _decode_columns(cols, index, spec, width, names)
-            if len(out):
-                yield out
-                read += len(out)
-                last = int(out.log_time_ns[-1])
-            if failure is not None:
-                raise self._undecodable(failure, read, last) from failure
+        return self._decoded(self._column_batches(wanted, size), _decode_columns, wanted, fields)

@@ -24,6 +24,7 @@ from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.validate import check_compatible, solve_bins, total_beta
+from twotank_validation.diagnose.fit import excited_bins
 from twotank_validation.errors import DatumError
 
 S_MAX = 1e6
@@ -195,14 +196,7 @@ def active_bins(problem: WindowProblem, block: Block, floor: float) -> np.ndarra
     d = problem.datum
     if block.is_noise or problem.response.coupled:
         return np.arange(d.theta.size)
-    n_per = d.n_samples // d.period_samples
-    n = np.arange(d.theta.size)
-    harmonic = (n % n_per == 0) & (n > 0) & (n < d.n_samples // 2)
-    power = np.sum(np.abs(d.u_bins) ** 2, axis=1)
-    top = float(np.max(power[harmonic], initial=0.0))
-    if top <= 0.0:
-        return np.zeros(0, dtype=int)
-    return np.flatnonzero(harmonic & (power >= floor * top))
+    return excited_bins(d, floor)
 
 
 @dataclass(frozen=True)
