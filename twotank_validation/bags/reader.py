@@ -661,17 +661,24 @@ class BagReader:
             if close is not None:
                 with contextlib.suppress(Exception):  # the stream is being abandoned
                     close()
-        if backend.indexed:
-            short = {t: (per_topic[t], backend.counts.get(t, 0)) for t in wanted}
-            short = {t: v for t, v in short.items() if v[0] < v[1]}
-            if short:
-                detail = ", ".join(f"{t}: {got} of {want}" for t, (got, want) in short.items())
-                raise self._corrupt(
-                    f"fewer messages could be read than its index lists ({detail})",
-                    read,
-                    last,
-                    None,
-                )
+        self._check_index_counts(wanted, per_topic, read, last)
+
+    def _check_index_counts(
+        self, wanted: Mapping[str, str], per_topic: Counter[str], read: int, last: int | None
+    ) -> None:
+        """Raise :class:`BagCorruptError` where an indexed bag gave fewer messages than listed.
+
+        Raised after the messages read; a bag without an index is not checked.
+        """
+        if not self._backend.indexed:
+            return
+        short = {t: (per_topic[t], self._backend.counts.get(t, 0)) for t in wanted}
+        short = {t: v for t, v in short.items() if v[0] < v[1]}
+        if short:
+            detail = ", ".join(f"{t}: {got} of {want}" for t, (got, want) in short.items())
+            raise self._corrupt(
+                f"fewer messages could be read than its index lists ({detail})", read, last, None
+            )
 
     def _stream(self, wanted: dict[str, str]) -> Iterator[BagMessage]:
         read = 0
@@ -782,17 +789,7 @@ class BagReader:
             if close is not None:
                 with contextlib.suppress(Exception):  # the stream is being abandoned
                     close()
-        if backend.indexed:
-            short = {t: (per_topic[t], backend.counts.get(t, 0)) for t in wanted}
-            short = {t: v for t, v in short.items() if v[0] < v[1]}
-            if short:
-                detail = ", ".join(f"{t}: {got} of {want}" for t, (got, want) in short.items())
-                raise self._corrupt(
-                    f"fewer messages could be read than its index lists ({detail})",
-                    read,
-                    last,
-                    None,
-                )
+        self._check_index_counts(wanted, per_topic, read, last)
 
     def _column_stream(
         self, wanted: dict[str, str], fields: Mapping[str, Sequence[str]], size: int
