@@ -1,10 +1,10 @@
 """Replay a one-hour 10 Hz bag (the three interface topics) for Models A and B.
 
 Usage: scripts/run bench bench_replay.py [--hours 1.0] [--storage mcap] [--repeats 5]
-       [--baseline-repeats 3] [--map-repeats 3] [--keep DIR]
+       [--baseline-repeats 3] [--keep DIR]
 
 Writes the nominal scenario for the given duration into a temporary rosbag2 bag, then times
-`replay_bag` (the same reader, extractors and OnlineValidator as `twotank-validation validate`)
+`replay_bag` (the same reader, interface map and OnlineValidator as `twotank-validation validate`)
 and prints the throughput as a multiple of real time (bag seconds per wall second), decoding
 included, and its ratio to the goal (30,000x real time). It prints the split of the wall time
 between reading (the undecoded messages as arrays: chunks decompressed, records found),
@@ -14,10 +14,8 @@ building the validator, reports). In the same run it times the two earlier paths
 bag and checks that each gives the same reports: the reader's row-by-row path (messages read
 one by one through rosbags, then packed into batches and decoded in bulk where the layout
 repeats: `field_batches(columnar=False)`), and the per-message path (reader.messages ->
-rosbags deserialiser -> extractors -> OnlineValidator.feed, one message at a time); and the
-replay through the shipped interface map (the fields it names decoded in bulk, the values
-fed to the validator one by one: the path of a map of a rig's own Header + float64 types).
-Medians over the repeats.
+rosbags deserialiser -> the fields read directly -> OnlineValidator.feed, one message at a
+time). Medians over the repeats.
 """
 
 from __future__ import annotations
@@ -30,11 +28,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from tools.records import two_tank_value
 from twotank_validation import bags, replay
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.online import STREAMS, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
-from twotank_validation.online.interface import default_interface_map
 from twotank_validation.sim import scenario as sc
 
 GOAL = 30_000.0  # times real time (issue 19)
@@ -47,7 +45,7 @@ def per_message(path: Path, models: list[LFTModel]) -> list[WindowReport]:
     reports: list[WindowReport] = []
     with bags.open_bag(path) as bag:
         for m in bag.messages(list(STREAMS)):
-            value = replay.extractor(m.topic, cfg.units)(m.msg)
+            value = two_tank_value(m.topic, m.msg, itf.RigUnits())
             reports += core.feed(m.topic, itf.stamp_ns(m.msg), value)
     return reports
 
@@ -71,7 +69,11 @@ def read_and_decode(path: Path) -> tuple[float, float]:
         read = time.perf_counter() - t0
     with bags.open_bag(path) as bag:
         t0 = time.perf_counter()
-        for _ in bag.field_batches(topics, itf.STREAM_FIELDS, size=replay._BATCH):
+        fields = {
+            t: tuple(b.source.field for b in ts.bindings)
+            for t, ts in itf.two_tank_map().topics().items()
+        }
+        for _ in bag.field_batches(topics, fields, size=replay._BATCH):
             pass
         both = time.perf_counter() - t0
     return read, both
@@ -92,12 +94,6 @@ def main() -> None:
     parser.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline-repeats", type=int, default=3, help="0 skips the baseline")
-    parser.add_argument(
-        "--map-repeats",
-        type=int,
-        default=3,
-        help="runs through the shipped interface map (0: skip)",
-    )
     parser.add_argument("--keep", help="write the bag here instead of a temporary folder")
     args = parser.parse_args()
 
@@ -176,21 +172,6 @@ def main() -> None:
                 f"per-message path, same bag: median {base:.2f} s = "
                 f"{duration / base:,.0f}x real time; speed-up {base / wall:.1f}x; "
                 f"same reports: {same(res.reports, reports)}"
-            )
-        if args.map_repeats > 0:
-            cfg = replay.ReplayConfig(interface=default_interface_map())
-            map_walls = []
-            mapped = res
-            for _ in range(args.map_repeats):
-                t0 = time.perf_counter()
-                mapped = replay.replay_bag(out, models, cfg)
-                map_walls.append(time.perf_counter() - t0)
-            mwall = statistics.median(map_walls)
-            print(
-                f"through the shipped interface map (its fields decoded in bulk, fed value by "
-                f"value), same bag: median {mwall:.2f} s = {duration / mwall:,.0f}x real "
-                f"time; {mwall / wall:.1f}x the batched path's time; "
-                f"same reports: {same(res.reports, mapped.reports)}"
             )
 
 

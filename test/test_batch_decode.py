@@ -35,7 +35,6 @@ from twotank_validation.online import MonitorConfig
 from twotank_validation.online import streams as itf
 from twotank_validation.online.interface import (
     InterfaceMap,
-    default_interface_map,
     interface_map_from_text,
 )
 from twotank_validation.sim import scenario as sc
@@ -54,7 +53,12 @@ TYPES = {
     mb.TEMPERATURE_TYPE: ("temperature", "variance"),
 }
 TOPICS = list(mb.TOPIC_TYPES)
-FIELDS = {t: itf.STREAM_FIELDS[t] for t in TOPICS}
+FIELDS = {
+    "flow_cmd": ("hot", "cold"),
+    "height": ("fluid_pressure",),
+    "temperature": ("temperature",),
+}
+"""The float fields the two-tank preset map reads from each of the rig's topics."""
 
 
 def message(msgtype: str, sec: int, nanosec: int, a: float, b: float, frame: str) -> Any:
@@ -466,11 +470,11 @@ def replay_both(path: Path, imap: InterfaceMap) -> tuple[replay.ReplayResult, re
     cfg = replay.ReplayConfig(monitor=FAST, interface=imap)
     models = [load_model("A"), load_model("B")]
     bulk = replay.replay_bag(path, models, cfg)
-    replay._COLUMNAR = False
+    replay._BULK = False
     try:
         per_message = replay.replay_bag(path, models, cfg)
     finally:
-        replay._COLUMNAR = True
+        replay._BULK = True
     return bulk, per_message
 
 
@@ -533,7 +537,7 @@ def test_replay_through_a_map_in_bulk_equals_the_per_message_mapped_replay(
     """Sources on plain float64 fields of the interface types are read in bulk: the same
     reports, counters, problems and message count as reading them message by message."""
     texts = MAPS[name]
-    imap = default_interface_map() if texts is None else interface_map_from_text(*texts)
+    imap = itf.two_tank_map() if texts is None else interface_map_from_text(*texts)
     path = mapped_bag(tmp_path / "bag", cut)
     with bags.open_bag(path) as bag:
         assert bag.float_fields("height") == ("fluid_pressure", "variance")

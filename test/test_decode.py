@@ -22,11 +22,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from report_checks import assert_same_reports
 
+from tools.records import two_tank_value
 from twotank_validation import bags, replay
 from twotank_validation.bags import decode
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online import streams as itf
+from twotank_validation.online.interface import convert
 from twotank_validation.sim import scenario as sc
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))
@@ -40,6 +42,10 @@ TYPES = {
 }
 STORE = mb.typestore()
 NS = 1_000_000_000
+PRESET_FIELDS = {
+    t: tuple(b.source.field for b in ts.bindings) for t, ts in itf.two_tank_map().topics().items()
+}
+"""The float fields the two-tank preset map reads from each of the rig's topics."""
 
 
 def message(msgtype: str, sec: int, nanosec: int, a: float, b: float, frame: str = "rig"):
@@ -203,8 +209,9 @@ def test_vectorised_unit_conversion_equals_the_scalar_extractors() -> None:
     rng = np.random.default_rng(0)
     units = itf.RigUnits(9806.65, 15.0, 50.0)
     x = np.concatenate([rng.normal(size=500) * 1e4, [math.nan, math.inf, -0.0, 5e-324]])
-    levels = itf.stream_values("height", x[:, None], units)[:, 0]
-    temps = itf.stream_values("temperature", x[:, None], units)[:, 0]
+    height, temperature = itf.two_tank_map(units).outputs
+    levels = convert(x, height)
+    temps = convert(x, temperature)
     for v, lvl, tmp in zip(x.tolist(), levels.tolist(), temps.tolist(), strict=True):
         assert struct.pack("<d", lvl) == struct.pack("<d", units.level_from_pressure(v))
         assert struct.pack("<d", tmp) == struct.pack("<d", units.temperature_from_celsius(v))
@@ -300,7 +307,7 @@ def test_field_batches_equal_messages_on_odd_messages(tmp_path, storage) -> None
     for size in (3, 64):
         assert assert_same_stream(path, size=size) == 120
     with bags.open_bag(path) as bag:
-        fields = {t: itf.STREAM_FIELDS[t] for t in mb.TOPIC_TYPES}
+        fields = {t: PRESET_FIELDS[t] for t in mb.TOPIC_TYPES}
         decoded = sum(b.bulk_decoded for b in bag.field_batches(list(fields), fields))
     assert decoded == 120  # every frame_id and both byte orders in bulk
 
@@ -331,11 +338,11 @@ def replay_per_message(path, cfg: replay.ReplayConfig):
     """The replay loop before batching: one decoded message, one extractor, one feed."""
     core = OnlineValidator(cfg.monitor, models(), jitter_fraction=cfg.jitter_fraction)
     reports, problems, n, windows = [], [], 0, []
-    stream_of = {cfg.topics[s]: s for s in ("flow_cmd", "height", "temperature")}
+    stream_of = {t: t for t in itf.STREAMS}
     try:
         with bags.open_bag(path) as bag:
             for m in bag.messages(list(stream_of)):
-                value = replay.extractor(stream_of[m.topic], cfg.units)(m.msg)
+                value = two_tank_value(stream_of[m.topic], m.msg, itf.RigUnits())
                 n += 1
                 new = core.feed(stream_of[m.topic], itf.stamp_ns(m.msg), value)
                 for rep in new:

@@ -69,7 +69,7 @@ def test_malformed_values_are_clear_errors_and_the_validator_goes_on():
         core.feed("height", 0, "0.47 m")
     with pytest.raises(DatumError, match="2 values"):
         core.feed("flow_cmd", 0, (1.0, 2.0, 3.0))
-    with pytest.raises(DatumError, match="unknown stream"):
+    with pytest.raises(DatumError, match="unknown topic 'pressure'"):
         core.feed("pressure", 0, 1.0)
     _clean(core, 0, 80)  # the first 64 per output fix the grid's phase, then all come out
     assert core.samples_seen >= 78

@@ -3,7 +3,7 @@
 Messages are built with rosbags' ROS 2 Humble type store (plus FlowCommand from the
 repository's ``msg/FlowCommand.msg`` and a nested custom type from ``.msg`` text) and with
 rclpy's message classes (imported in the tests only). Values are checked against the fields
-set on the messages and against ``streams.stream_values`` (today's conversions), bit for bit.
+set on the messages and against :class:`RigUnits`' own conversions, bit for bit.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ from twotank_validation.online.interface import (
     Source,
     check_message,
     convert,
-    default_interface_map,
     extract,
     interface_map_from_text,
     load_interface_map,
@@ -47,8 +46,8 @@ from twotank_validation.online.streams import (
     HEIGHT,
     TEMPERATURE,
     RigUnits,
-    stream_values,
 )
+from twotank_validation.online.streams import two_tank_map as default_interface_map
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "interface.md"
@@ -68,7 +67,7 @@ RIG_DOC: dict[str, Any] = {
          "stamp": "receive"},
     ],
     "outputs": [
-        {"name": "level", "topic": "/tank/gauge", "type": "sensor_msgs/msg/JointState",
+        {"name": "height", "topic": "/tank/gauge", "type": "sensor_msgs/msg/JointState",
          "field": "position[0]", "offset": 12.0, "scale": 1000.0},
         {"name": "temperature", "topic": "/tank/state",
          "type": "std_msgs/msg/Float64MultiArray", "field": "data[1]", "offset": 15.0,
@@ -261,9 +260,10 @@ def test_default_map_gives_stream_values_bit_for_bit(store: Typestore, units: Ri
     assert (cold.topic, cold.field, height.topic, temperature.topic) == (
         FLOW_CMD, "cold", HEIGHT, TEMPERATURE,
     )  # fmt: skip
-    want_h = stream_values(HEIGHT, pa[:, None], units)[:, 0]
-    want_t = stream_values(TEMPERATURE, c[:, None], units)[:, 0]
-    want_u = stream_values(FLOW_CMD, cmd, units)
+    # the reference: RigUnits' own conversions, element by element
+    want_h = np.array([units.level_from_pressure(float(p)) for p in pa])
+    want_t = np.array([units.temperature_from_celsius(float(x)) for x in c])
+    want_u = cmd.copy()
     # scalar path, through real messages
     got_h = np.array([extract(_fluid(store, p), height) for p in pa])
     got_t = np.array([extract(_temp(store, x), temperature) for x in c])
@@ -305,7 +305,7 @@ def _write(tmp_path: Path, doc: Any) -> Path:
 def test_rig_example_loads(tmp_path: Path) -> None:
     imap = load_interface_map(_write(tmp_path, RIG_DOC))
     assert imap.input_names == ("hot", "cold")
-    assert imap.output_names == ("level", "temperature")
+    assert imap.output_names == ("height", "temperature")
     level = imap.outputs[0]
     assert (level.path, level.offset, level.scale, level.stamp) == (
         ("position", 0), 12.0, 1000.0, "header",
@@ -449,7 +449,7 @@ RIG_TEXT = (
         "cold=/valves/cold:std_msgs/msg/Float64:data,stamp=receive",
     ],
     [
-        "level=/tank/gauge:sensor_msgs/msg/JointState:position[0],scale=1000.0,offset=12.0",
+        "height=/tank/gauge:sensor_msgs/msg/JointState:position[0],scale=1000.0,offset=12.0",
         "temperature=/tank/state:std_msgs/msg/Float64MultiArray:data[1],scale=50.0,offset=15.0,"
         "stamp=receive",
     ],

@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from tools.records import record_events
+from tools.records import record_events, two_tank_value
 from twotank_validation import replay
 from twotank_validation.bags import open_bag, write_scenario_bag
 from twotank_validation.core.model import load_model, load_model_document
@@ -162,7 +162,7 @@ def test_replay_equals_the_event_fed_run_bit_for_bit(tmp_path) -> None:
     with open_bag(bag) as reader:
         for m in reader.messages(list(STREAMS)):
             stream = m.topic.lstrip("/")
-            value = replay.extractor(stream, RigUnits())(m.msg)
+            value = two_tank_value(stream, m.msg, RigUnits())
             fed += v.feed(stream, stamp_ns(m.msg), value)
     assert len(res.reports) == len(fed)
     for a, b in zip(res.reports, fed, strict=True):

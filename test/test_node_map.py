@@ -37,7 +37,7 @@ INPUTS = [
     "cold=/valves/cold:std_msgs/msg/Float64:data,stamp=receive",
 ]
 OUTPUTS = [
-    "level=/tank/joints:sensor_msgs/msg/JointState:position[0],scale=9806.65",
+    "height=/tank/joints:sensor_msgs/msg/JointState:position[0],scale=9806.65",
     "temperature=/tank/state:std_msgs/msg/Float64MultiArray:data[1],offset=15,scale=50,"
     "stamp=receive",
 ]
@@ -146,7 +146,7 @@ def test_a_temperature_at_half_rate_is_judged_at_the_rate_it_supports() -> None:
     """Valves and level every 0.8 s, temperature every 1.6 s: ts_s 1.6 with oversampling."""
     stamps, u, y = streamfuzz.clean_record(4, 0)
     slow = {"ts_s": 1.6, "period_samples": 128, "hop_samples": 128}
-    h = MapHarness(**slow, oversampling=["flow_cmd=2", "height=2"])
+    h = MapHarness(**slow, oversampling=["/valves/hot=2", "/valves/cold=2", "/tank/joints=2"])
     try:
         for k in range(len(stamps)):
             h.send(int(stamps[k]), u[k], y[k], temperature=k % 2 == 0)
@@ -207,8 +207,8 @@ def test_a_topic_that_does_not_fit_the_map_is_refused_with_the_reason() -> None:
             "cannot import the message type rig_msgs/msg/Valve",
         ),
         ({"inputs": ["hot=/valves/hot"]}, "cannot start the validator"),
-        ({"inputs": INPUTS[:1]}, "the interface map has 1 input"),
-        ({"oversampling": ["temp=2"]}, "oversampling entry 'temp=2'"),
+        ({"inputs": INPUTS[:1]}, "names input 'cold', which the interface map given as text"),
+        ({"oversampling": ["temp=2"]}, r"oversampling names \['temp'\], which the interface map"),
     ],
 )
 def test_bad_map_parameters_stop_the_node_with_a_clear_message(params, match) -> None:

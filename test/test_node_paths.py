@@ -98,9 +98,11 @@ def test_node_history_is_bounded_and_listeners_get_every_report() -> None:
             f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
             h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
             t.temperature = units.celsius_from_temperature(float(y[k, 1]))
-            node._on_flow(f)  # the subscription callbacks, as the executor calls them
-            node._on_height(h)
-            node._on_temperature(t)
+            node._on_message(
+                "flow_cmd", f
+            )  # the subscription callbacks, as the executor calls them
+            node._on_message("height", h)
+            node._on_message("temperature", t)
         assert node.wait_idle()
         cfg = MonitorConfig(ts_s=0.8, period_samples=256)
         y_rx = np.column_stack(  # what the node gets back from the messages' units

@@ -66,9 +66,11 @@ def test_diagnostics_and_report_carry_the_warnings() -> None:
             f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
             h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
             t.temperature = units.celsius_from_temperature(float(y[k, 1]))
-            node._on_flow(f)  # the subscription callbacks, as the executor calls them
-            node._on_height(h)
-            node._on_temperature(t)
+            node._on_message(
+                "flow_cmd", f
+            )  # the subscription callbacks, as the executor calls them
+            node._on_message("height", h)
+            node._on_message("temperature", t)
             assert node.wait_idle()
             if len(pairs) > seen:
                 assert len(pairs) == seen + 1  # one model, one report per window

@@ -37,7 +37,7 @@ MAP_SPLIT = (
         "cold=/valves/cold:std_msgs/msg/Float64:data,stamp=receive",
     ],
     [
-        "level=/tank/joints:sensor_msgs/msg/JointState:position[0],scale=9806.65",
+        "height=/tank/joints:sensor_msgs/msg/JointState:position[0],scale=9806.65",
         "temperature=/tank/state:std_msgs/msg/Float64MultiArray:data[1],offset=15,scale=50,"
         "stamp=receive",
     ],
@@ -48,7 +48,7 @@ MAP_CUSTOM = (
         "cold=/cmd:rig_msgs/msg/ValveCmd:cold",
     ],
     [
-        "level=height:sensor_msgs/msg/FluidPressure:fluid_pressure,scale=9806.65",
+        "height=height:sensor_msgs/msg/FluidPressure:fluid_pressure,scale=9806.65",
         "temperature=temperature:sensor_msgs/msg/Temperature:temperature,offset=15,scale=50",
     ],
 )
@@ -194,7 +194,7 @@ def test_a_map_that_does_not_fit_names_topic_type_and_fields(bags, capsys) -> No
     wrong_field = (
         MAP_SPLIT[0],
         [
-            "level=/tank/joints:sensor_msgs/msg/JointState:pressure",
+            "height=/tank/joints:sensor_msgs/msg/JointState:pressure",
             MAP_SPLIT[1][1],
         ],
     )
@@ -227,7 +227,8 @@ def test_a_map_that_does_not_fit_names_topic_type_and_fields(bags, capsys) -> No
     code = cli.main(args)
     err = capsys.readouterr().err
     assert code == cli.EXIT_INCOMPLETE
-    assert "'/tank/nothing' of the interface map is not in the bag" in err
+    assert "'/tank/nothing' of the interface map given as text (--input/--output" in err
+    assert "is not in the bag" in err
     assert "/tank/joints (sensor_msgs/msg/JointState)" in err  # what the bag holds
 
 

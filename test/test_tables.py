@@ -54,7 +54,7 @@ DOC = Path(__file__).resolve().parent.parent / "docs" / "interface.md"
 BAG_UNITS_MAP = {
     "inputs": [{"name": "hot", "column": "hot"}, {"name": "cold", "column": "cold"}],
     "outputs": [
-        {"name": "level", "column": "pressure_pa", "scale": UNITS.pascal_per_unit},
+        {"name": "height", "column": "pressure_pa", "scale": UNITS.pascal_per_unit},
         {"name": "temperature", "column": "temp_c", "offset": 15.0, "scale": 50.0},
     ],
     "time": {"column": "t", "unit": "s"},
@@ -65,7 +65,7 @@ OTHER_UNITS_MAP = {
         {"name": "cold", "column": "valve_cold_pct", "scale": 100.0},
     ],
     "outputs": [
-        {"name": "level", "column": "level_mm", "offset": 12.0, "scale": 1000.0},
+        {"name": "height", "column": "level_mm", "offset": 12.0, "scale": 1000.0},
         {"name": "temperature", "column": "temp_c", "offset": 15.0, "scale": 50.0},
     ],
 }
@@ -368,7 +368,7 @@ def test_bad_tables_name_the_file_the_cell_and_the_fix(run, tmp_path: Path) -> N
     _table_error(tmp_path / "junk.parquet", "is not a readable Parquet file")
     renamed = tmp_path / "renamed.csv"
     other.rename(columns={"level_mm": "Level_mm "}).head(10).to_csv(renamed, index=False)
-    text = _table_error(renamed, "no column 'level_mm' (source 'level'); did you mean 'Level_mm '")
+    text = _table_error(renamed, "no column 'level_mm' (source 'height'); did you mean 'Level_mm '")
     assert "the table's columns: ['t', 'valve_hot_pct'" in text
     no_time = tmp_path / "no_time.csv"
     other.rename(columns={"t": "secs"}).head(10).to_csv(no_time, index=False)
@@ -420,7 +420,9 @@ def test_the_unit_must_fit_the_time_column(run, tmp_path) -> None:
 
 def test_replay_refuses_a_table_without_a_map_of_columns(run) -> None:
     models = [load_model("B")]
-    with pytest.raises(replay.ReplayConfigError, match=r"is a table .* but no interface map"):
+    with pytest.raises(
+        replay.ReplayConfigError, match=r"is a table .* but the two-tank interface .* reads topics"
+    ):
         replay.replay_recording(run["paths"]["other.csv"], models)
     with pytest.raises(replay.ReplayConfigError, match="reads the columns of a table, but this"):
         replay.replay_bag(run["paths"]["bag"], models, replay.ReplayConfig(interface=other_map()))
@@ -479,7 +481,7 @@ def test_cli_takes_the_columns_as_text(run, capsys) -> None:
         "validate", str(run["paths"]["iso.csv"]), "--model", "B", "--quiet",
         "--input", "hot=column:valve_hot_pct,scale=100",
         "--input", "cold=column:valve_cold_pct,scale=100",
-        "--output", "level=column:level_mm,offset=12,scale=1000",
+        "--output", "height=column:level_mm,offset=12,scale=1000",
         "--output", "temperature=column:temp_c,offset=15,scale=50",
         "--time", "stamp,unit=iso", "--hop", "256",
     ])  # fmt: skip
@@ -503,7 +505,7 @@ def test_cli_usage_errors_and_unjudged_tables(run, map_file, tmp_path, capsys) -
     wrong = tmp_path / "wrong.yaml"
     wrong.write_text(yaml.safe_dump(_doc(lambda d: d["outputs"][0].update(column="level"))))
     assert cli.main(["validate", table, "--map", str(wrong), "--quiet"]) == cli.EXIT_ERROR
-    assert "no column 'level' (source 'level')" in capsys.readouterr().err
+    assert "no column 'level' (source 'height')" in capsys.readouterr().err
     short = tmp_path / "short.csv"
     run["other"].head(700).to_csv(short, index=False)  # under one window: read whole, not judged
     args = [

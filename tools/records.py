@@ -1,6 +1,10 @@
-"""A sampled record as the three message streams the online validator takes, in arrival order.
+"""Records and messages as the online validator takes them.
 
-Used by tests and benches that feed ``OnlineValidator.feed_many`` from simulated samples.
+Events in arrival order, and the two-tank rig's message values read straight from their
+fields.
+
+Used by tests and benches that feed ``OnlineValidator.feed_many`` from simulated samples, and
+as the reference of the interface map's extraction on the rig's messages.
 """
 
 from __future__ import annotations
@@ -8,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from twotank_validation.online import COMMAND
+from twotank_validation.online.streams import FLOW_CMD, HEIGHT, TEMPERATURE, RigUnits
 
 
 def arrival_order(
@@ -36,7 +41,7 @@ def record_events(
 
     Args:
         stamps_ns: (n,) int, sample stamps.
-        u: (n, 2) float, commands.
+        u: (n, nu) float, commands.
         y: (n, ny) float, outputs (model units).
 
     Returns:
@@ -45,8 +50,25 @@ def record_events(
     n, ny = len(stamps_ns), y.shape[1]
     kinds = np.concatenate([np.full(n, COMMAND)] + [np.full(n, c) for c in range(ny)])
     stamps = np.tile(np.asarray(stamps_ns, dtype=np.int64), ny + 1)
-    values = np.full(((ny + 1) * n, max(2, u.shape[1])), np.nan)
+    values = np.full(((ny + 1) * n, max(1, u.shape[1])), np.nan)
     values[:n, : u.shape[1]] = u
     for c in range(ny):
         values[(c + 1) * n : (c + 2) * n, 0] = y[:, c]
     return arrival_order(kinds, stamps, values)
+
+
+def two_tank_value(stream: str, msg: object, units: RigUnits) -> float | tuple[float, float]:
+    """A two-tank message's model-unit value read straight from its fields (no map).
+
+    The reference the interface map's extraction (:func:`~twotank_validation.online.
+    interface.extract` through :func:`~twotank_validation.online.streams.two_tank_map`) is
+    checked against: ``(hot, cold)`` of a FlowCommand, the level of a FluidPressure, the
+    temperature of a Temperature, by :class:`RigUnits`' own conversions.
+    """
+    if stream == FLOW_CMD:
+        return float(msg.hot), float(msg.cold)  # type: ignore[attr-defined]
+    if stream == HEIGHT:
+        return units.level_from_pressure(float(msg.fluid_pressure))  # type: ignore[attr-defined]
+    if stream == TEMPERATURE:
+        return units.temperature_from_celsius(float(msg.temperature))  # type: ignore[attr-defined]
+    raise ValueError(f"unknown stream {stream!r}")

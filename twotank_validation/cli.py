@@ -225,7 +225,6 @@ def _replay_config(
     """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
     from twotank_validation import replay  # noqa: PLC0415
     from twotank_validation.online import AlarmConfig, MonitorConfig  # noqa: PLC0415
-    from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
 
     try:
         return replay.ReplayConfig(
@@ -238,10 +237,6 @@ def _replay_config(
                 convention=NormConvention(args.norm),
                 alarm=AlarmConfig(debounce=args.debounce),
                 input_periodic_rtol=_input_periodic_rtol(args),
-            ),
-            topics=_topic_map(args.topic),
-            units=RigUnits(
-                args.pascal_per_unit, args.temperature_offset_c, args.temperature_span_c
             ),
             interface=_interface_map(args),
             oversampling=oversampling or {},
@@ -260,12 +255,14 @@ def _input_periodic_rtol(args: argparse.Namespace) -> float:
     return MonitorConfig.input_periodic_rtol
 
 
-def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
-    """The interface map of ``--map`` or ``--input``/``--output``, or None (the two-tank one).
+def _interface_map(args: argparse.Namespace) -> InterfaceMap:
+    """The interface map of ``--map`` or ``--input``/``--output``, else the two-tank preset.
 
-    ``--time`` gives a table's time column (it replaces the map file's ``time``).
+    The preset takes ``--topic`` remaps and the unit options. ``--time`` gives a table's time
+    column (it replaces the map file's ``time``).
     """
     from twotank_validation.online import interface  # noqa: PLC0415
+    from twotank_validation.online.streams import RigUnits, two_tank_map  # noqa: PLC0415
 
     texts = bool(args.input or args.output)
     if not (args.map or texts):
@@ -274,7 +271,8 @@ def _interface_map(args: argparse.Namespace) -> InterfaceMap | None:
                 "--time names a table's time column; give the table's columns with --map FILE "
                 "or --input/--output NAME=column:COLUMN"
             )
-        return None
+        units = RigUnits(args.pascal_per_unit, args.temperature_offset_c, args.temperature_span_c)
+        return two_tank_map(units, _topic_map(args.topic))
     if args.topic:
         raise UsageError(
             "--topic remaps the two-tank interface; with --map/--input/--output give the "
@@ -309,7 +307,7 @@ def _timed_config(
 
     base = _replay_config(args, args.ts or TS_S, args.period or PERIOD_SAMPLES)
     assert isinstance(base, replay.ReplayConfig)
-    if replay.is_table_input(args.bag, base) and base.interface is None:
+    if replay.is_table_input(args.bag, base) and not base.interface.is_table:
         raise UsageError(
             f"{args.bag} is a table (CSV/Parquet): give the map of its columns with --map FILE "
             "(a 'column' per input and output, and the time column: docs/interface.md, "
@@ -715,8 +713,9 @@ def _cmd_fleet(args: argparse.Namespace, job: Callable[[argparse.Namespace, str]
     if args.workers is not None and args.workers < 0:
         raise UsageError(f"--workers must be 0 (in this process) or more, found {args.workers}")
     one = _fleet_args(args)
-    names = _model_names(one)  # bad models and maps fail here, before any task
-    _replay_config(one, TS_S, PERIOD_SAMPLES)
+    # bad models and maps, and models whose channels the map does not carry, fail here,
+    # before any task
+    names = _model_names(one, check_channels=True)
     expansion = fleet.expand_paths(args.bags)
     paths = [os.path.abspath(p) for p in expansion.recordings]
     expansion = fleet.Expansion(tuple(paths), expansion.skipped)
@@ -769,14 +768,22 @@ def _cmd_fleet(args: argparse.Namespace, job: Callable[[argparse.Namespace, str]
     return res.code
 
 
-def _model_names(args: argparse.Namespace) -> list[str]:
-    """The names of the models of ``--model`` (loading them: bad ones fail here)."""
+def _model_names(args: argparse.Namespace, *, check_channels: bool = False) -> list[str]:
+    """The names of the models of ``--model`` (loading them: bad ones fail here).
+
+    ``check_channels``: also match their channels to the interface map's by name
+    (:class:`~twotank_validation.online.channels.ChannelError` where they do not match).
+    """
     from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
+    from twotank_validation.online.channels import match_channels  # noqa: PLC0415
 
     given = args.model if isinstance(args.model, list) else [args.model]
-    return [
-        model_from_dict(*load_model_document(m)).name for m in (given if given[0] else ["A", "B"])
-    ]
+    models = [model_from_dict(*load_model_document(m)) for m in (given if given[0] else ["A", "B"])]
+    if check_channels:
+        cfg = _replay_config(args, TS_S, PERIOD_SAMPLES)
+        imap = cfg.interface  # type: ignore[attr-defined]
+        match_channels(imap.input_names, imap.output_names, models, source=imap.label)
+    return [m.name for m in models]
 
 
 def _stretches_text(recording: object) -> str:

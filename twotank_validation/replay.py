@@ -45,8 +45,7 @@ from twotank_validation.diagnose.live import catalogue_diagnosis
 from twotank_validation.diagnose.stretches import WindowFindings
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
-from twotank_validation.online import streams as itf
-from twotank_validation.online.assembler import CommandAssembler
+from twotank_validation.online.aligner import COMMAND
 from twotank_validation.online.infer import (
     MIN_PERIOD_SAMPLES,
     grid_samples,
@@ -56,38 +55,38 @@ from twotank_validation.online.infer import (
 )
 from twotank_validation.online.interface import (
     INPUT,
-    OUTPUT,
     STAMP_HEADER,
     InterfaceMap,
     InterfaceMapError,
     Source,
+    TopicSources,
     check_message,
-    check_online_shape,
     convert,
     extract,
+    message_sources,
     source_stamp_ns,
 )
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
-from twotank_validation.online.streams import MEASUREMENTS, STREAM_KINDS, STREAMS
+from twotank_validation.online.streams import two_tank_map
 
 
 @dataclass(frozen=True)
 class ReplayConfig:
-    """How to read a bag.
+    """How to read a recording.
 
     Attributes:
         monitor: validator settings (as the node's parameters).
-        topics: stream name (``flow_cmd``, ``height``, ``temperature``) -> topic in the bag.
-        units: per-rig unit conversion of the measurements.
+        interface: the interface map (:mod:`twotank_validation.online.interface`): each input
+            and output channel read from its own topic, type, field and stamp (a bag; the
+            messages are decoded from the definitions stored in the bag) or from a table's
+            column, with its unit conversion; the channels are matched to the models' by
+            name. Default: the two-tank preset
+            (:func:`~twotank_validation.online.streams.two_tank_map`; None gives it too). A
+            table (:func:`replay_table`) needs a map of columns.
         jitter_fraction: accepted stamp distance from the sample grid (fraction of ts).
-        oversampling: messages per sample of streams published faster than
-            ``monitor.ts_s`` (stream -> whole number; :attr:`Timing.oversampling`): they are
-            decimated to the sample grid.
-        interface: an interface map (:mod:`twotank_validation.online.interface`): each model
-            input and output read from its own topic, type, field and stamp, with its unit
-            conversion; messages are decoded from the definitions stored in the bag. None:
-            the two-tank interface of ``topics`` and ``units`` (read in bulk). A table
-            (:func:`replay_table`) needs a map of columns.
+        oversampling: messages per sample of topics (a table: channels) published faster
+            than ``monitor.ts_s`` (name -> whole number; :attr:`Timing.oversampling`): they
+            are decimated to the sample grid.
         diagnosis: run the live diagnosis (:mod:`~twotank_validation.online.livediag`):
             once a model's alarm rises, each report carries the most likely effect in force
             (``WindowReport.diagnosis``), computed synchronously, as the node's answers.
@@ -97,33 +96,20 @@ class ReplayConfig:
     """
 
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
-    topics: Mapping[str, str] = field(default_factory=lambda: {s: s for s in STREAMS})
-    units: itf.RigUnits = field(default_factory=itf.RigUnits)
+    interface: InterfaceMap = field(default_factory=two_tank_map)
     jitter_fraction: float = JITTER_FRACTION
-    interface: InterfaceMap | None = None
     oversampling: Mapping[str, int] = field(default_factory=dict)
     diagnosis: bool = False
     documents: Mapping[str, Any] = field(default_factory=dict)
     diagnosis_config: LiveDiagConfig = field(default_factory=LiveDiagConfig)
 
     def __post_init__(self) -> None:
-        if self.interface is not None:
-            try:
-                check_online_shape(self.interface)
-            except InterfaceMapError as err:
-                raise ReplayConfigError(str(err)) from err
-        if set(self.topics) != set(STREAMS):
+        given: object = self.interface
+        if given is None:  # None: the preset
+            object.__setattr__(self, "interface", two_tank_map())
+        elif not isinstance(given, InterfaceMap):
             raise ReplayConfigError(
-                f"topics must name a topic for each of the streams {list(STREAMS)}, "
-                f"found {sorted(self.topics)}"
-            )
-        shared = {t for t in self.topics.values() if list(self.topics.values()).count(t) > 1}
-        if shared:
-            streams = [s for s in STREAMS if self.topics[s] in shared]
-            raise ReplayConfigError(
-                f"the streams {streams} are all mapped to the topic(s) {sorted(shared)}; each "
-                "stream is read from a topic of its own type: map each to its own topic "
-                "(--topic STREAM=TOPIC)"
+                f"interface: expected an InterfaceMap, found {type(given).__name__}"
             )
 
     def validator(self, models: Sequence[LFTModel]) -> OnlineValidator:
@@ -131,6 +117,7 @@ class ReplayConfig:
         return OnlineValidator(
             self.monitor,
             models,
+            interface=self.interface,
             jitter_fraction=self.jitter_fraction,
             oversampling=self.oversampling,
             diagnoser=self.diagnoser(models) if self.diagnosis else None,
@@ -208,15 +195,7 @@ class ReplayResult:
 
 _BATCH = 4096  # messages decoded and validated at a time
 _COLUMNAR = True  # False: the reader's row-by-row reference path (bench/bench_replay.py)
-
-
-def extractor(stream: str, units: itf.RigUnits) -> Callable[[Any], Any]:
-    """Message -> value for one stream (same functions as the live node)."""
-    if stream == itf.FLOW_CMD:
-        return itf.flow_values
-    if stream == itf.HEIGHT:
-        return lambda msg: itf.height_value(msg, units)
-    return lambda msg: itf.temperature_value(msg, units)
+_BULK = True  # False: message by message, the generic decoder's reference path (tests)
 
 
 def replay_bag(
@@ -242,7 +221,7 @@ def replay_bag(
         ReplayConfigError: the interface map reads a table's columns.
     """
     cfg = config or ReplayConfig()
-    if cfg.interface is not None and cfg.interface.is_table:
+    if cfg.interface.is_table:
         raise ReplayConfigError(
             f"{path}: the interface map reads the columns of a table, but this is read as a "
             f"bag; give a CSV or Parquet file ({', '.join(tables.TABLE_SUFFIXES)}), or a map "
@@ -254,10 +233,7 @@ def replay_bag(
     with bag_reader.open_bag(path) as bag:
         result.bag_start_ns = bag.info.start_ns or 0
         result.end_ns = bag.info.end_ns or 0
-        if cfg.interface is not None:
-            _feed_mapped(bag, core, cfg, result, on_report)
-        else:
-            _feed_streams(bag, core, cfg, result, on_report, progress=progress)
+        _feed_bag(bag, core, cfg.interface, result, on_report, progress=progress)
     result.counters = dataclasses.asdict(core.counters())
     result.problems.extend(core.input_problems())
     if progress is not None:
@@ -276,7 +252,7 @@ def _reporter(
         result.reports.append(rep)
         _keep_if_interesting(result, core, rep)
         if on_window is not None and rep.judged:
-            stamps, u, y = core.last_window()
+            stamps, u, y = core.last_window(rep.model)
             on_window(rep, WindowSnapshot(rep, stamps, u, y))
 
     return on_report
@@ -292,9 +268,8 @@ def replay_table(
 ) -> ReplayResult:
     """Run a CSV or Parquet table through the validator, row by row in time order.
 
-    Each row's values go to the validator as a bag's messages do through a map
-    (:func:`replay_bag` with ``config.interface``): the inputs, in the order of ``u``, into
-    the command assembler, then the outputs; so the same run gives the same reports. Cells
+    Each row goes to the validator as one message carrying every channel (the inputs as one
+    command, then the outputs), as a bag's message that carries them all would. Cells
     that are empty or not numbers are NaN: their samples are flagged and the windows holding
     them are not judged, with the reason (the columns and first rows are in
     :attr:`ReplayResult.problems`).
@@ -324,19 +299,17 @@ def replay_table(
     )
     result.decode_s = time.perf_counter() - t_start
     t_start = time.perf_counter()
-    feed = _MappedFeed(
-        core, len(imap.inputs), core.command_period_s, _reporter(result, core, on_window)
-    )
+    on_report = _reporter(result, core, on_window)
     stamps = table.stamps_ns.tolist()
-    inputs, outputs = table.inputs.tolist(), table.outputs.tolist()
+    rows = np.concatenate([table.inputs, table.outputs], axis=1).tolist()
     for k, stamp in enumerate(stamps):
-        for j, value in enumerate(inputs[k]):
-            feed.value(INPUT, j, stamp, value)
-        for j, value in enumerate(outputs[k]):
-            feed.value(OUTPUT, j, stamp, value)
+        # a row is one message of the map's one pseudo-topic: every input and output
+        for rep in core.feed("", stamp, tuple(rows[k])):
+            on_report(rep)
         if progress is not None and k % 5000 == 4999:
             progress(k + 1, len(stamps))
-    feed.flush()
+    for rep in core.flush():
+        on_report(rep)
     result.validate_s = time.perf_counter() - t_start
     result.messages = len(stamps)
     for column, (count, row) in table.bad_cells.items():
@@ -356,9 +329,9 @@ def _table_map(config: ReplayConfig | None, path: str | Path) -> InterfaceMap:
     """The map of columns a table is read through; else a ReplayConfigError with the fix."""
     imap = config.interface if config is not None else None
     if imap is None or not imap.is_table:
-        given = "no interface map" if imap is None else "a map of topics"
+        given = "no interface map was given" if imap is None else f"{imap.label} reads topics"
         raise ReplayConfigError(
-            f"{path} is a table (CSV/Parquet) but {given} was given; a table is read through a "
+            f"{path} is a table (CSV/Parquet) but {given}; a table is read through a "
             "map of its columns: --map FILE with a 'column' per source and the time column "
             "(e.g. inputs: [{name: hot, column: valve_hot_pct, scale: 100}, ...], time: "
             "{column: t, unit: s}; docs/interface.md, Tables)"
@@ -389,127 +362,60 @@ def replay_recording(
 
 def is_table_input(path: str | Path, config: ReplayConfig | None = None) -> bool:
     """The recording is read as a table: a table's suffix, or a map of columns."""
-    return tables.is_table(path) or (
-        config is not None and config.interface is not None and config.interface.is_table
-    )
+    return tables.is_table(path) or (config is not None and config.interface.is_table)
 
 
-class _MappedFeed:
-    """An interface map's values into the validator, one value at a time (bags and tables).
-
-    Outputs go to the validator as they come; inputs are assembled into commands first
-    (:class:`~twotank_validation.online.assembler.CommandAssembler`: one command per sample
-    instant, a missing input holding its last value).
-
-    Args:
-        core: the validator.
-        n_inputs: inputs of a command.
-        ts_s: period of the command messages (s).
-        on_report: called with each report.
-    """
-
-    def __init__(
-        self,
-        core: OnlineValidator,
-        n_inputs: int,
-        ts_s: float,
-        on_report: Callable[[WindowReport], None],
-    ) -> None:
-        self._core = core
-        self._assembler = CommandAssembler(n_inputs, ts_s)
-        self._on_report = on_report
-
-    def value(self, role: str, position: int, stamp_ns: int, value: float) -> None:
-        """One source's value (model units) at its stamp; ``role`` is INPUT or OUTPUT."""
-        if role == OUTPUT:
-            self._deliver(self._core.feed(MEASUREMENTS[position], stamp_ns, value))
-        else:
-            for s, u in self._assembler.push(position, stamp_ns, value):
-                self._deliver(self._core.feed(itf.FLOW_CMD, s, tuple(u)))
-
-    def flush(self) -> None:
-        """The commands still waiting for an input (at the end of the recording)."""
-        for s, u in self._assembler.flush():
-            self._deliver(self._core.feed(itf.FLOW_CMD, s, tuple(u)))
-
-    def _deliver(self, reports: list[WindowReport]) -> None:
-        for rep in reports:
-            self._on_report(rep)
-
-
-def _feed_streams(
+def _feed_bag(
     bag: bag_reader.BagReader,
     core: OnlineValidator,
-    cfg: ReplayConfig,
+    imap: InterfaceMap,
     result: ReplayResult,
     on_report: Callable[[WindowReport], None],
     *,
     progress: Callable[[int, int], None] | None,
 ) -> None:
-    """The two-tank interface, read in bulk (fixed layouts decoded as arrays)."""
-    expected = bag_reader.expected_types()
-    wanted = {cfg.topics[s]: expected[s] for s in STREAMS}
-    try:
-        bag.check_topics(wanted)
-    except (bag_reader.TopicMissingError, bag_reader.TopicTypeError) as err:
-        result.complete = False
-        result.problems.append(str(err))
-        present = {t for t in wanted if _usable(bag, t, expected[_stream_of(cfg, t)])}
-        if not present:
-            return
-        wanted = {t: v for t, v in wanted.items() if t in present}
-    except bag_reader.BagEmptyError as err:
-        result.complete = False
-        result.problems.append(str(err))
+    """An interface map's topics from a bag into the validator: the one path of every bag.
+
+    A topic the map names that is not in the bag, holds no message or carries another type is
+    a problem naming the topic, the type found and what the bag holds; the other topics are
+    read. Topics of ``Header header`` + float64 types whose sources read plain fields are
+    decoded in bulk (:func:`_feed_bulk`); anything else message by message, decoded from the
+    bag's definitions, the first message of each topic checked against the map
+    (:func:`_feed_messages`).
+    """
+    topics = message_sources(imap)
+    usable = _usable_topics(bag, topics, imap, result)
+    if not usable:
         return
-    stream_of = {cfg.topics[s]: s for s in STREAMS}
-    fields = {t: itf.STREAM_FIELDS[stream_of[t]] for t in wanted}
-    total = sum(bag.info.message_counts.get(bag.resolve_topic(t) or t, 0) for t in wanted)
-    t_dec = t_val = 0.0
-    tick = time.perf_counter()
+    total = sum(bag.info.message_counts.get(bag.resolve_topic(t) or t, 0) for t in usable)
+    fields = _bulk_fields(bag, usable, topics) if _BULK else None
+    sink = _Sink(core, result, on_report)
     try:
-        for batch in bag.field_batches(list(wanted), fields, size=_BATCH, columnar=_COLUMNAR):
-            now = time.perf_counter()
-            t_dec += now - tick
-            # the node's extractors, on arrays; then the node's validator, many at a time
-            kinds = np.empty(len(batch), dtype=np.int8)
-            values = np.empty((len(batch), 2))
-            for j, topic in enumerate(batch.topics):
-                rows = batch.topic == j
-                stream = stream_of[topic]
-                kinds[rows] = STREAM_KINDS[stream]
-                values[rows] = itf.stream_values(stream, batch.values[rows], cfg.units)
-            before = result.messages
-            result.messages += len(batch)
-            core.feed_many(kinds, batch.stamp_ns, values, on_report)
-            tick = time.perf_counter()
-            t_val += tick - now
-            if progress is not None:
-                for m in range((before // 5000 + 1) * 5000, result.messages + 1, 5000):
-                    progress(m, total)
+        if fields is not None:
+            _feed_bulk(bag, fields, topics, sink, progress=(total, progress))
+        else:
+            _feed_messages(bag, usable, topics, sink)
+        for rep in core.flush():
+            on_report(rep)
     except bag_reader.BagCorruptError as err:
         result.complete = False
         result.problems.append(str(err))
-    result.decode_s, result.validate_s = t_dec, t_val
 
 
-def _feed_mapped(
+def _usable_topics(
     bag: bag_reader.BagReader,
-    core: OnlineValidator,
-    cfg: ReplayConfig,
+    topics: Mapping[str, TopicSources],
+    imap: InterfaceMap,
     result: ReplayResult,
-    on_report: Callable[[WindowReport], None],
-) -> None:
-    """An interface map's sources, message by message, decoded from the bag's definitions.
-
-    A topic the map names that is not in the bag, of another type, or whose first message
-    does not fit the map (field path, header stamp) is a problem naming the topic, the type
-    found and the fields it has; the other topics are read. Inputs on separate topics are
-    assembled into commands (:class:`~twotank_validation.online.assembler.CommandAssembler`).
-    """
-    imap = cfg.interface
-    assert imap is not None
-    topics = imap.topics()
+) -> list[str]:
+    """The map's topics the bag holds messages of, of the map's type; problems for the rest."""
+    if not any(bag.info.message_counts.values()):
+        result.complete = False
+        result.problems.append(
+            f"bag {bag.info.path} holds no messages: record the topics of {imap.label} "
+            f"({', '.join(topics)})"
+        )
+        return []
     usable: list[str] = []
     for topic, sources in topics.items():
         name = bag.resolve_topic(topic)
@@ -517,56 +423,69 @@ def _feed_mapped(
         if name is None:
             listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(bag.info.topics.items()))
             problem = (
-                f"topic {topic!r} of the interface map is not in the bag {bag.info.path}; it "
-                f"holds: {listing or 'no topics'}"
+                f"topic {topic!r} of {imap.label} is not in the bag {bag.info.path}; it holds: "
+                f"{listing or 'no topics'}"
             )
         elif found != sources.msgtype:
             problem = (
-                f"topic {topic!r} carries {found}, but the interface map asks for "
+                f"topic {topic!r} carries {found}, but {imap.label} asks for "
                 f"{sources.msgtype}; set 'type: {found}' in the map with field paths of that type"
             )
+        elif bag.info.message_counts.get(name, 0) == 0:
+            problem = f"topic {topic!r} of {imap.label} holds no message in the bag {bag.info.path}"
         else:
             usable.append(topic)
             continue
         result.complete = False
         result.problems.append(problem)
-    if not usable:
-        return
-    feed = _MappedFeed(core, len(imap.inputs), core.command_period_s, on_report)
-    fields = _bulk_fields(bag, usable, topics) if _COLUMNAR else None
-    if fields is not None:
-        _feed_mapped_bulk(bag, fields, topics, feed, result)
-        return
+    return usable
+
+
+@dataclass(frozen=True)
+class _Sink:
+    """Where a recording's values go: the validator, the result and the report callback."""
+
+    core: OnlineValidator
+    result: ReplayResult
+    on_report: Callable[[WindowReport], None]
+
+
+def _feed_messages(
+    bag: bag_reader.BagReader,
+    usable: list[str],
+    topics: Mapping[str, TopicSources],
+    sink: _Sink,
+) -> None:
+    """The map's topics message by message, decoded from the bag's definitions."""
+    core, result, on_report = sink.core, sink.result, sink.on_report
     checked: set[str] = set()
     refused: set[str] = set()
     bad_values = 0
     t_start = time.perf_counter()
-    try:
-        for m in bag.messages(usable):
-            if m.topic not in checked:
-                checked.add(m.topic)
-                try:
-                    for b in topics[m.topic].bindings:
-                        check_message(b.source, m.msg, m.msgtype)
-                except InterfaceMapError as err:
-                    refused.add(m.topic)
-                    result.complete = False
-                    result.problems.append(str(err))
-            if m.topic in refused:
-                continue
-            result.messages += 1
-            for b in topics[m.topic].bindings:
-                try:
-                    value = extract(m.msg, b.source)
-                except InterfaceMapError:
-                    value, bad_values = math.nan, bad_values + 1  # flagged as non-finite
-                feed.value(
-                    b.role, b.position, source_stamp_ns(m.msg, b.source, m.log_time_ns), value
-                )
-        feed.flush()
-    except bag_reader.BagCorruptError as err:
-        result.complete = False
-        result.problems.append(str(err))
+    for m in bag.messages(usable):
+        bindings = topics[m.topic].bindings
+        if m.topic not in checked:
+            checked.add(m.topic)
+            try:
+                for b in bindings:
+                    check_message(b.source, m.msg, m.msgtype)
+            except InterfaceMapError as err:
+                refused.add(m.topic)
+                result.complete = False
+                result.problems.append(str(err))
+        if m.topic in refused:
+            continue
+        result.messages += 1
+        values = []
+        for b in bindings:
+            try:
+                values.append(extract(m.msg, b.source))
+            except InterfaceMapError:
+                values.append(math.nan)  # flagged as non-finite
+                bad_values += 1
+        stamp = source_stamp_ns(m.msg, bindings[0].source, m.log_time_ns)
+        for rep in core.feed(m.topic, stamp, tuple(values)):
+            on_report(rep)
     if bad_values:
         result.problems.append(
             f"{bad_values} value(s) could not be read through the map's field paths (e.g. an "
@@ -576,7 +495,7 @@ def _feed_mapped(
 
 
 def _bulk_fields(
-    bag: bag_reader.BagReader, usable: list[str], topics: Mapping[str, Any]
+    bag: bag_reader.BagReader, usable: list[str], topics: Mapping[str, TopicSources]
 ) -> dict[str, tuple[str, ...]] | None:
     """Topic -> the float64 fields the map reads, if every usable topic can be read in bulk.
 
@@ -597,54 +516,124 @@ def _bulk_fields(
     return out
 
 
-def _feed_mapped_bulk(
+def _feed_bulk(
     bag: bag_reader.BagReader,
     fields: dict[str, tuple[str, ...]],
-    topics: Mapping[str, Any],
-    feed: _MappedFeed,
-    result: ReplayResult,
+    topics: Mapping[str, TopicSources],
+    sink: _Sink,
+    *,
+    progress: tuple[int, Callable[[int, int], None] | None],
 ) -> None:
-    """The map's sources decoded in bulk, fed value by value as :func:`_feed_mapped` does.
+    """The map's topics decoded in bulk and fed many events at a time.
 
-    The same values (:func:`~twotank_validation.online.interface.convert`, the float
-    operations of ``extract``), stamps and order of ``feed.value`` calls, so the same reports.
+    Each message becomes its events in map order: a whole command where its topic carries
+    every input, then one event per output it carries (:meth:`OnlineValidator.feed_many`,
+    the same reports as feeding the messages one by one). A map whose inputs are spread over
+    several topics feeds message by message instead (the inputs are assembled). The values
+    are :func:`~twotank_validation.online.interface.convert`'s, the float operations of
+    ``extract``.
     """
-    t_start = time.perf_counter()
+    core, result, on_report = sink.core, sink.result, sink.on_report
+    total, report_progress = progress
+    n_in = core.channels.n_inputs
+    width = max(n_in, 1)
+    events = all(sum(b.role == INPUT for b in topics[t].bindings) in (0, n_in) for t in fields)
+    t_dec = t_val = 0.0
+    tick = time.perf_counter()
     try:
-        for batch in bag.field_batches(list(fields), fields, size=_BATCH):
-            per_topic = []
-            for name in batch.topics:
-                plan = []
-                for b in topics[name].bindings:
-                    col = fields[name].index(str(b.source.path[0]))
-                    values = convert(batch.values[:, col], b.source).tolist()
-                    plan.append((b.role, b.position, b.source.stamp == STAMP_HEADER, values))
-                per_topic.append(plan)
-            stamps = batch.stamp_ns.tolist()
-            logs = batch.log_time_ns.tolist()
-            for i, t in enumerate(batch.topic.tolist()):
-                for role, position, header, values in per_topic[t]:
-                    feed.value(role, position, stamps[i] if header else logs[i], values[i])
+        for batch in bag.field_batches(list(fields), fields, size=_BATCH, columnar=_COLUMNAR):
+            now = time.perf_counter()
+            t_dec += now - tick
+            before = result.messages
             result.messages += len(batch)
-        feed.flush()
-    except bag_reader.BagCorruptError as err:
-        result.complete = False
-        result.problems.append(str(err))
-    result.decode_s = time.perf_counter() - t_start  # decoding and validating interleave here
+            if events:
+                core.feed_many(*_events(batch, fields, topics, width), on_report)
+            else:
+                _feed_rows(batch, fields, topics, core, on_report)
+            tick = time.perf_counter()
+            t_val += tick - now
+            if report_progress is not None:
+                for m in range((before // 5000 + 1) * 5000, result.messages + 1, 5000):
+                    report_progress(m, total)
+    finally:
+        result.decode_s, result.validate_s = t_dec, t_val
 
 
-def _usable(bag: bag_reader.BagReader, topic: str, types: tuple[str, ...]) -> bool:
-    """The bag holds messages of ``topic`` (``x`` also matches ``/x``) of an accepted type."""
-    name = bag.resolve_topic(topic)
-    return (
-        name is not None
-        and bag.info.topics.get(name) in types
-        and bag.info.message_counts.get(name, 0) > 0
-    )
+def _converted(
+    batch: bag_reader.FieldBatch, fields: tuple[str, ...], source: Source, rows: np.ndarray
+) -> np.ndarray:
+    """(m,) model-unit values of ``source`` in the batch's ``rows`` of its topic."""
+    return convert(batch.values[rows, fields.index(str(source.path[0]))], source)
 
 
-def _stream_of(cfg: ReplayConfig, topic: str) -> str:
-    return next(s for s in STREAMS if cfg.topics[s] == topic)
+def _events(
+    batch: bag_reader.FieldBatch,
+    fields: dict[str, tuple[str, ...]],
+    topics: Mapping[str, TopicSources],
+    width: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A batch's messages as the validator's events: ``(kinds, stamps_ns, values)``.
+
+    A message of a topic that carries every input gives one command event (its inputs in
+    input order), then each output it carries one event, in map order; events in message
+    order. Shapes: (e,), (e,) int64, (e, width) float (NaN where unused).
+    """
+    plans = []
+    for name in batch.topics:
+        bindings = topics[name].bindings
+        ins = sorted((b for b in bindings if b.role == INPUT), key=lambda b: b.position)
+        outs = [b for b in bindings if b.role != INPUT]
+        plans.append((ins, outs))
+    counts = np.array([(1 if ins else 0) + len(outs) for ins, outs in plans], dtype=np.int64)
+    per_msg = counts[batch.topic]
+    first = np.cumsum(per_msg) - per_msg
+    n_ev = int(per_msg.sum())
+    kinds = np.empty(n_ev, dtype=np.int8)
+    stamps = np.empty(n_ev, dtype=np.int64)
+    values = np.full((n_ev, width), np.nan)
+    for j, (name, (ins, outs)) in enumerate(zip(batch.topics, plans, strict=True)):
+        rows = np.flatnonzero(batch.topic == j)
+        if not len(rows):
+            continue
+        header = topics[name].bindings[0].source.stamp == STAMP_HEADER
+        msg_stamps = (batch.stamp_ns if header else batch.log_time_ns)[rows]
+        at = first[rows]
+        if ins:
+            kinds[at] = COMMAND
+            stamps[at] = msg_stamps
+            for b in ins:
+                values[at, b.position] = _converted(batch, fields[name], b.source, rows)
+            at = at + 1
+        for b in outs:
+            kinds[at] = b.position
+            stamps[at] = msg_stamps
+            values[at, 0] = _converted(batch, fields[name], b.source, rows)
+            at = at + 1
+    return kinds, stamps, values
+
+
+def _feed_rows(
+    batch: bag_reader.FieldBatch,
+    fields: dict[str, tuple[str, ...]],
+    topics: Mapping[str, TopicSources],
+    core: OnlineValidator,
+    on_report: Callable[[WindowReport], None],
+) -> None:
+    """A batch decoded in bulk, fed message by message (inputs spread over topics)."""
+    columns = []
+    for j, name in enumerate(batch.topics):
+        rows = np.flatnonzero(batch.topic == j)
+        bindings = topics[name].bindings
+        vals = np.full((len(batch), len(bindings)), np.nan)
+        for k, b in enumerate(bindings):
+            vals[rows, k] = _converted(batch, fields[name], b.source, rows)
+        header = bindings[0].source.stamp == STAMP_HEADER
+        columns.append((name, vals.tolist(), header))
+    stamps, logs = batch.stamp_ns.tolist(), batch.log_time_ns.tolist()
+    for i, j in enumerate(batch.topic.tolist()):
+        name, vals, header = columns[j]
+        for rep in core.feed(name, stamps[i] if header else logs[i], tuple(vals[i])):
+            on_report(rep)
 
 
 def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: WindowReport) -> None:
@@ -658,7 +647,7 @@ def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: Windo
     if rep.alarm is Alarm.ERROR and "first_alarm" not in kept:
         reasons.append("first_alarm")
     if reasons:
-        stamps, u, y = core.last_window()
+        stamps, u, y = core.last_window(rep.model)
         snap = WindowSnapshot(rep, stamps, u, y)
         for r in reasons:
             kept[r] = snap
@@ -836,75 +825,80 @@ def _metadata_timing(custom: Mapping[str, str]) -> tuple[float | None, int | Non
 
 
 def _command_record(
-    bag: bag_reader.BagReader, cfg: ReplayConfig
+    bag: bag_reader.BagReader, imap: InterfaceMap
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Stamps (n,) ns and values (n, m) of the commands, None if they cannot be read.
+    """Stamps (n,) ns and model-unit values (n, m) of the commands, None if unreadable.
 
-    The two-tank interface: the command topic's (hot, cold). An interface map: the first
-    input's source, stamped as the map says (m = 1).
+    The inputs the first input's topic carries (m of them; every input where one topic
+    carries the command), stamped as the map says.
     """
-    if cfg.interface is not None:
-        return _source_record(bag, cfg.interface.inputs[0])
-    topic = cfg.topics[itf.FLOW_CMD]
-    if not _usable(bag, topic, bag_reader.expected_types()[itf.FLOW_CMD]):
-        return None
-    stamps, values = [], []
-    fields = {topic: itf.STREAM_FIELDS[itf.FLOW_CMD]}
-    with contextlib.suppress(bag_reader.BagCorruptError):  # what was read still counts
-        for batch in bag.field_batches([topic], fields, size=_BATCH):
-            stamps.append(batch.stamp_ns)
-            values.append(batch.values[:, :2])
-    if not stamps:
-        return None
-    return np.concatenate(stamps), np.concatenate(values)
+    topic = imap.inputs[0].topic
+    sources = [s for s in imap.inputs if s.topic == topic]
+    return _topic_record(bag, topic, sources)
 
 
-def _source_record(
-    bag: bag_reader.BagReader, source: Source, limit: int | None = None
+def _topic_record(
+    bag: bag_reader.BagReader,
+    topic: str,
+    sources: Sequence[Source],
+    limit: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Stamps (n,) ns and model-unit values (n, 1) of one map source, None if unreadable.
+    """Stamps (n,) ns and model-unit values (n, len(sources)) of one topic, None if unreadable.
 
-    ``limit``: read at most this many messages (all if None).
+    Read in bulk where the topic's type allows (:func:`_bulk_fields`), else message by
+    message. ``limit``: at most this many messages (all if None).
     """
-    name = bag.resolve_topic(source.topic)
-    if name is None or bag.info.topics.get(name) != source.msgtype:
+    name = bag.resolve_topic(topic)
+    if (
+        name is None
+        or bag.info.topics.get(name) != sources[0].msgtype
+        or not bag.info.message_counts.get(name, 0)
+    ):
         return None
-    stamps, values = [], []
+    stamps: list[Any] = []
+    values: list[Any] = []
+    header = sources[0].stamp == STAMP_HEADER
+    layout = bag.float_fields(topic)
+    plain = layout is not None and all(
+        len(s.path) == 1 and isinstance(s.path[0], str) and s.path[0] in layout for s in sources
+    )
     with contextlib.suppress(bag_reader.BagCorruptError, InterfaceMapError):
-        for m in bag.messages([source.topic]):
-            values.append(extract(m.msg, source))
-            stamps.append(source_stamp_ns(m.msg, source, m.log_time_ns))
-            if limit is not None and len(stamps) >= limit:
-                break
+        if plain:
+            fields = {topic: tuple(dict.fromkeys(str(s.path[0]) for s in sources))}
+            for batch in bag.field_batches([topic], fields, size=_BATCH):
+                rows = np.arange(len(batch))
+                stamps.append(batch.stamp_ns if header else batch.log_time_ns)
+                values.append(
+                    np.column_stack([_converted(batch, fields[topic], s, rows) for s in sources])
+                )
+                if limit is not None and sum(map(len, stamps)) >= limit:
+                    break
+        else:
+            for m in bag.messages([topic]):
+                values.append([[extract(m.msg, s) for s in sources]])
+                stamps.append([source_stamp_ns(m.msg, sources[0], m.log_time_ns)])
+                if limit is not None and len(stamps) >= limit:
+                    break
     if not stamps:
         return None
-    return np.asarray(stamps, dtype=np.int64), np.asarray(values, dtype=float)[:, None]
+    out_s = np.concatenate([np.asarray(x, dtype=np.int64) for x in stamps])
+    out_v = np.concatenate([np.asarray(x, dtype=float) for x in values])
+    return (out_s, out_v) if limit is None else (out_s[:limit], out_v[:limit])
 
 
 _RATE_MESSAGES = 4096
-"""Messages per output stream read to find its period (its first ones)."""
+"""Messages per output topic read to find its period (its first ones)."""
 
 
-def _output_stamps(bag: bag_reader.BagReader, cfg: ReplayConfig) -> dict[str, np.ndarray]:
-    """Stamps (n,) ns of each output stream's first messages (streams that can be read)."""
+def _output_stamps(bag: bag_reader.BagReader, imap: InterfaceMap) -> dict[str, np.ndarray]:
+    """Stamps (n,) ns of each output topic's first messages (topics that can be read)."""
     out: dict[str, np.ndarray] = {}
-    for i, name in enumerate(MEASUREMENTS):
-        if cfg.interface is not None:
-            rec = _source_record(bag, cfg.interface.outputs[i], limit=_RATE_MESSAGES)
-            if rec is not None:
-                out[name] = rec[0]
+    for src in imap.outputs:
+        if src.topic in out:
             continue
-        topic = cfg.topics[name]
-        if not _usable(bag, topic, bag_reader.expected_types()[name]):
-            continue
-        stamps: list[np.ndarray] = []
-        with contextlib.suppress(bag_reader.BagCorruptError):
-            for batch in bag.field_batches([topic], {topic: itf.STREAM_FIELDS[name]}, size=_BATCH):
-                stamps.append(batch.stamp_ns)
-                if sum(map(len, stamps)) >= _RATE_MESSAGES:
-                    break
-        if stamps:
-            out[name] = np.concatenate(stamps)[:_RATE_MESSAGES]
+        rec = _topic_record(bag, src.topic, [src], limit=_RATE_MESSAGES)
+        if rec is not None:
+            out[src.topic] = rec[0]
     return out
 
 
@@ -943,36 +937,37 @@ def resolve_timing(
             map (or there is no map of columns).
     """
     cfg = config or ReplayConfig()
+    imap = cfg.interface
     meta_ts: float | None
     meta_period: int | None
     record: tuple[np.ndarray, np.ndarray] | None
     if is_table_input(path, cfg):
         table = tables.read_table(path, _table_map(cfg, path))
         meta_ts = meta_period = None
-        record = (table.stamps_ns, table.inputs[:, :1])
+        record = (table.stamps_ns, table.inputs)
+        command = imap.inputs[0].name
         out_stamps = {
             name: table.stamps_ns[np.isfinite(table.outputs[:, i])]
-            for i, name in enumerate(MEASUREMENTS)
+            for i, name in enumerate(imap.output_names)
         }
     else:
+        command = imap.inputs[0].topic
         with bag_reader.open_bag(path) as bag:
             meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
-            record = _command_record(bag, cfg)
-            out_stamps = _output_stamps(bag, cfg)
+            record = _command_record(bag, imap)
+            out_stamps = _output_stamps(bag, imap)
     notes: list[str] = []
     conflicts: list[str] = []
     grid = infer_sample_period(record[0]) if record is not None else None
     data_ts = grid.ts_s if grid is not None and grid.on_grid >= 0.5 else None
-    stream_ts = {itf.FLOW_CMD: data_ts} if data_ts is not None else {}
+    stream_ts = {command: data_ts} if data_ts is not None else {}
     for name, stamps in out_stamps.items():
         g = infer_sample_period(stamps)
         if g is not None and g.on_grid >= 0.5:
             stream_ts[name] = g.ts_s
     # the grid every output has a sample on: a multiple of the commands' step
     rates = (
-        supported_rate(
-            data_ts, {k: v for k, v in stream_ts.items() if k != itf.FLOW_CMD}, itf.FLOW_CMD
-        )
+        supported_rate(data_ts, {k: v for k, v in stream_ts.items() if k != command}, command)
         if data_ts is not None
         else None
     )
@@ -990,7 +985,7 @@ def resolve_timing(
         return ", ".join(
             f"{name} every {_fmt_s(t)} s"
             for name, t in stream_ts.items()
-            if name != itf.FLOW_CMD and differs(t, data_ts) and t > data_ts
+            if name != command and differs(t, data_ts) and t > data_ts
         )
 
     if ts_s is not None:

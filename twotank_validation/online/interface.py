@@ -1,7 +1,7 @@
 """The interface map: which topic, message type and field feeds each model input and output.
 
-A real rig publishes its own topics and types. An :class:`InterfaceMap` binds each model input
-(in the order of ``u``) and output (order of ``y``) to a :class:`Source`: a topic, its message
+A real rig publishes its own topics and types. An :class:`InterfaceMap` binds each input and
+output channel, by name, to a :class:`Source`: a topic, its message
 type (``pkg/msg/Type``), a field path into the message (``data[1]``, ``position[0]``,
 ``a.b[2].c``), where the time stamp comes from (``header.stamp`` or the receive/log time) and
 the conversion to model units, ``model = (raw - offset) / scale``.
@@ -13,8 +13,9 @@ instead of topic, type and field, and the table's time column once for the map
 
 Maps come from YAML (:func:`load_interface_map`, :meth:`InterfaceMap.from_dict`), from the
 text form of CLI options and node parameters (:func:`source_from_text`,
-:func:`interface_map_from_text`), or :func:`default_interface_map` (today's fixed interface of
-:mod:`~twotank_validation.online.streams`, with the same floats bit for bit).
+:func:`interface_map_from_text`), or a preset (the two-tank rig's:
+:func:`twotank_validation.online.streams.two_tank_map`, the default). The validator matches
+the map's channel names to each model's (:mod:`~twotank_validation.online.channels`).
 
 Extraction (:func:`raw_value`, :func:`extract`, :func:`check_message`) reads attributes by
 field name and indexes arrays (numpy arrays, lists, tuples, ``array.array``), so it works on
@@ -36,19 +37,8 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 import yaml
 
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.errors import TwotankError
-from twotank_validation.online.streams import (
-    FLOW_CMD,
-    FLOW_CMD_TYPE,
-    HEIGHT,
-    HEIGHT_TYPE,
-    MEASUREMENTS,
-    STREAM_FIELDS,
-    TEMPERATURE,
-    TEMPERATURE_TYPE,
-    RigUnits,
-    stamp_ns,
-)
 
 __all__ = [
     "INPUT",
@@ -70,18 +60,19 @@ __all__ = [
     "TopicSources",
     "check_message",
     "convert",
-    "default_interface_map",
     "extract",
     "format_field_path",
     "interface_map_from_text",
     "load_interface_map",
     "message_fields",
+    "message_sources",
     "message_type_name",
     "parse_field_path",
     "raw_value",
     "source_from_text",
     "source_stamp_ns",
     "source_to_text",
+    "stamp_ns",
     "time_column_from_text",
 ]
 
@@ -473,10 +464,13 @@ class InterfaceMap:
     """The sources of a model's inputs and outputs.
 
     Attributes:
-        inputs: One source per model input, in the order of ``u``.
-        outputs: One source per model output, in the order of ``y``.
+        inputs: One source per input channel; its name is matched to the models' input names
+            (the order is the samples' ``u`` columns, not the models').
+        outputs: One source per output channel, matched by name likewise.
         time: A table's time column (a map of column sources only; None there means
             ``TimeColumn()``, the column found by name, unit ``auto``). None for a bag's map.
+        label: What the map is called in messages (``"the interface map rig.yaml"``, ``"the
+            two-tank interface"``); not part of the map's value.
 
     Raises:
         InterfaceMapError: If either is empty or not made of :class:`Source`, a name is used
@@ -488,6 +482,7 @@ class InterfaceMap:
     inputs: tuple[Source, ...]
     outputs: tuple[Source, ...]
     time: TimeColumn | None = None
+    label: str = dataclasses.field(default="the interface map", compare=False)
 
     def __post_init__(self) -> None:
         for role in ("inputs", "outputs"):
@@ -550,7 +545,7 @@ class InterfaceMap:
             )
         time = _time_from_node(doc["time"], source) if "time" in doc else None
         try:
-            return cls(lists["inputs"], lists["outputs"], time)
+            return cls(lists["inputs"], lists["outputs"], time, f"the interface map {source}")
         except InterfaceMapError as err:
             raise InterfaceMapError(f"{source}: {err}") from None
 
@@ -604,6 +599,20 @@ class InterfaceMap:
             for index, src in enumerate(sources):
                 out.setdefault(src.topic, (src.msgtype, []))[1].append(Binding(role, index, src))
         return {t: TopicSources(mt, tuple(b)) for t, (mt, b) in out.items()}
+
+
+def message_sources(imap: InterfaceMap) -> dict[str, TopicSources]:
+    """What each message carries, topic by topic.
+
+    :meth:`InterfaceMap.topics` for a bag's map; for a table's, one pseudo-topic ``""`` (a row)
+    carrying every source (inputs, then outputs).
+    """
+    if not imap.is_table:
+        return imap.topics()
+    bindings = tuple(Binding(INPUT, i, s) for i, s in enumerate(imap.inputs)) + tuple(
+        Binding(OUTPUT, i, s) for i, s in enumerate(imap.outputs)
+    )
+    return {"": TopicSources("", bindings)}
 
 
 def _reads(src: Source) -> str:
@@ -751,56 +760,6 @@ def load_interface_map(path: str | Path) -> InterfaceMap:
     except yaml.YAMLError as err:
         raise InterfaceMapError(f"{path}: not valid YAML: {err}") from err
     return InterfaceMap.from_dict(doc, str(path))
-
-
-_RIG_UNITS: Final = RigUnits()
-
-
-def check_online_shape(imap: InterfaceMap) -> None:
-    """Check that a map has the inputs and outputs the online validator takes.
-
-    The online validator (aligner, node, replay) is shaped for the two-tank interface: the
-    commands of :data:`~twotank_validation.online.streams.FLOW_CMD` and the outputs of
-    :data:`~twotank_validation.online.streams.MEASUREMENTS`.
-
-    Raises:
-        InterfaceMapError: Naming both counts.
-    """
-    n_in, n_out = len(STREAM_FIELDS[FLOW_CMD]), len(MEASUREMENTS)
-    if (len(imap.inputs), len(imap.outputs)) != (n_in, n_out):
-        raise InterfaceMapError(
-            f"the interface map has {len(imap.inputs)} input(s) and {len(imap.outputs)} "
-            f"output(s); the online validator takes the two-tank interface's {n_in} inputs "
-            f"and {n_out} outputs"
-        )
-
-
-def default_interface_map(units: RigUnits = _RIG_UNITS) -> InterfaceMap:
-    """Today's fixed interface (:mod:`~twotank_validation.online.streams`) as a map.
-
-    Inputs ``hot`` and ``cold`` from the ``flow_cmd`` FlowCommand; outputs ``height`` (the
-    ``height`` FluidPressure's ``fluid_pressure`` over ``units.pascal_per_unit``) and
-    ``temperature`` (the ``temperature`` Temperature, ``(°C - offset) / span``); stamps from
-    the headers. Gives the values of :func:`~twotank_validation.online.streams.stream_values`
-    bit for bit.
-    """
-    return InterfaceMap(
-        inputs=(
-            Source("hot", FLOW_CMD, FLOW_CMD_TYPE, "hot"),
-            Source("cold", FLOW_CMD, FLOW_CMD_TYPE, "cold"),
-        ),
-        outputs=(
-            Source(HEIGHT, HEIGHT, HEIGHT_TYPE, "fluid_pressure", scale=units.pascal_per_unit),
-            Source(
-                TEMPERATURE,
-                TEMPERATURE,
-                TEMPERATURE_TYPE,
-                "temperature",
-                offset=units.temperature_offset_c,
-                scale=units.temperature_span_c,
-            ),
-        ),
-    )
 
 
 # --------------------------------------------------------------------------- text form
@@ -955,6 +914,7 @@ def interface_map_from_text(
         tuple(lists["inputs"]),
         tuple(lists["outputs"]),
         time_column_from_text(time) if time is not None else None,
+        "the interface map given as text (--input/--output, inputs/outputs)",
     )
 
 
@@ -1133,6 +1093,12 @@ def check_message(source: Source, msg: Any, msgtype_found: str) -> None:
                 f"topic {source.topic!r} ({msgtype_found}) has no header.stamp to stamp source "
                 f"{source.name!r}; set 'stamp: receive' for it (the receive or log time is used)"
             )
+
+
+def stamp_ns(msg: Any) -> int:
+    """Header stamp of a message in integer nanoseconds."""
+    st = msg.header.stamp
+    return int(st.sec) * NS_PER_S + int(st.nanosec)
 
 
 def source_stamp_ns(msg: Any, source: Source, receive_ns: int) -> int:

@@ -1,14 +1,18 @@
-"""The input streams: names, message types, unit conversions and extractors (ROS-free).
+"""The two-tank rig's interface: its topics, message types and units, as a preset map.
 
-Shared by the nodes and bag replay. The extractors read only field names common to rclpy
-messages and rosbags' decoded messages (``header.stamp.sec/nanosec``, ``fluid_pressure``,
-``temperature``, ``hot``, ``cold``), so live and replay go through the same code. Nothing here
-imports a ROS message package (that is :mod:`twotank_validation.ros.messages`).
+The rig publishes valve commands (``flow_cmd``, a FlowCommand with ``hot`` and ``cold``),
+the level as a gauge pressure (``height``, sensor_msgs/FluidPressure) and the temperature in
+°C (``temperature``, sensor_msgs/Temperature). :func:`two_tank_map` is that interface as an
+:class:`~twotank_validation.online.interface.InterfaceMap` (the default of every command and
+node): inputs ``hot``, ``cold``; outputs ``height``, ``temperature``, converted to model units
+by :class:`RigUnits`. There is no other stream path: the validator reads the rig through this
+map as it reads any other rig through its own. Nothing here imports a ROS message package.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -16,6 +20,7 @@ import numpy as np
 
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online.aligner import COMMAND
+from twotank_validation.online.interface import InterfaceMap, InterfaceMapError, Source, stamp_ns
 
 _V = TypeVar("_V", float, np.ndarray)  # one value, or many at once (same float operations)
 
@@ -24,20 +29,23 @@ HEIGHT_TYPE = "sensor_msgs/msg/FluidPressure"
 TEMPERATURE_TYPE = "sensor_msgs/msg/Temperature"
 
 FLOW_CMD = "flow_cmd"
-"""Stream of valve commands ``(hot, cold)`` (model units); also the default topic name."""
+"""The rig's topic of valve commands ``(hot, cold)`` (model units)."""
 HEIGHT = "height"
-"""Stream of level measurements; also the default topic name."""
+"""The rig's topic of level measurements; also the output's name."""
 TEMPERATURE = "temperature"
-"""Stream of temperature measurements; also the default topic name."""
+"""The rig's topic of temperature measurements; also the output's name."""
 STREAMS = (FLOW_CMD, HEIGHT, TEMPERATURE)
-"""The validator's input streams."""
+"""The rig's topics (names as :func:`two_tank_map` gives them before any remapping)."""
+INPUTS = ("hot", "cold")
+"""The rig's input channels, in the order of the map."""
 MEASUREMENTS = (HEIGHT, TEMPERATURE)
-"""The measured streams, in the order of the outputs ``y``."""
+"""The rig's output channels, in the order of the map."""
 STREAM_KINDS = {FLOW_CMD: COMMAND, **{s: channel for channel, s in enumerate(MEASUREMENTS)}}
-"""Event kind of each stream (:data:`~twotank_validation.online.aligner.COMMAND` or the output
-channel), as ``OnlineValidator.feed_many`` takes it."""
+"""Event kind of each of the rig's topics under :func:`two_tank_map`
+(:data:`~twotank_validation.online.aligner.COMMAND` or the output channel), as
+``OnlineValidator.feed_many`` takes it."""
 STREAM_TYPES = {FLOW_CMD: FLOW_CMD_TYPE, HEIGHT: HEIGHT_TYPE, TEMPERATURE: TEMPERATURE_TYPE}
-"""Message type of each stream."""
+"""Message type of each of the rig's topics."""
 
 
 @dataclass(frozen=True)
@@ -79,61 +87,87 @@ class RigUnits:
         return self.temperature_offset_c + self.temperature_span_c * temperature
 
 
-def stamp_ns(msg: Any) -> int:
-    """Header stamp of a message in integer nanoseconds."""
-    st = msg.header.stamp
-    return int(st.sec) * NS_PER_S + int(st.nanosec)
-
-
 def set_stamp(stamp_msg: Any, ns: int) -> None:
     """Write integer nanoseconds into a builtin_interfaces/Time-like object."""
     stamp_msg.sec = int(ns // NS_PER_S)
     stamp_msg.nanosec = int(ns % NS_PER_S)
 
 
-def flow_values(msg: Any) -> tuple[float, float]:
-    """(hot, cold) valve commands in model units from a FlowCommand."""
-    return float(msg.hot), float(msg.cold)
+TWO_TANK_LABEL = "the two-tank interface (the default map: topics flow_cmd, height, temperature)"
+"""How :func:`two_tank_map` is named in messages."""
 
 
-def height_value(msg: Any, units: RigUnits) -> float:
-    """Model-unit level from a sensor_msgs/FluidPressure."""
-    return units.level_from_pressure(float(msg.fluid_pressure))
+def two_tank_map(
+    units: RigUnits | None = None, topics: Mapping[str, str] | None = None
+) -> InterfaceMap:
+    """The two-tank rig's interface as a map (the default of every command and node).
 
-
-def temperature_value(msg: Any, units: RigUnits) -> float:
-    """Model-unit temperature from a sensor_msgs/Temperature."""
-    return units.temperature_from_celsius(float(msg.temperature))
-
-
-STREAM_FIELDS: dict[str, tuple[str, ...]] = {
-    FLOW_CMD: ("hot", "cold"),
-    HEIGHT: ("fluid_pressure",),
-    TEMPERATURE: ("temperature",),
-}
-"""Message fields each stream's extractor reads (besides ``header.stamp``)."""
-
-
-def stream_values(stream: str, fields: np.ndarray, units: RigUnits) -> np.ndarray:
-    """Model-unit values of many messages of one stream: the extractors above, on arrays.
+    Inputs ``hot`` and ``cold`` from the FlowCommand topic; outputs ``height`` (the
+    FluidPressure's ``fluid_pressure`` over ``units.pascal_per_unit``) and ``temperature``
+    (the Temperature's ``(°C - offset) / span``); stamps from the headers. The conversions
+    are :class:`RigUnits`' float operations, bit for bit (``(x - 0.0) / s == x / s``).
 
     Args:
-        stream: ``flow_cmd``, ``height`` or ``temperature``.
-        fields: (n, k) float, the :data:`STREAM_FIELDS` of the stream, in that order.
-        units: unit conversion.
+        units: the rig's unit conversions (default: :class:`RigUnits()`).
+        topics: the rig's topic of each of :data:`STREAMS` where it is remapped (stream ->
+            topic; topics not named keep their names).
 
-    Returns:
-        (n, 2) float: ``(hot, cold)`` rows for ``flow_cmd``; the value in column 0 (column 1
-        NaN) for a measurement. The same float operations as :func:`flow_values`,
-        :func:`height_value` and :func:`temperature_value`, so the same values bit for bit.
+    Raises:
+        InterfaceMapError: ``topics`` names an unknown stream, or maps two streams to one
+            topic.
     """
-    out = np.full((len(fields), 2), np.nan)
-    if stream == FLOW_CMD:
-        out[:] = fields[:, :2]
-    elif stream == HEIGHT:
-        out[:, 0] = units.level_from_pressure(fields[:, 0])
-    elif stream == TEMPERATURE:
-        out[:, 0] = units.temperature_from_celsius(fields[:, 0])
-    else:
-        raise ValueError(f"unknown stream {stream!r}")
-    return out
+    u = units if units is not None else RigUnits()
+    given = dict(topics or {})
+    if unknown := sorted(set(given) - set(STREAMS)):
+        raise InterfaceMapError(
+            f"the two-tank interface has no stream {unknown}; remap one of {list(STREAMS)} "
+            "(STREAM=TOPIC)"
+        )
+    names = {s: given.get(s, s) for s in STREAMS}
+    shared = sorted({t for t in names.values() if list(names.values()).count(t) > 1})
+    if shared:
+        streams = [s for s in STREAMS if names[s] in shared]
+        raise InterfaceMapError(
+            f"the streams {streams} are all mapped to the topic(s) {shared}; each stream is "
+            "read from a topic of its own type: map each to its own topic (--topic STREAM=TOPIC)"
+        )
+    remapped = any(names[s] != s for s in STREAMS)
+    label = "the two-tank interface (remapped topics)" if remapped else TWO_TANK_LABEL
+    return InterfaceMap(
+        inputs=(
+            Source("hot", names[FLOW_CMD], FLOW_CMD_TYPE, "hot"),
+            Source("cold", names[FLOW_CMD], FLOW_CMD_TYPE, "cold"),
+        ),
+        outputs=(
+            Source(HEIGHT, names[HEIGHT], HEIGHT_TYPE, "fluid_pressure", scale=u.pascal_per_unit),
+            Source(
+                TEMPERATURE,
+                names[TEMPERATURE],
+                TEMPERATURE_TYPE,
+                "temperature",
+                offset=u.temperature_offset_c,
+                scale=u.temperature_span_c,
+            ),
+        ),
+        label=label,
+    )
+
+
+__all__ = [
+    "FLOW_CMD",
+    "FLOW_CMD_TYPE",
+    "HEIGHT",
+    "HEIGHT_TYPE",
+    "INPUTS",
+    "MEASUREMENTS",
+    "STREAMS",
+    "STREAM_KINDS",
+    "STREAM_TYPES",
+    "TEMPERATURE",
+    "TEMPERATURE_TYPE",
+    "TWO_TANK_LABEL",
+    "RigUnits",
+    "set_stamp",
+    "stamp_ns",
+    "two_tank_map",
+]

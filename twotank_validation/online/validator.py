@@ -1,4 +1,4 @@
-"""The online validator: the one path from stamped stream values to window reports.
+"""The online validator: the one path from stamped source values to window reports.
 
 :class:`OnlineValidator` is what the live ROS node and bag replay both feed: it runs the
 :class:`~twotank_validation.online.aligner.SampleAligner`, the
@@ -27,22 +27,27 @@ from twotank_validation.online.aligner import (
     SampleAligner,
     SampleBlock,
 )
+from twotank_validation.online.assembler import CommandAssembler
+from twotank_validation.online.channels import Channels, match_channels
 from twotank_validation.online.faults import STOPPED_STREAMS, InputFaults
-from twotank_validation.online.livediag import LiveDiagnoser
-from twotank_validation.online.streams import (
-    FLOW_CMD,
-    MEASUREMENTS,
-    STREAM_KINDS,
-    STREAMS,
+from twotank_validation.online.interface import (
+    INPUT,
+    InterfaceMap,
+    TopicSources,
+    message_sources,
 )
+from twotank_validation.online.livediag import LiveDiagnoser
+from twotank_validation.online.streams import two_tank_map
 from twotank_validation.online.window import MonitorConfig, WindowMonitor, WindowReport
 
 
 def parse_oversampling(entries: Sequence[str]) -> dict[str, int]:
     """``["flow_cmd=2", "height=2"]`` -> ``{"flow_cmd": 2, "height": 2}`` (empty entries skipped).
 
+    The names are topics of the interface map (the validator checks them).
+
     Raises:
-        DatumError: an entry that is not ``STREAM=N`` with a known stream and a whole N >= 1.
+        DatumError: an entry that is not ``TOPIC=N`` with a whole N >= 1.
     """
     out: dict[str, int] = {}
     for entry in entries:
@@ -54,37 +59,87 @@ def parse_oversampling(entries: Sequence[str]) -> dict[str, int]:
             n = int(count) if sep else 0
         except ValueError:
             n = 0
-        if name not in STREAMS or n < 1:
+        if not name or n < 1:
             raise DatumError(
-                f"oversampling entry {entry!r}: give STREAM=N, a stream of {list(STREAMS)} and "
+                f"oversampling entry {entry!r}: give TOPIC=N, a topic of the interface map and "
                 "the whole number N >= 1 of its messages per sample"
             )
         out[name] = n
     return out
 
 
-class OnlineValidator:
-    """Aligner + window monitor + input faults: stamped stream values in, window reports out.
+@dataclasses.dataclass(frozen=True)
+class _Route:
+    """Where the values of one topic's message go (its sources in map order).
 
-    The live node and bag replay both feed it ``(stream, stamp_ns, value)`` events, where
-    ``stream`` is one of :data:`~twotank_validation.online.streams.STREAMS` and ``value`` is
-    ``(hot, cold)`` for ``flow_cmd`` and a model-unit float for the measurements.
+    Attributes:
+        n_values: sources read from the topic (values per message).
+        command: the value index of each input, in input order, when the topic carries every
+            input (one message is a whole command); None otherwise.
+        command_in_order: the topic carries the inputs alone, in input order (its values are
+            the command).
+        inputs: ``(value index, input)`` of the inputs of a topic that carries some of them
+            (assembled into commands with the other topics').
+        outputs: ``(value index, output)`` of the outputs the topic carries.
+    """
+
+    n_values: int
+    command: tuple[int, ...] | None
+    command_in_order: bool
+    inputs: tuple[tuple[int, int], ...]
+    outputs: tuple[tuple[int, int], ...]
+
+
+def _route(sources: TopicSources, n_inputs: int) -> _Route:
+    ins = [(k, b.position) for k, b in enumerate(sources.bindings) if b.role == INPUT]
+    outs = tuple((k, b.position) for k, b in enumerate(sources.bindings) if b.role != INPUT)
+    whole = len(ins) == n_inputs
+    order = tuple(k for k, _ in sorted(ins, key=lambda kp: kp[1])) if whole else None
+    return _Route(
+        n_values=len(sources.bindings),
+        command=order,
+        command_in_order=order == tuple(range(n_inputs)) and len(sources.bindings) == n_inputs,
+        inputs=() if whole else tuple(ins),
+        outputs=outs,
+    )
+
+
+class OnlineValidator:
+    """Aligner + window monitor + input faults: stamped source values in, window reports out.
+
+    The live node and every replay (bags and tables) feed it the model-unit values of the
+    interface map's sources, a message at a time (:meth:`feed`: a topic and the values of its
+    sources, in map order) or many events at once (:meth:`feed_many`). Its channels are the
+    map's inputs and outputs; each model takes the channels it names, matched by name
+    (:func:`~twotank_validation.online.channels.match_channels`), in its own order.
 
     Args:
         config: monitor settings.
         models: models to validate.
+        interface: the interface map: the channels' names, and which topic carries which
+            source; None: the two-tank preset (:func:`~twotank_validation.online.streams.
+            two_tank_map`). A table's map (its sources are columns) has one pseudo-topic,
+            ``""``: a row.
         jitter_fraction: accepted stamp distance from the sample grid (fraction of ts).
-        oversampling: messages per sample of each stream published faster than the sample
-            grid (stream name -> whole number; 1 for streams not named). A grid at a slower
+        oversampling: messages per sample of each topic published faster than the sample
+            grid (topic -> whole number; 1 for topics not named). A grid at a slower
             sensor's rate (``config.ts_s`` a multiple of the commands' period) decimates the
-            faster streams (:class:`~twotank_validation.online.aligner.SampleAligner`).
+            faster topics (:class:`~twotank_validation.online.aligner.SampleAligner`). The
+            topics that carry inputs share one value.
         diagnoser: the live diagnosis (:class:`~twotank_validation.online.livediag.LiveDiagnoser`):
             it sees every judged window's report and samples, and each report carries the
             answer in force (``WindowReport.diagnosis``); None: no diagnosis.
 
     Attributes:
+        interface: the interface map.
+        channels: the channels and each model's place among them.
         sample_listeners: called with each aligned :class:`Sample` or :class:`SampleBlock`
             before the monitor gets it (e.g. to record the samples).
+
+    Raises:
+        ChannelError: a model's channels do not match the map's by name.
+        DatumError: oversampling names a topic the map does not read, or gives the input
+            topics different values.
     """
 
     def __init__(
@@ -92,46 +147,107 @@ class OnlineValidator:
         config: MonitorConfig,
         models: Sequence[LFTModel],
         *,
+        interface: InterfaceMap | None = None,
         jitter_fraction: float = JITTER_FRACTION,
         oversampling: Mapping[str, int] | None = None,
         diagnoser: LiveDiagnoser | None = None,
     ) -> None:
         self.config = config
+        self.interface = imap = interface if interface is not None else two_tank_map()
+        self.channels: Channels = match_channels(
+            imap.input_names, imap.output_names, models, source=imap.label
+        )
         self.diagnoser = diagnoser
         if diagnoser is not None:
             diagnoser.bind(config.ts_s, config.period_samples)
+        self._topics = message_sources(imap)
         over = dict(oversampling or {})
-        if unknown := sorted(set(over) - set(STREAMS)):
-            raise DatumError(f"oversampling names unknown stream(s) {unknown}; streams: {STREAMS}")
-        self._monitor = WindowMonitor(config, models, MEASUREMENTS)
+        if unknown := sorted(set(over) - set(self._topics)):
+            raise DatumError(
+                f"oversampling names {unknown}, which {imap.label} does not read; its topics: "
+                f"{sorted(self._topics)}"
+            )
+        n_in = len(imap.inputs)
+        in_rates = {over.get(s.topic, 1) for s in imap.inputs}
+        if len(in_rates) > 1:
+            raise DatumError(
+                f"oversampling gives the input topics {sorted({s.topic for s in imap.inputs})} "
+                f"different rates {sorted(in_rates)}; commands are sampled at one rate: give "
+                "each input topic the same N"
+            )
+        cmd_over = in_rates.pop()
+        self._monitor = WindowMonitor(config, models, self.channels)
         self._aligner = SampleAligner(
             config.ts_s,
-            2,
-            MEASUREMENTS,
+            n_in,
+            imap.output_names,
             jitter_fraction=jitter_fraction,
-            oversampling=[over.get(name, 1) for name in STREAMS],
+            oversampling=[cmd_over, *(over.get(s.topic, 1) for s in imap.outputs)],
         )
-        self.command_period_s = config.ts_s / over.get(FLOW_CMD, 1)
+        self.command_period_s = config.ts_s / cmd_over
         """Period of the command messages (s): the sample period over their oversampling."""
+        self._routes = {t: _route(src, n_in) for t, src in self._topics.items()}
+        self._assembler = CommandAssembler(n_in, self.command_period_s)
         self.samples_seen = 0
         self.sample_listeners: list[Callable[[Sample | SampleBlock], None]] = []
         self._faults = InputFaults(
-            self._aligner.counters, window_samples=config.window_samples, n_streams=len(STREAMS)
+            self._aligner.counters,
+            window_samples=config.window_samples,
+            n_streams=len(self._topics),
         )
 
-    def feed(self, stream: str, stamp_ns: int, value: Any) -> list[WindowReport]:
-        """One event in, the reports of any window it completes out; input faults noted."""
+    @property
+    def topics(self) -> tuple[str, ...]:
+        """The topics :meth:`feed` takes (a table's map: ``("",)``, its rows)."""
+        return tuple(self._topics)
+
+    def feed(self, topic: str, stamp_ns: int, value: Any) -> list[WindowReport]:
+        """One message in, the reports of any window it completes out; input faults noted.
+
+        Args:
+            topic: a topic of the interface map (a table's: ``""``, a row).
+            stamp_ns: the message's stamp (ns).
+            value: the model-unit values of the sources the map reads from the topic, in map
+                order (a sequence; a plain number where the topic carries one source). A topic
+                that carries every input gives a whole command; inputs on separate topics are
+                assembled into commands
+                (:class:`~twotank_validation.online.assembler.CommandAssembler`).
+
+        Raises:
+            DatumError: an unknown topic, or not one value per source.
+        """
+        route = self._routes.get(topic)
+        if route is None:
+            raise DatumError(
+                f"unknown topic {topic!r}; {self.interface.label} reads {sorted(self._routes)}"
+            )
+        values = _values(topic, value, route.n_values)
         seen = self.samples_seen
-        if stream == FLOW_CMD:
-            samples = self._aligner.push_command(stamp_ns, value)
-        elif stream in MEASUREMENTS:
+        aligner = self._aligner
+        samples: list[Sample] = []
+        if route.command is not None:
+            command = values if route.command_in_order else tuple(values[k] for k in route.command)
+            samples += aligner.push_command(stamp_ns, command)
+        for k, position in route.inputs:
+            for s, u in self._assembler.push(position, stamp_ns, values[k]):
+                samples += aligner.push_command(s, tuple(u.tolist()))
+        for k, channel in route.outputs:
             try:
-                number = float(value)
+                number = float(values[k])
             except (TypeError, ValueError) as err:
-                raise DatumError(f"{stream} value {value!r} is not a number") from err
-            samples = self._aligner.push_measurement(STREAM_KINDS[stream], stamp_ns, number)
-        else:
-            raise DatumError(f"unknown stream {stream!r}; expected one of {STREAMS}")
+                name = self.channels.output_names[channel]
+                raise DatumError(f"{name} value {values[k]!r} is not a number") from err
+            samples += aligner.push_measurement(channel, stamp_ns, number)
+        reports = self._deliver(samples, None) if samples else []
+        self._faults.after_event(seen, self.samples_seen, reports)
+        return reports
+
+    def flush(self) -> list[WindowReport]:
+        """The commands still waiting for an input on another topic (end of a recording)."""
+        seen = self.samples_seen
+        samples: list[Sample] = []
+        for s, u in self._assembler.flush():
+            samples += self._aligner.push_command(s, tuple(u.tolist()))
         reports = self._deliver(samples, None) if samples else []
         self._faults.after_event(seen, self.samples_seen, reports)
         return reports
@@ -150,21 +266,26 @@ class OnlineValidator:
         followed event by event only (:meth:`feed`).
 
         Args:
-            kinds: (n,) int, :data:`~twotank_validation.online.streams.STREAM_KINDS` of each
-                event's stream.
+            kinds: (n,) int: :data:`~twotank_validation.online.aligner.COMMAND` for a whole
+                command, else the output channel (index into :attr:`channels`' outputs).
             stamps_ns: (n,) int64 stamps.
-            values: (n, 2) float: ``(hot, cold)`` of a command; a measurement (model units)
-                in column 0.
+            values: (n, w) float with ``w = max(n_inputs, 1)``: a command's values in input
+                order; a measurement (model units) in column 0.
             on_report: called with each report as soon as its window is evaluated (while
                 :meth:`last_window` still returns that window).
         """
         kinds = np.asarray(kinds)
-        if len(kinds) and (kinds.min() < COMMAND or kinds.max() > 1):
-            raise DatumError(f"unknown event kind in {np.unique(kinds)}; expected -1, 0 or 1")
-        values = np.asarray(values, dtype=float)
-        if values.shape != (len(kinds), 2) or len(stamps_ns) != len(kinds):
+        n_out = self.channels.n_outputs
+        if len(kinds) and (kinds.min() < COMMAND or kinds.max() >= n_out):
             raise DatumError(
-                f"feed_many needs (n,) kinds and stamps and (n, 2) values, found "
+                f"unknown event kind in {np.unique(kinds)}; expected {COMMAND} (a command) or "
+                f"an output channel 0 .. {n_out - 1}"
+            )
+        values = np.asarray(values, dtype=float)
+        width = max(self.channels.n_inputs, 1)
+        if values.shape != (len(kinds), width) or len(stamps_ns) != len(kinds):
+            raise DatumError(
+                f"feed_many needs (n,) kinds and stamps and (n, {width}) values, found "
                 f"{kinds.shape}, {np.shape(stamps_ns)}, {values.shape}"
             )
         seen = self.samples_seen
@@ -188,9 +309,9 @@ class OnlineValidator:
             # it does not keep: last_window returns copies)
             if diagnoser is not None:
                 if rep.judged and diagnoser.wants(rep.model):
-                    diagnoser.observe(rep, *monitor.last_window())
+                    diagnoser.observe(rep, *monitor.last_window(rep.model))
                 elif diagnoser.wants(rep.model):
-                    diagnoser.note_means(rep, *monitor.last_window())
+                    diagnoser.note_means(rep, *monitor.last_window(rep.model))
                 answer = diagnoser.attach(rep)
                 if answer is not None:
                     rep = dataclasses.replace(rep, diagnosis=answer)
@@ -252,9 +373,14 @@ class OnlineValidator:
         """Grid index of the next sample to complete."""
         return self._aligner.next_index
 
-    def last_window(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies."""
-        return self._monitor.last_window()
+    def last_window(self, model: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies.
+
+        Args:
+            model: a model's name: its channels in its own order; None: every channel in the
+                interface map's order.
+        """
+        return self._monitor.last_window(model)
 
     def alarm_levels(self) -> dict[str, Alarm]:
         """Current alarm level of each model."""
@@ -278,3 +404,20 @@ class OnlineValidator:
             }
             for name, t in self._monitor.operating_points.items()
         }
+
+
+def _values(topic: str, value: Any, n: int) -> tuple[Any, ...]:
+    """A message's source values as a tuple of ``n`` (a plain number where ``n`` is 1)."""
+    if type(value) is tuple and len(value) == n:
+        return value
+    if isinstance(value, str | bytes) or not hasattr(value, "__len__"):
+        if n == 1:
+            return (value,)
+    else:
+        values = tuple(value.tolist() if isinstance(value, np.ndarray) else value)
+        if len(values) == n:
+            return values
+    raise DatumError(
+        f"topic {topic!r} needs {n} values per message (one model-unit value per source the "
+        f"map reads from it, in map order), found {value!r}"
+    )

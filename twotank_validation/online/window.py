@@ -17,7 +17,7 @@ import numpy as np
 
 from twotank_validation.core import fast
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
-from twotank_validation.core.datum import NormConvention, make_datum
+from twotank_validation.core.datum import Datum, NormConvention, make_datum
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
 from twotank_validation.core.validate import (
@@ -45,6 +45,7 @@ from twotank_validation.online.alarm import (
     update_alarm,
 )
 from twotank_validation.online.aligner import Sample, SampleBlock
+from twotank_validation.online.channels import Channels, match_channels
 from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.oppoint import OperatingPointTracker, OpPointConfig
 from twotank_validation.online.recovery import Recovery, recover_span
@@ -272,28 +273,37 @@ class WindowMonitor:
 
     Args:
         config: monitor settings.
-        models: models to validate (inputs/outputs must match the samples).
-        output_names: the outputs' names as the aligner's sample flags spell them (default:
-            the first model's output names).
+        models: models to validate.
+        channels: the samples' channels and each model's place among them, matched by name
+            (:func:`~twotank_validation.online.channels.match_channels`); default: the first
+            model's inputs and outputs, which every model must then name.
+
+    Raises:
+        ModelError: no model, or a model without noise channels.
+        ChannelError: a model's channels do not match the samples' by name.
     """
 
     def __init__(
         self,
         config: MonitorConfig,
         models: Sequence[LFTModel],
-        output_names: Sequence[str] | None = None,
+        channels: Channels | None = None,
     ) -> None:
         if not models:
             raise ModelError("the monitor needs at least one model")
         self.config = config
         self.models = tuple(models)
-        nu, ny = self.models[0].nu, self.models[0].ny
+        if channels is None:
+            first = self.models[0]
+            channels = match_channels(
+                first.input_names,
+                first.output_names,
+                self.models,
+                source=f"model {first.name}",
+            )
+        self.channels = channels
+        nu, ny = channels.n_inputs, channels.n_outputs
         for m in self.models:
-            if (m.nu, m.ny) != (nu, ny):
-                raise ModelError(
-                    f"models disagree on dimensions: {self.models[0].name} is {ny}x{nu}, "
-                    f"{m.name} is {m.ny}x{m.nu}"
-                )
             if m.nw == 0:
                 raise ModelError(
                     f"model {m.name} has no noise channels: measured data, which always hold "
@@ -302,8 +312,9 @@ class WindowMonitor:
                 )
         self.n_inputs, self.n_outputs = nu, ny
         # names of the aligner's flags (outputs) and of the signals in recovery reasons
-        self._output_names = tuple(output_names or self.models[0].output_names)
-        self._signal_names = (*self.models[0].input_names, *self._output_names)
+        self._output_names = channels.output_names
+        self._signal_names = (*channels.input_names, *channels.output_names)
+        self._select = {m.name: channels.models[m.name] for m in self.models}
         cap = self._cap = config.span_samples
         self._period = config.period_samples
         self._hop = config.hop
@@ -417,9 +428,16 @@ class WindowMonitor:
                         on_report(rep)
         return out
 
-    def last_window(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies."""
+    def last_window(self, model: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies.
+
+        Args:
+            model: a model's name: its inputs and outputs in its own order; None: every
+                channel in the samples' order.
+        """
         u, y, stamps, _ = self._ordered(min(self._count, self.config.window_samples))
+        if model is not None:
+            u, y = self._select[model].select(u, y)
         return stamps.copy(), u.copy(), y.copy()
 
     def _ordered(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
@@ -503,22 +521,26 @@ class WindowMonitor:
                 f"ok; recovered {int(rec.recovered.sum())} sample(s) from the other periods "
                 f"({rec.summary(self._signal_names)})"
             )
-        datum = None
-        if quality == "ok":
-            try:
-                datum = make_datum(
-                    u,
-                    y,
-                    ts_s=cfg.ts_s,
-                    period_samples=cfg.period_samples,
-                    convention=cfg.convention,
-                )
-            except TwotankError as err:
-                quality = f"datum rejected: {err}"
+        # one datum per distinct channel selection: the samples' order for every model that
+        # takes all channels in it (the common case), the model's own order otherwise
+        data: dict[tuple[tuple[int, ...], tuple[int, ...]], Datum | str] = {}
         reports = []
         for model in self.models:
-            if datum is None:
-                reports.append(self._unjudged(model.name, start_ns, end_ns, quality))
+            pick = self._select[model.name]
+            key = (pick.inputs, pick.outputs)
+            if quality == "ok" and key not in data:
+                try:
+                    data[key] = make_datum(
+                        *pick.select(u, y),
+                        ts_s=cfg.ts_s,
+                        period_samples=cfg.period_samples,
+                        convention=cfg.convention,
+                    )
+                except TwotankError as err:
+                    data[key] = f"datum rejected: {err}"
+            datum = data.get(key, quality)
+            if isinstance(datum, str):
+                reports.append(self._unjudged(model.name, start_ns, end_ns, datum))
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()

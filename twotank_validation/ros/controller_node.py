@@ -203,13 +203,13 @@ class ControllerNode(Node):
     # --- inputs ---------------------------------------------------------------------------
 
     def _on_height(self, msg: FluidPressure) -> None:
-        value = itf.height_value(msg, self.units)
+        value = self.units.level_from_pressure(float(msg.fluid_pressure))
         if math.isfinite(value):
             self.height = value
             self.last_measurement_ns[itf.HEIGHT] = itf.stamp_ns(msg)
 
     def _on_temperature(self, msg: Temperature) -> None:
-        value = itf.temperature_value(msg, self.units)
+        value = self.units.temperature_from_celsius(float(msg.temperature))
         if math.isfinite(value):
             self.temperature = value
             self.last_measurement_ns[itf.TEMPERATURE] = itf.stamp_ns(msg)

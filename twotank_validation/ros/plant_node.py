@@ -118,7 +118,7 @@ class PlantNode(Node):
             self.create_timer(float(v["ts_s"]), self.tick)
 
     def _on_flow(self, msg: Any) -> None:
-        hot, cold = itf.flow_values(msg)
+        hot, cold = float(msg.hot), float(msg.cold)
         if np.isfinite(hot) and np.isfinite(cold):
             self.command = np.array([hot, cold])
         self.last_command_ns = itf.stamp_ns(msg)

@@ -1,12 +1,19 @@
-"""The validator node: flow commands, level and temperature in; reports, margin and alarm out.
+"""The validator node: the interface map's topics in; reports, margin and alarm out.
 
 Thin adapter over :class:`twotank_validation.online.validator.OnlineValidator`: subscription
-callbacks only convert a message to a typed queue item (stream, stamp, value) and queue it; a
+callbacks only read each source's value from the message (the interface map's field paths and
+unit conversions, :mod:`twotank_validation.online.interface`) and queue the topic's values; a
 worker thread feeds the validator (aligner, window monitor, validation, input faults) and
-publishes. Topics (node-relative, remappable):
+publishes. The channels are matched to the models' by name, in any number (the shape comes
+from the models and the map). Topics (node-relative, remappable):
 
-* in: ``flow_cmd`` (twotank_validation_msgs/FlowCommand), ``height``
-  (sensor_msgs/FluidPressure), ``temperature`` (sensor_msgs/Temperature);
+* in: the map's topics, each of the type the map names (imported by name). Without a map
+  (parameters ``interface_map``, ``inputs``/``outputs``), the two-tank preset
+  (:func:`~twotank_validation.online.streams.two_tank_map`): ``flow_cmd``
+  (twotank_validation_msgs/FlowCommand), ``height`` (sensor_msgs/FluidPressure),
+  ``temperature`` (sensor_msgs/Temperature), converted by the unit parameters. Inputs on
+  separate topics are assembled into commands. A topic whose first message does not fit the
+  map is refused with the reason in ``/diagnostics`` (STALE) and the log;
 * out, per model M: ``validation/M/report`` (ValidationReport), ``validation/M/margin``
   (std_msgs/Float64, ``1 - beta``), ``validation/M/invalidated`` (std_msgs/Bool,
   transient-local, the debounced alarm == ERROR); ``/diagnostics`` (one status per model);
@@ -18,16 +25,9 @@ publishes. Topics (node-relative, remappable):
 * service ``reset_operating_point`` (std_srvs/Trigger) forgets the reference operating point
   (the given one again, or commissioned from the next steady windows).
 
-With an interface map (parameter ``interface_map``, a YAML file, or ``inputs``/``outputs`` as
-text; :mod:`twotank_validation.online.interface`) the inputs are each map topic instead, of
-the type the map names (imported by name), each source's value read through its field path
-and converted; inputs on separate topics are assembled into commands
-(:class:`~twotank_validation.online.assembler.CommandAssembler`). A topic whose first message
-does not fit the map is refused with the reason in ``/diagnostics`` (STALE) and the log.
-
-``/diagnostics`` is STALE (saying why) while a stream is stopped or a topic has a publisher of
-the wrong type, and from the moment input arrives that makes the coming windows unfit to judge
-(non-finite or implausible values, off-grid stamps, gaps, clock jumps, a stream stopping, a run
+``/diagnostics`` is STALE (saying why) while a topic is stopped or has a publisher of the wrong
+type, and from the moment input arrives that makes the coming windows unfit to judge
+(non-finite or implausible values, off-grid stamps, gaps, clock jumps, a topic stopping, a run
 of stale stamps) until a window after it is judged (the validator keeps that state,
 :attr:`~twotank_validation.online.validator.OnlineValidator.input_fault`); otherwise it carries
 the last window's level (published once all models' reports of a window are out).
@@ -53,7 +53,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
 from rclpy.node import Node
-from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
@@ -78,13 +77,10 @@ from twotank_validation.online import (
 )
 from twotank_validation.online import streams as itf
 from twotank_validation.online.alarm import DEBOUNCE_RULES
-from twotank_validation.online.assembler import CommandAssembler
 from twotank_validation.online.interface import (
-    OUTPUT,
     InterfaceMap,
     InterfaceMapError,
     check_message,
-    check_online_shape,
     extract,
     interface_map_from_text,
     load_interface_map,
@@ -259,32 +255,16 @@ class _Event:
     """A received message, converted: one of the worker's queue items.
 
     Attributes:
-        stream: stream name (:data:`~twotank_validation.online.streams.STREAMS`).
-        stamp_ns: header stamp (ns).
-        value: ``(hot, cold)`` of a command, a model-unit float of a measurement.
-        received: ``perf_counter()`` at reception (report latency).
-    """
-
-    stream: str
-    stamp_ns: int
-    value: float | tuple[float, float]
-    received: float
-
-
-@dataclass(slots=True)
-class _Input:
-    """One input's value from an interface map's source: assembled into a command.
-
-    Attributes:
-        position: the input's index in the model's inputs.
+        topic: the map's topic.
         stamp_ns: its stamp (ns): the header stamp or the receive time, as the map says.
-        value: model units.
+        values: the model-unit value of each source the map reads from the topic, in map
+            order.
         received: ``perf_counter()`` at reception (report latency).
     """
 
-    position: int
+    topic: str
     stamp_ns: int
-    value: float
+    values: tuple[float, ...]
     received: float
 
 
@@ -303,7 +283,7 @@ class _Control(enum.Enum):
     EXIT = enum.auto()  # the worker returns
 
 
-_Item = _Event | _Input | _Marker | _Control
+_Item = _Event | _Marker | _Control
 
 
 _BLANK_REPORT = WindowReport(
@@ -437,9 +417,11 @@ class ValidatorNode(Node):
                     executor=self._executor,
                     on_result=self._on_diagnosis,
                 )
+            self.interface = _interface_map(values, self.units)
             self.core = OnlineValidator(
                 self.config,
                 self.models,
+                interface=self.interface,
                 jitter_fraction=float(values["jitter_fraction"]),
                 oversampling=parse_oversampling(values["oversampling"]),
                 diagnoser=self.diagnoser,
@@ -447,14 +429,10 @@ class ValidatorNode(Node):
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
-        flow_cls, self._report_cls = messages.message_classes()
-        self.interface = _interface_map(values)
-        # what the watchdog watches: the streams, or the map's topics with their types
-        self._watched: dict[str, str] = (
-            dict(itf.STREAM_TYPES)
-            if self.interface is None
-            else {t: s.msgtype for t, s in self.interface.topics().items()}
-        )
+        _, self._report_cls = messages.message_classes()
+        self._topics = self.interface.topics()
+        # what the watchdog watches: the map's topics with their types
+        self._watched: dict[str, str] = {t: s.msgtype for t, s in self._topics.items()}
 
         self._queue: queue.Queue[_Item] = queue.Queue()
         self._lock = threading.Lock()
@@ -473,21 +451,12 @@ class ValidatorNode(Node):
 
         self._refused: dict[str, str] = {}  # map topics whose messages do not fit, and why
         self._checked: set[str] = set()
-        if self.interface is None:
-            self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 1000)
-            self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 1000)
-            self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 1000)
-        else:
-            self._assembler = CommandAssembler(
-                len(self.interface.inputs), self.core.command_period_s
-            )
-            self._topics = self.interface.topics()
-            for topic, sources in self._topics.items():
-                try:
-                    cls = messages.message_class(sources.msgtype)
-                except ImportError as err:
-                    raise ParameterError(f"cannot start the validator: {err}") from err
-                self.create_subscription(cls, topic, partial(self._on_mapped, topic), 1000)
+        for topic, sources in self._topics.items():
+            try:
+                cls = messages.message_class(sources.msgtype)
+            except ImportError as err:
+                raise ParameterError(f"cannot start the validator: {err}") from err
+            self.create_subscription(cls, topic, partial(self._on_message, topic), 1000)
         self._pub_report = {
             m.name: self.create_publisher(self._report_cls, f"validation/{m.name}/report", 10)
             for m in self.models
@@ -534,27 +503,8 @@ class ValidatorNode(Node):
     def _now_ns(self) -> int:
         return int(self.get_clock().now().nanoseconds)
 
-    def _on_flow(self, msg: Any) -> None:
-        self._last_rx[itf.FLOW_CMD] = self._now_ns()
-        self.received[itf.FLOW_CMD] += 1
-        self._queue.put(
-            _Event(itf.FLOW_CMD, itf.stamp_ns(msg), itf.flow_values(msg), perf_counter())
-        )
-
-    def _on_height(self, msg: FluidPressure) -> None:
-        self._last_rx[itf.HEIGHT] = self._now_ns()
-        self.received[itf.HEIGHT] += 1
-        value = itf.height_value(msg, self.units)
-        self._queue.put(_Event(itf.HEIGHT, itf.stamp_ns(msg), value, perf_counter()))
-
-    def _on_temperature(self, msg: Temperature) -> None:
-        self._last_rx[itf.TEMPERATURE] = self._now_ns()
-        self.received[itf.TEMPERATURE] += 1
-        value = itf.temperature_value(msg, self.units)
-        self._queue.put(_Event(itf.TEMPERATURE, itf.stamp_ns(msg), value, perf_counter()))
-
-    def _on_mapped(self, topic: str, msg: Any) -> None:
-        """A message of an interface map's topic: each of its sources' values queued."""
+    def _on_message(self, topic: str, msg: Any) -> None:
+        """A message of one of the map's topics: its sources' values queued."""
         now = self._now_ns()
         self._last_rx[topic] = now
         self.received[topic] += 1
@@ -571,16 +521,14 @@ class ValidatorNode(Node):
                 self.get_logger().error(f"interface map does not fit: {err}")
                 return
         received = perf_counter()
+        values = []
         for b in sources.bindings:
             try:
-                value = extract(msg, b.source)
+                values.append(extract(msg, b.source))
             except InterfaceMapError:
-                value = math.nan  # the aligner flags it as a non-finite sample
-            stamp = source_stamp_ns(msg, b.source, now)
-            if b.role == OUTPUT:
-                self._queue.put(_Event(itf.MEASUREMENTS[b.position], stamp, value, received))
-            else:
-                self._queue.put(_Input(b.position, stamp, value, received))
+                values.append(math.nan)  # the aligner flags it as a non-finite sample
+        stamp = source_stamp_ns(msg, sources.bindings[0].source, now)
+        self._queue.put(_Event(topic, stamp, tuple(values), received))
 
     def _on_time_jump(self, jump: Any) -> None:
         if jump.delta.nanoseconds < 0:
@@ -607,10 +555,13 @@ class ValidatorNode(Node):
 
     # ---------------------------------------------------------------- worker thread
 
-    def feed(self, stream: str, stamp: int, value: Any) -> list[WindowReport]:
-        """Run one event through the validator (the worker calls this; tests may too)."""
+    def feed(self, topic: str, stamp: int, value: Any) -> list[WindowReport]:
+        """Run one message's values through the validator: :meth:`OnlineValidator.feed`.
+
+        The worker calls this; tests may too.
+        """
         with self._lock:
-            return self.core.feed(stream, stamp, value)
+            return self.core.feed(topic, stamp, value)
 
     def _work(self) -> None:
         while True:
@@ -627,18 +578,14 @@ class ValidatorNode(Node):
                 with self._lock:
                     self.core.restart()
                 continue
-            if isinstance(item, _Input):
-                for stamp, u in self._assembler.push(item.position, item.stamp_ns, item.value):
-                    self._process(itf.FLOW_CMD, stamp, (float(u[0]), float(u[1])), item.received)
-                continue
-            self._process(item.stream, item.stamp_ns, item.value, item.received)
+            self._process(item.topic, item.stamp_ns, item.values, item.received)
 
-    def _process(self, stream: str, stamp_ns: int, value: Any, received: float) -> None:
-        """Feed one event to the validator and publish the reports it completes."""
+    def _process(self, topic: str, stamp_ns: int, value: Any, received: float) -> None:
+        """Feed one message's values to the validator and publish the reports it completes."""
         try:
-            reports = self.feed(stream, stamp_ns, value)
+            reports = self.feed(topic, stamp_ns, value)
         except Exception as err:  # keep the node alive; the status says what happened
-            self.get_logger().error(f"validator failed on {stream} at {stamp_ns} ns: {err}")
+            self.get_logger().error(f"validator failed on {topic} at {stamp_ns} ns: {err}")
             self._status = {
                 name: (Alarm.STALE, f"internal error: {err}", rep)
                 for name, (_, _, rep) in self._status.items()
@@ -778,26 +725,24 @@ class ValidatorNode(Node):
         super().destroy_node()
 
 
-def _interface_map(values: dict[str, Any]) -> InterfaceMap | None:
-    """The interface map of the parameters, or None (the two-tank topics)."""
+def _interface_map(values: dict[str, Any], units: itf.RigUnits) -> InterfaceMap:
+    """The interface map of the parameters; without one, the two-tank preset in ``units``.
+
+    Raises:
+        ParameterError, InterfaceMapError: the parameters name no usable map.
+    """
     inputs = [s for s in values["inputs"] if s]
     outputs = [s for s in values["outputs"] if s]
     path = str(values["interface_map"])
-    try:
-        if path and (inputs or outputs):
-            raise ParameterError("give interface_map or inputs/outputs, not both")
-        imap = None
-        if path:
-            imap = load_interface_map(path)
-        elif inputs or outputs:
-            if not (inputs and outputs):
-                raise ParameterError("inputs and outputs go together: give every input and output")
-            imap = interface_map_from_text(inputs, outputs)
-        if imap is not None:
-            check_online_shape(imap)
-    except InterfaceMapError as err:
-        raise ParameterError(f"cannot start the validator: {err}") from err
-    return imap
+    if path and (inputs or outputs):
+        raise ParameterError("give interface_map or inputs/outputs, not both")
+    if path:
+        return load_interface_map(path)
+    if inputs or outputs:
+        if not (inputs and outputs):
+            raise ParameterError("inputs and outputs go together: give every input and output")
+        return interface_map_from_text(inputs, outputs)
+    return itf.two_tank_map(units)
 
 
 def main(args: list[str] | None = None) -> int:
