@@ -273,7 +273,7 @@ def verdict_text(rep: WindowReport) -> str:
     """
     op = f", operating point beta_op {rep.beta_op:.3g}" if math.isfinite(rep.beta_op) else ""
     verdict = f"INVALIDATED by the {rep.raised_by}" if rep.invalidated else "not invalidated"
-    if rep.invalidated and rep.raised_by is RaisedBy.BOTH:
+    if rep.invalidated and rep.raised_by == RaisedBy.BOTH:
         verdict = "INVALIDATED by the dynamics and the operating point"
     return f"beta {rep.beta:.3f} (margin {rep.margin:+.3f}){op}: {verdict}"
 
