@@ -16,14 +16,10 @@ from tools.records import record_events, two_tank_value
 from twotank_validation import replay
 from twotank_validation.bags import open_bag, write_scenario_bag
 from twotank_validation.core.model import load_model, load_model_document
+from twotank_validation.diagnose.kinds import expected_effect, named
 from twotank_validation.diagnose.live import catalogue_diagnosis
 from twotank_validation.online import STREAMS, MonitorConfig, OnlineValidator, RigUnits
-from twotank_validation.online.livediag import (
-    LiveDiagConfig,
-    LiveDiagnoser,
-    expected_effect,
-    named,
-)
+from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
 from twotank_validation.online.streams import stamp_ns
 from twotank_validation.sim.faults import FAULT_KINDS, parse_fault
 from twotank_validation.sim.scenario import Scenario, simulate_scenario

@@ -67,6 +67,7 @@ from twotank_validation.online.interface import (
     source_stamp_ns,
 )
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
+from twotank_validation.online.states import WindowQuality
 from twotank_validation.online.streams import two_tank_map
 
 
@@ -695,7 +696,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
             entry["judged"] += 1
         else:
             entry["not_judged"] += 1
-            why = reason_category(rep.data_quality)
+            why = reason_category(rep.quality)
             entry["not_judged_reasons"][why] = entry["not_judged_reasons"].get(why, 0) + 1
         if rep.warnings:
             entry["with_warnings"] += 1
@@ -715,7 +716,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
                 "warnings": list(rep.warnings),
                 "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
                 "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
-                "raised_by": rep.raised_by,
+                "raised_by": str(rep.raised_by),
                 "operating_point": rep.operating_point,
                 "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
             }
@@ -739,28 +740,14 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
     }
 
 
-def reason_category(quality: str) -> str:
-    """The kind of reason a window was not judged, for counting (its text up to the details).
+def reason_category(quality: WindowQuality) -> str:
+    """The kind of reason a window was not judged, for counting: its typed state.
 
-    ``"3 unusable sample(s) in the window ...; first: gap: no height sample at t = ..."`` is
-    ``"unusable samples (gap)"``; ``"settling: 1 period(s) ..."`` is ``"settling"``.
+    A window with unusable samples whose first flagged sample is a gap is
+    ``"unusable samples (gap)"``; one still settling ``"settling"``
+    (:attr:`~twotank_validation.online.states.WindowQuality.category`).
     """
-    if "unusable sample" in quality:
-        first = quality.partition("first: ")[2]
-        kind = next((k for key, k in _FLAG_KINDS if key in first), "flagged")
-        return f"unusable samples ({kind})"
-    return quality.partition(":")[0].strip()
-
-
-_FLAG_KINDS = (
-    ("gap", "gap"),
-    ("off the sample grid", "off grid"),
-    ("non-finite valve", "no command"),
-    ("no valid valve command", "no command"),
-    ("non-finite", "non-finite"),
-    ("implausible", "non-finite"),
-)
-"""Words of the aligner's sample flags -> the kind counted in ``not_judged_reasons``."""
+    return quality.category
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,9 @@ Modules (each imports only those above it):
 * :mod:`~twotank_validation.diagnose.inputs`: what a diagnosis takes: :class:`Window` (whole
   periods in model units), :func:`split_windows` (fit / held-out), :class:`DiagnosisConfig`,
   and :class:`DiagnosisError`.
+* :mod:`~twotank_validation.diagnose.kinds`: every kind of effect named (:class:`EffectKind`),
+  each with one :class:`EffectRecord` (family, parameters, what it needs of the model, what it
+  moves, its words); :func:`expected_effect`, the answer that names a simulated rig fault.
 * :mod:`~twotank_validation.diagnose.effects`: :class:`Nominal` (the nominal plant of a model
   file), :class:`EffectSpec` and :func:`catalogue` (the candidate effects of a model).
 * :mod:`~twotank_validation.diagnose.fit`: :class:`BinData` (the excited bins, step 1), the
@@ -65,8 +68,6 @@ from twotank_validation.diagnose.diagnosis import (
 )
 from twotank_validation.diagnose.distortion import DistortionTest, distortion_test
 from twotank_validation.diagnose.effects import (
-    EFFECT_KINDS,
-    REPORTED_KINDS,
     THERMAL_STATES,
     EffectSpec,
     Nominal,
@@ -96,6 +97,18 @@ from twotank_validation.diagnose.inputs import (
     Window,
     split_windows,
 )
+from twotank_validation.diagnose.kinds import (
+    EFFECT_KINDS,
+    EFFECT_RECORDS,
+    REPORTED_KINDS,
+    ActsOn,
+    EffectFamily,
+    EffectKind,
+    EffectRecord,
+    ModelNeed,
+    expected_effect,
+    named,
+)
 from twotank_validation.diagnose.steady import Finding
 from twotank_validation.diagnose.stretches import (
     ChangeConfig,
@@ -109,8 +122,10 @@ from twotank_validation.diagnose.stretches import (
 
 __all__ = [
     "EFFECT_KINDS",
+    "EFFECT_RECORDS",
     "REPORTED_KINDS",
     "THERMAL_STATES",
+    "ActsOn",
     "Assessment",
     "BinData",
     "ChangeConfig",
@@ -118,11 +133,15 @@ __all__ = [
     "DiagnosisConfig",
     "DiagnosisError",
     "DistortionTest",
+    "EffectFamily",
+    "EffectKind",
+    "EffectRecord",
     "EffectSpec",
     "EvidencePoints",
     "Explained",
     "Finding",
     "FittedEffect",
+    "ModelNeed",
     "Nominal",
     "RecordingDiagnosis",
     "RunnerUp",
@@ -142,9 +161,11 @@ __all__ = [
     "distortion_test",
     "evidence_points",
     "excited_bins",
+    "expected_effect",
     "find_stretches",
     "fit_effects",
     "fit_uncertainty",
+    "named",
     "noise_floor",
     "noise_scale",
     "output_costs",

@@ -40,12 +40,8 @@ from twotank_validation.diagnose.inputs import (
     Window,
     split_windows,
 )
+from twotank_validation.diagnose.kinds import EffectKind
 from twotank_validation.diagnose.steady import Finding
-
-MOVES_OPERATING_POINT = ("leak", "heat_loss", "hot_supply")
-"""Effects that shift the plant's equilibrium by themselves (a term on an absolute level,
-temperature or supply the deviation model does not hold): beside them a constant output
-offset cannot be judged on the operating point."""
 
 
 @dataclass(frozen=True)
@@ -77,7 +73,7 @@ class FittedEffect:
     def to_dict(self, outputs: Sequence[str]) -> dict[str, Any]:
         """The documented JSON entry of an effect."""
         out: dict[str, Any] = {
-            "kind": self.spec.kind,
+            "kind": self.spec.kind.value,
             "channel": self.spec.target(outputs),
             "parameters": {
                 **{n: float(v) for n, v in zip(self.spec.names, self.values, strict=True)},
@@ -384,8 +380,8 @@ def diagnose(
         f"after adding {', '.join(e.spec.label(outputs) for e in chosen)}" if chosen
         else "its dynamics are unchanged",
         {e.spec.input: float(e.values[0]) for e in chosen
-         if e.spec.kind == "input_gain" and e.spec.input is not None},
-        [e.spec.label(outputs) for e in chosen if e.spec.kind in MOVES_OPERATING_POINT],
+         if e.spec.kind is EffectKind.INPUT_GAIN and e.spec.input is not None},
+        [e.spec.label(outputs) for e in chosen if e.spec.kind.record.moves_operating_point],
     )  # fmt: skip
     if replaces:  # the linear fit of a clipped input is its describing function
         chosen, changed = [], nominal

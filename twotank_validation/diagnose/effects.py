@@ -28,7 +28,8 @@ Catalogue (parameters in SI units; rates in 1/s, times in s):
   state, the operating height.
 
 Outside the state-space catalogue (they cannot be written into an LTI model file; reported
-with a recommendation, :data:`REPORTED_KINDS`):
+with a recommendation, :data:`REPORTED_KINDS`; every kind's properties are one record,
+:data:`twotank_validation.diagnose.kinds.EFFECT_RECORDS`):
 
 * ``offset``: a constant sensor bias ``y_c += b``. The mean is removed before the DFT, so it
   is invisible to the dynamic fit; it is judged on the windows' means against a reference
@@ -52,6 +53,25 @@ from twotank_validation.core import lti
 from twotank_validation.core.lti import StateSpace
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.diagnose.inputs import DiagnosisError
+from twotank_validation.diagnose.kinds import (
+    EFFECT_KINDS,
+    REPORTED_KINDS,
+    EffectKind,
+    ModelNeed,
+)
+
+__all__ = [  # the kinds' tuples are views of their records (diagnose.kinds)
+    "EFFECT_KINDS",
+    "REPORTED_KINDS",
+    "THERMAL_STATES",
+    "Bins",
+    "EffectSpec",
+    "Nominal",
+    "catalogue",
+    "channel_time_constants",
+    "input_lag_states",
+    "input_shares",
+]
 
 
 class Bins(Protocol):
@@ -77,21 +97,6 @@ class Bins(Protocol):
         """(k, ny) the model's noise amplitude."""
         ...
 
-
-EFFECT_KINDS = (
-    "delay",
-    "lag",
-    "gain",
-    "input_gain",
-    "coupling",
-    "leak",
-    "heat_loss",
-    "hot_supply",
-)
-"""Kinds of state-space effect in the catalogue, in the order they are tried."""
-
-REPORTED_KINDS = ("offset", "saturation")
-"""Kinds of effect judged outside the state-space fit and reported, not written to a model."""
 
 THERMAL_STATES = ("energy", "temperature")
 """State names that the leak and heat-loss effects recognise as the thermal state."""
@@ -213,7 +218,7 @@ class EffectSpec:
     """One candidate effect: a structured change of the nominal with named parameters.
 
     Attributes:
-        kind: one of :data:`EFFECT_KINDS`.
+        kind: one of :data:`EFFECT_KINDS` (its properties: ``kind.record``).
         channel: index of the output it changes.
         source: coupling source output index (``None`` otherwise).
         names: parameter names (SI units in the name suffix).
@@ -230,7 +235,7 @@ class EffectSpec:
             :mod:`twotank_validation.diagnose.evidence`).
     """
 
-    kind: str
+    kind: EffectKind
     channel: int
     source: int | None
     names: tuple[str, ...]
@@ -256,18 +261,14 @@ class EffectSpec:
         return len(self.names)
 
     def label(self, outputs: Sequence[str]) -> str:
-        """Human-readable name, e.g. ``delay on temperature``."""
-        if self.kind == "coupling" and self.source is not None:
-            t = self.fixed.get("time_constant_s")
-            via = f" (T {t:.4g} s)" if t is not None else ""
-            return f"coupling {outputs[self.source]} -> {outputs[self.channel]}{via}"
-        if self.kind in ("leak", "heat_loss"):
-            return self.kind.replace("_", " ")
-        if self.kind == "hot_supply":
-            return "hot supply temperature"
-        if self.input is not None:
-            return f"input gain on {self.input_name}"
-        return f"{self.kind} on {outputs[self.channel]}"
+        """Human-readable name, e.g. ``delay on temperature`` (the kind's ``record.label``)."""
+        t = self.fixed.get("time_constant_s")
+        return self.kind.record.label.format(
+            output=outputs[self.channel],
+            input=self.input_name,
+            source=outputs[self.source] if self.source is not None else "",
+            via=f" (T {t:.4g} s)" if t is not None else "",
+        )
 
 
 def _delay(ch: int) -> Callable[[Nominal, np.ndarray], Nominal]:
@@ -473,15 +474,23 @@ def catalogue(
     for ch, out in enumerate(outputs):
         specs.append(
             EffectSpec(
-                "delay", ch, None, ("delay_s",), (0.0,), (t_max,), (0.0, *times), (), _delay(ch)
+                EffectKind.DELAY,
+                ch,
+                None,
+                EffectKind.DELAY.record.parameters,
+                (0.0,),
+                (t_max,),
+                (0.0, *times),
+                (),
+                _delay(ch),
             )
         )
         specs.append(
             EffectSpec(
-                "lag",
+                EffectKind.LAG,
                 ch,
                 None,
-                ("time_constant_s",),
+                EffectKind.LAG.record.parameters,
                 (0.0,),
                 (t_max,),
                 times,
@@ -491,10 +500,10 @@ def catalogue(
         )
         specs.append(
             EffectSpec(
-                "gain",
+                EffectKind.GAIN,
                 ch,
                 None,
-                ("gain_error",),
+                EffectKind.GAIN.record.parameters,
                 (-0.9,),
                 (5.0,),
                 (-0.5, -0.2, 0.0, 0.2, 0.5, 1.0),
@@ -511,7 +520,8 @@ def catalogue(
     for i, name in enumerate(in_names):
         specs.append(
             EffectSpec(
-                "input_gain", int(np.argmax(share[:, i])), None, ("gain_error",), (-0.9,), (1.0,),
+                EffectKind.INPUT_GAIN, int(np.argmax(share[:, i])), None,
+                EffectKind.INPUT_GAIN.record.parameters, (-0.9,), (1.0,),
                 (-0.5, -0.2, 0.0, 0.2, 0.5), (), _input_gain(i), input=i, input_name=name,
                 explain=_explain_input_gain(i, in_names),
             )
@@ -523,10 +533,10 @@ def catalogue(
                     continue
                 specs.append(
                     EffectSpec(
-                        "coupling",
+                        EffectKind.COUPLING,
                         ch,
                         src,
-                        ("dc_gain", "hf_gain"),
+                        EffectKind.COUPLING.record.parameters,
                         (-50.0, -50.0),
                         (50.0, 50.0),
                         (0.0,),
@@ -539,12 +549,14 @@ def catalogue(
     thermal = next((n for n in THERMAL_STATES if n in names), None)
     if "height" not in names or thermal is None:
         why = (
-            "not applicable: the model's nominal has no states named 'height' and "
-            "'energy'/'temperature' (the mass and energy balances a {} changes); "
-            "add `states:` to the nominal `ss`"
+            f"not applicable: the model's nominal has no {ModelNeed.TANK_STATES} "
+            "(the mass and energy balances a {} changes); add `states:` to the nominal `ss`"
         )
-        skipped += [("leak", why.format("leak")), ("heat_loss", why.format("heat loss"))]
-        skipped.append(("hot_supply", why.format("hot-supply change")))
+        skipped += [
+            (str(k), why.format(k.record.text))
+            for k in EFFECT_KINDS
+            if ModelNeed.TANK_STATES in k.record.needs
+        ]
         return specs, skipped
     ih, it = names.index("height"), names.index(thermal)
     base = max(abs(nominal.a[ih, ih]), abs(nominal.a[it, it]), 1e-6)
@@ -552,24 +564,27 @@ def catalogue(
     h_ch = outputs.index("height") if "height" in outputs else 0
     specs.append(
         EffectSpec(
-            "leak", h_ch, None, ("rate_per_s",), (0.0,), (20.0 * base,), rates, (),
+            EffectKind.LEAK, h_ch, None, EffectKind.LEAK.record.parameters, (0.0,),
+            (20.0 * base,), rates, (),
             _state_rate([(ih, ih, -1.0), (it, it, -1.0)]),
         )
     )  # fmt: skip
     specs_hot, why_hot = _hot_supply_spec(nominal, outputs, in_names, operating_point, ih, it)
     specs += specs_hot
-    skipped += [("hot_supply", why_hot)] if why_hot else []
+    skipped += [(EffectKind.HOT_SUPPLY.value, why_hot)] if why_hot else []
     heat_rows = [(it, it, -1.0)]
     if thermal == "energy":
         t0 = operating_point.get("temperature")
         if t0 is None:
-            skipped.append(("heat_loss", "not applicable: the model has no operating temperature"))
+            why_heat = "not applicable: the model has no operating temperature"
+            skipped.append((EffectKind.HEAT_LOSS.value, why_heat))
             return specs, skipped
         heat_rows.append((it, ih, float(t0)))
     t_ch = outputs.index("temperature") if "temperature" in outputs else ih
     specs.append(
         EffectSpec(
-            "heat_loss", t_ch, None, ("rate_per_s",), (0.0,), (20.0 * base,), rates, (),
+            EffectKind.HEAT_LOSS, t_ch, None, EffectKind.HEAT_LOSS.record.parameters, (0.0,),
+            (20.0 * base,), rates, (),
             _state_rate(heat_rows),
         )
     )  # fmt: skip
@@ -598,7 +613,7 @@ def _hot_supply_spec(  # noqa: PLR0917 - the catalogue's context
     t_ch = outputs.index("temperature") if "temperature" in outputs else it
     h_ch = outputs.index("height") if "height" in outputs else 0
     spec = EffectSpec(
-        "hot_supply", t_ch, None, ("delta_temperature",), (-1.0,), (1.0,),
+        EffectKind.HOT_SUPPLY, t_ch, None, EffectKind.HOT_SUPPLY.record.parameters, (-1.0,), (1.0,),
         (-0.3, -0.1, 0.0, 0.1, 0.3), (), _hot_supply(it, ih, hot, lags, factor),
         input=hot, input_name="hot", explain=_explain_hot_supply(hot, t_ch, h_ch),
     )  # fmt: skip

@@ -10,6 +10,7 @@ import numpy as np
 
 from twotank_validation.diagnose.effects import THERMAL_STATES, EffectSpec, Nominal
 from twotank_validation.diagnose.fit import BinData
+from twotank_validation.diagnose.kinds import EffectKind
 
 
 @dataclass(frozen=True)
@@ -104,7 +105,7 @@ def evidence_points(
         dense, dense_inputs = dense[:, :1], ()
     omega = 2 * math.pi * f_hz
     slope = float(np.sum(weight * omega * ph_meas) / max(np.sum(weight * omega**2), 1e-300))
-    if spec.kind == "delay":
+    if spec.kind is EffectKind.DELAY:
         tot = float(np.sum(weight * ph_meas**2))
         r2 = 1.0 - float(np.sum(weight * (ph_meas - slope * omega) ** 2)) / tot if tot > 0 else 0.0
         kind = "phase line"
@@ -157,7 +158,7 @@ def evidence(  # noqa: PLR0911, PLR0917 - one text per kind; the effect and wher
     tail = f"; it removes {reduction:.0%} of the held-out error left without it"
     if spec.explain is not None:  # an effect that states its own evidence (effects.py)
         return spec.explain(values, before, data, ts_s, outputs) + tail
-    if spec.kind == "delay":
+    if spec.kind is EffectKind.DELAY:
         return (
             f"the {out} residual phase relative to the model falls linearly with frequency over "
             f"{band} (slope {pts.slope_s:.2f} rad per rad/s, R^2 {pts.r2:.2f} at the "
@@ -165,21 +166,21 @@ def evidence(  # noqa: PLR0911, PLR0917 - one text per kind; the effect and wher
             f"measured/modelled magnitude stays near 1 ({mag:.2f}), which rules out a lag; "
             f"fitted delay {values[0]:.2f} s{tail}"
         )
-    if spec.kind == "lag":
+    if spec.kind is EffectKind.LAG:
         lo, hi = 0, ratio.size - 1
         return (
             f"the {out} measured/modelled magnitude falls from {abs(ratio[lo]):.2f} at "
             f"{pts.f_hz[lo]:.4f} Hz to {abs(ratio[hi]):.2f} at {pts.f_hz[hi]:.4f} Hz with a "
             f"phase lag, as 1/(1 + j w T) ({fit_r2}): a lag of T = {values[0]:.1f} s{tail}"
         )
-    if spec.kind == "gain":
+    if spec.kind is EffectKind.GAIN:
         ph = float(np.degrees(np.sum(w * np.angle(ratio)) / max(np.sum(w), 1e-300)))
         return (
             f"the {out} measured/modelled ratio is flat and nearly real over {band} (mean "
             f"magnitude {mag:.3f}, mean phase {ph:.1f} deg; {fit_r2}): a static gain error of "
             f"{values[0]:+.1%}{tail}"
         )
-    if spec.kind == "coupling" and spec.source is not None:
+    if spec.kind is EffectKind.COUPLING and spec.source is not None:
         g = before.hold_response(data.theta, ts_s)
         yhat = np.einsum("kij,kj->ki", g, data.u)
         e = (data.y[:, spec.channel] - yhat[:, spec.channel]) / data.scale[:, spec.channel]
@@ -193,16 +194,16 @@ def evidence(  # noqa: PLR0911, PLR0917 - one text per kind; the effect and wher
             f"{spec.fixed.get('time_constant_s', float('nan')):.1f} s, the time constant of "
             f"{out}'s own dynamics ({fit_r2}){tail}"
         )
-    if spec.kind in ("leak", "heat_loss"):
+    if spec.kind in (EffectKind.LEAK, EffectKind.HEAT_LOSS):
         state = (
             "height"
-            if spec.kind == "leak"
+            if spec.kind is EffectKind.LEAK
             else next(n for n in THERMAL_STATES if n in before.states)
         )
         i = before.states.index(state)
         after = spec.apply(before, values)
         low = 0
-        what = "extra outflow" if spec.kind == "leak" else "heat loss to ambient"
+        what = "extra outflow" if spec.kind is EffectKind.LEAK else "heat loss to ambient"
         return (
             f"at the lowest excited harmonic ({pts.f_hz[low]:.4f} Hz) the measured "
             f"{out} is {abs(ratio[low]):.2f} of the model's, with a phase lead of "

@@ -49,15 +49,10 @@ from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose.diagnosis import Diagnosis, diagnose
 from twotank_validation.diagnose.effects import Nominal, channel_time_constants
 from twotank_validation.diagnose.inputs import DiagnosisConfig, DiagnosisError, Window
+from twotank_validation.diagnose.kinds import EffectKind
 from twotank_validation.diagnose.steady import dc_gain
 from twotank_validation.errors import TwotankError
-from twotank_validation.online.livediag import (
-    STUCK,
-    UNEXPLAINED,
-    DiagnosisJob,
-    LiveDiagnosis,
-    WindowData,
-)
+from twotank_validation.online.livediag import DiagnosisJob, LiveDiagnosis, WindowData
 
 STUCK_FRACTION = 0.9
 """A saturation that clips at least this fraction of the samples is a stuck valve (so is one
@@ -67,9 +62,6 @@ parameter counted: ``constant_cost_ratio`` ≤ 1)."""
 MATERIAL_MOVE = 0.01
 """An output's steady mean moved materially: by more than this (model units, five times the
 operating-point check's default dead band)."""
-
-THERMAL = ("heat_loss", "hot_supply")
-"""Catalogue effects that move the temperature alone at steady state."""
 
 
 def _windows(data: Sequence[WindowData], job: DiagnosisJob, t0_ns: int) -> list[Window]:
@@ -124,7 +116,9 @@ class CatalogueDiagnosis:
     def __call__(self, job: DiagnosisJob) -> LiveDiagnosis:
         """Diagnose one job (never raises: a job that cannot be diagnosed is unexplained)."""
         if job.model not in self.documents:
-            return _answer(job, UNEXPLAINED, "", {}, 0.0, f"no model document for {job.model}")
+            return _answer(
+                job, EffectKind.UNEXPLAINED, "", {}, 0.0, f"no model document for {job.model}"
+            )
         job = dated(job, Nominal.from_document(self.documents[job.model]))
         t0 = job.pre[0].start_ns if job.pre else job.post[0].start_ns
         pre = _windows(job.pre, job, t0)
@@ -142,7 +136,7 @@ class CatalogueDiagnosis:
             )
             return self.name(job, d, Nominal.from_document(base), reference)
         except TwotankError as err:
-            return _answer(job, UNEXPLAINED, "", {}, 0.0, f"not diagnosed: {err}")
+            return _answer(job, EffectKind.UNEXPLAINED, "", {}, 0.0, f"not diagnosed: {err}")
 
     def name(
         self,
@@ -152,15 +146,16 @@ class CatalogueDiagnosis:
         reference: OperatingPoint | None,
     ) -> LiveDiagnosis:
         """The most likely effect of a diagnosis (module docstring, step 3)."""
-        sat = [f for f in d.findings if f.kind == "saturation"]
+        sat = [f for f in d.findings if f.kind == EffectKind.SATURATION]
         if sat:
             f = sat[0]
             clipped = float(f.parameters.get("clipped_fraction", 0.0))
             constant = float(f.parameters.get("constant_cost_ratio", math.inf))
-            kind = STUCK if clipped >= STUCK_FRACTION or constant <= 1.0 else "saturation"
+            stuck = clipped >= STUCK_FRACTION or constant <= 1.0
+            kind = EffectKind.STUCK if stuck else EffectKind.SATURATION
             text = (
                 f"the {f.target} valve follows no command (clips {clipped:.0%} of the samples)"
-                if kind == STUCK
+                if stuck
                 else f"the {f.target} valve saturates: {f.evidence}"
             )
             conf = float(np.clip(f.heldout_reduction, 0.0, 1.0))
@@ -179,14 +174,14 @@ class CatalogueDiagnosis:
             params = {n: float(v) for n, v in zip(e.spec.names, e.values, strict=True)}
             text = f"{e.spec.label(d.outputs)}; {d.summary}"
             return _answer(job, e.spec.kind, e.spec.target(d.outputs), params, conf, text)
-        offsets = [f for f in d.findings if f.kind == "offset"]
+        offsets = [f for f in d.findings if f.kind == EffectKind.OFFSET]
         if offsets:
             f = max(offsets, key=lambda f: abs(f.parameters["offset"]))
             conf = float(np.clip(f.heldout_reduction, 0.0, 1.0))
-            return _answer(job, "offset", f.target, dict(f.parameters), conf, f.evidence)
+            return _answer(job, EffectKind.OFFSET, f.target, dict(f.parameters), conf, f.evidence)
         ex = d.explained
         left = 1.0 - (ex.fraction or 0.0) if ex is not None else 1.0
-        return _answer(job, UNEXPLAINED, "", {}, left, d.summary)
+        return _answer(job, EffectKind.UNEXPLAINED, "", {}, left, d.summary)
 
 
 def catalogue_diagnosis(
@@ -201,7 +196,7 @@ def catalogue_diagnosis(
 
 def _answer(  # noqa: PLR0917 - the fields of the answer
     job: DiagnosisJob,
-    kind: str,
+    kind: EffectKind,
     channel: str,
     parameters: Mapping[str, float],
     confidence: float,
@@ -209,7 +204,7 @@ def _answer(  # noqa: PLR0917 - the fields of the answer
 ) -> LiveDiagnosis:
     return LiveDiagnosis(
         model=job.model,
-        kind=kind,
+        kind=kind.value,
         channel=channel,
         parameters={k: float(v) for k, v in parameters.items()},
         confidence=float(np.clip(confidence, 0.0, 1.0)) if math.isfinite(confidence) else 0.0,
@@ -246,7 +241,7 @@ def operating_point_move(
     move = dev[-1]
     if not np.any(np.abs(move) > MATERIAL_MOVE):
         return None
-    if "operating point" not in job.raised_by and not np.any(np.abs(move) > 2 * MATERIAL_MOVE):
+    if not job.raised_by.operating_point and not np.any(np.abs(move) > 2 * MATERIAL_MOVE):
         # a small move that did not itself invalidate the model (a delay inside a feedback
         # loop shifts the means of a nonlinear plant a little): the dynamics name the fault
         return None
@@ -269,7 +264,7 @@ def operating_point_move(
             f"operating point moved by {np.array2string(move, precision=3)} along its "
             "steady-state response"
         )
-        return _answer(job, "input_gain", inputs[idx], params, conf, text)
+        return _answer(job, EffectKind.INPUT_GAIN, inputs[idx], params, conf, text)
     out = outputs[idx]
     size = float(move[idx])
     step, settle = _step_or_settle(job, mean_deviations(job, nominal)[:, idx], nominal, idx)
@@ -285,14 +280,14 @@ def operating_point_move(
         return _thermal_or_offset(job, d, out, size, conf, cfg, stepped=stepped)
     if step <= settle:
         text = f"the {out} sensor reads {size:+.3g} off: its mean stepped at the onset"
-        return _answer(job, "offset", out, {"offset": size}, conf, text)
+        return _answer(job, EffectKind.OFFSET, out, {"offset": size}, conf, text)
     denom = float(np.sum(g0[idx]))
     flow = -2.0 * size / denom if denom else math.nan
     text = (
         f"the level settled {size:+.3g} lower through the tank's own time constant: a "
         f"constant extra outflow of about {flow:.3g}"
     )
-    return _answer(job, "leak", out, {"level_change": size, "outflow": flow}, conf, text)
+    return _answer(job, EffectKind.LEAK, out, {"level_change": size, "outflow": flow}, conf, text)
 
 
 def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
@@ -324,14 +319,15 @@ def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
     Confidence: the direction match and the step-or-settle contrast, times the gap between
     the two candidates' held-out reductions for a plant cause.
     """
-    reds: dict[str, tuple[float, float]] = {}  # kind -> (held-out reduction, first value)
+    reds: dict[EffectKind, tuple[float, float]] = {}  # kind -> (held-out reduction, first value)
     for e in d.candidates:
-        wanted = e.spec.kind == "heat_loss" or (
-            e.spec.kind == "gain" and e.spec.target(d.outputs) == out
+        wanted = e.spec.kind is EffectKind.HEAT_LOSS or (
+            e.spec.kind is EffectKind.GAIN and e.spec.target(d.outputs) == out
         )
         if wanted and (e.spec.kind not in reds or e.reduction > reds[e.spec.kind][0]):
             reds[e.spec.kind] = (float(e.reduction), float(e.values[0]))
-    gain, loss = reds.get("gain", (-math.inf, 0.0)), reds.get("heat_loss", (-math.inf, 0.0))
+    none = (-math.inf, 0.0)
+    gain, loss = reds.get(EffectKind.GAIN, none), reds.get(EffectKind.HEAT_LOSS, none)
     material = d.noise_ratio >= cfg.material
     if stepped or not material or max(gain[0], loss[0]) < cfg.min_reduction:
         text = (
@@ -340,7 +336,7 @@ def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
             else f"the {out} sensor reads {size:+.3g} off: its mean moved while the responses "
             "stayed as before"
         )
-        return _answer(job, "offset", out, {"offset": size}, conf, text)
+        return _answer(job, EffectKind.OFFSET, out, {"offset": size}, conf, text)
     if gain[0] >= loss[0] and gain[1] * size > 0:
         g = gain[1]
         text = (
@@ -349,13 +345,17 @@ def _thermal_or_offset(  # noqa: PLR0917 - the move and how it was matched
             f"temperature changed (about {size / g:+.3g} from the cold supply)"
         )
         params = {"temperature_change": size, "response_gain": g}
-        return _answer(job, "hot_supply", "hot", params, conf * (gain[0] - max(loss[0], 0.0)), text)
+        return _answer(
+            job, EffectKind.HOT_SUPPLY, "hot", params, conf * (gain[0] - max(loss[0], 0.0)), text
+        )
     text = (
         f"the {out} settled {size:+.3g} off and settles faster than modelled: heat is lost "
         f"at a rate of about {loss[1]:.3g} /s"
     )
     params = {"temperature_change": size, "rate_per_s": loss[1]}
-    return _answer(job, "heat_loss", out, params, conf * (loss[0] - max(gain[0], 0.0)), text)
+    return _answer(
+        job, EffectKind.HEAT_LOSS, out, params, conf * (loss[0] - max(gain[0], 0.0)), text
+    )
 
 
 def _shape_fit(

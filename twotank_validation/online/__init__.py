@@ -4,6 +4,8 @@ Layers, each importing only those before it (and :mod:`twotank_validation.core`)
 :mod:`~twotank_validation.online.alarm` (the debounced alarm),
 :mod:`~twotank_validation.online.aligner` (stamped values onto the sample grid),
 :mod:`~twotank_validation.online.streams` (stream names, message types, units, extractors),
+:mod:`~twotank_validation.online.states` (a window's typed states: :class:`RaisedBy`,
+:class:`WindowState`, :class:`WindowQuality`),
 :mod:`~twotank_validation.online.livediag` (the fault named live: windows buffered, the
 diagnosis scheduled once an alarm rises),
 :mod:`~twotank_validation.online.window` (gates, validation, reports),
@@ -27,6 +29,12 @@ from twotank_validation.online.aligner import (
     SampleBlock,
 )
 from twotank_validation.online.faults import InputFaults, input_fault_text
+from twotank_validation.online.states import (
+    RaisedBy,
+    SampleFlag,
+    WindowQuality,
+    WindowState,
+)
 from twotank_validation.online.streams import STREAM_KINDS, STREAMS, RigUnits
 from twotank_validation.online.validator import OnlineValidator
 from twotank_validation.online.window import (
@@ -47,12 +55,16 @@ __all__ = [
     "InputFaults",
     "MonitorConfig",
     "OnlineValidator",
+    "RaisedBy",
     "RigUnits",
     "Sample",
     "SampleAligner",
     "SampleBlock",
+    "SampleFlag",
     "WindowMonitor",
+    "WindowQuality",
     "WindowReport",
+    "WindowState",
     "input_fault_text",
     "monitor_record",
     "reset_alarm",

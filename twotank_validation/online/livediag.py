@@ -45,12 +45,11 @@ import numpy as np
 
 from twotank_validation.errors import DatumError
 from twotank_validation.online.alarm import Alarm
+from twotank_validation.online.states import RaisedBy
 
 UNEXPLAINED = "unexplained"
-"""The answer's kind when no effect explains the change."""
-
-STUCK = "stuck"
-"""The answer's kind for a valve that follows no command (a saturation clipping almost all)."""
+"""The answer's kind when no effect explains the change
+(``twotank_validation.diagnose.kinds.EffectKind.UNEXPLAINED`` is this text)."""
 
 
 @dataclass(frozen=True)
@@ -59,10 +58,10 @@ class LiveDiagnosis:
 
     Attributes:
         model: model name.
-        kind: an effect of the catalogue (``delay``, ``lag``, ``gain``, ``input_gain``,
-            ``coupling``, ``leak``, ``heat_loss``, ``hot_supply``), ``offset`` or
-            ``saturation`` (reported findings), ``stuck`` (a valve that follows no command),
-            or ``unexplained``.
+        kind: the text of a ``twotank_validation.diagnose.kinds.EffectKind``: an effect of
+            the catalogue (``delay``, ``lag``, ``gain``, ``input_gain``, ``coupling``,
+            ``leak``, ``heat_loss``, ``hot_supply``), ``offset`` or ``saturation`` (reported
+            findings), ``stuck`` (a valve that follows no command), or ``unexplained``.
         channel: the output or input it acts on (``""`` for ``unexplained``).
         parameters: fitted parameters (SI units, model units for levels and offsets).
         confidence: how sure, in [0, 1] (docs/diagnosis.md, "The fault named live").
@@ -131,8 +130,8 @@ class DiagnosisJob:
         means_u: (k, nu) input means of each of those windows' last period.
         means_y: (k, ny) output means of the same.
         raised_by: what made the windows since the onset invalidating
-            (``WindowReport.raised_by`` of each, joined: ``"dynamics and operating point"``
-            when both occurred).
+            (``WindowReport.raised_by`` of each, joined: ``RaisedBy.BOTH`` when both
+            occurred; a text is converted).
         ts_s: sample period (s).
         period_samples: excitation period (samples).
         update: the job's number in its alarm episode.
@@ -149,11 +148,14 @@ class DiagnosisJob:
     means_end_ns: np.ndarray
     means_u: np.ndarray
     means_y: np.ndarray
-    raised_by: str
+    raised_by: RaisedBy
     ts_s: float
     period_samples: int
     update: int
     earlier: tuple[WindowData, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "raised_by", RaisedBy(self.raised_by))
 
 
 DiagnoseFn = Callable[[DiagnosisJob], LiveDiagnosis]
@@ -176,7 +178,7 @@ class Report(Protocol):
     @property
     def alarm(self) -> Alarm: ...  # noqa: D102
     @property
-    def raised_by(self) -> str: ...  # noqa: D102
+    def raised_by(self) -> RaisedBy: ...  # noqa: D102
 
 
 @dataclass(frozen=True)
@@ -221,7 +223,7 @@ class _Episode:
     earlier: tuple[WindowData, ...] = ()
     post: list[WindowData] = field(default_factory=list)
     updates: int = 0
-    raised_by: set[str] = field(default_factory=set)
+    raised_by: set[RaisedBy] = field(default_factory=set)
 
 
 @dataclass
@@ -229,7 +231,7 @@ class _ModelState:
     windows: deque[WindowData]
     means: deque[tuple[int, np.ndarray, np.ndarray]]
     last_valid_end_ns: int | None = None
-    raised_since_valid: set[str] = field(default_factory=set)
+    raised_since_valid: set[RaisedBy] = field(default_factory=set)
     episode: _Episode | None = None
     pending: deque[Future[LiveDiagnosis]] = field(default_factory=deque)
     current: LiveDiagnosis | None = None
@@ -304,7 +306,7 @@ class LiveDiagnoser:
         if not st.means or data.end_ns > st.means[-1][0]:
             st.means.append((data.end_ns, u[-p:].mean(axis=0), y[-p:].mean(axis=0)))
         if rep.raised_by:  # what invalidated the windows since the last valid one
-            st.raised_since_valid.update(rep.raised_by.replace(" and ", ",").split(","))
+            st.raised_since_valid.update(RaisedBy(rep.raised_by).parts)
         if rep.alarm is not Alarm.ERROR:
             st.episode = None
             if not rep.invalidated:
@@ -386,7 +388,7 @@ class LiveDiagnoser:
             means_end_ns=np.array([m[0] for m in means], dtype=np.int64),
             means_u=np.array([m[1] for m in means]),
             means_y=np.array([m[2] for m in means]),
-            raised_by=" and ".join(sorted(ep.raised_by)),
+            raised_by=RaisedBy.of(ep.raised_by),
             ts_s=self._ts_s,
             period_samples=self._period,
             update=ep.updates,
@@ -434,48 +436,3 @@ class LiveDiagnoser:
     def current(self) -> dict[str, LiveDiagnosis | None]:
         """The latest answer of each model diagnosed so far (None: none now)."""
         return {name: st.current for name, st in self._states.items()}
-
-
-def expected_effect(fault: Any) -> tuple[str, str]:
-    """The answer that names a simulated fault: ``(kind, channel)``.
-
-    ``fault`` is a :class:`twotank_validation.sim.faults.Fault` (anything with ``kind`` and
-    ``channel``). The table (docs/diagnosis.md, "The fault named live"):
-
-    ============================  ==========================================================
-    rig fault                     answer
-    ============================  ==========================================================
-    ``leak``                      ``leak`` on ``height``
-    ``valve_weak:V``              ``input_gain`` on ``V``
-    ``sensor_delay:C``            ``delay`` on ``C``
-    ``sensor_bias:C``             ``offset`` on ``C``
-    ``heat_loss``                 ``heat_loss`` on ``temperature``
-    ``mixing_delay``              ``delay`` on ``temperature``
-    ``valve_stuck:V``             ``stuck`` on ``V``
-    ``valve_saturation:V``        ``saturation`` on ``V``
-    ``hot_supply``                ``hot_supply`` on ``hot``
-    ============================  ==========================================================
-
-    Raises:
-        DatumError: a fault kind the table does not hold.
-    """
-    kind, channel = str(fault.kind), str(getattr(fault, "channel", ""))
-    table: Mapping[str, tuple[str, str]] = {
-        "leak": ("leak", "height"),
-        "valve_weak": ("input_gain", channel),
-        "sensor_delay": ("delay", channel),
-        "sensor_bias": ("offset", channel),
-        "heat_loss": ("heat_loss", "temperature"),
-        "mixing_delay": ("delay", "temperature"),
-        "valve_stuck": (STUCK, channel),
-        "valve_saturation": ("saturation", channel),
-        "hot_supply": ("hot_supply", "hot"),
-    }
-    if kind not in table:
-        raise DatumError(f"no expected answer for the fault kind {kind!r}; known: {sorted(table)}")
-    return table[kind]
-
-
-def named(answer: LiveDiagnosis | None, fault: Any) -> bool:
-    """Whether ``answer`` names ``fault`` (kind and channel as :func:`expected_effect`)."""
-    return answer is not None and (answer.kind, answer.channel) == expected_effect(fault)

@@ -49,6 +49,13 @@ from twotank_validation.online.channels import Channels, match_channels
 from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.oppoint import OperatingPointTracker, OpPointConfig
 from twotank_validation.online.recovery import Recovery, recover_span
+from twotank_validation.online.states import (
+    QUALITY_OK,
+    RaisedBy,
+    SampleFlag,
+    WindowQuality,
+    WindowState,
+)
 
 
 @dataclass(frozen=True)
@@ -167,7 +174,7 @@ class WindowReport:
         judged: the window was fit to judge.
         data_quality: ``"ok"`` or why it was not judged; a judged window's text starts with
             ``"ok"`` and goes on with what was recovered and, one ``"; warning: ..."`` each,
-            the :attr:`warnings`.
+            the :attr:`warnings`. For humans: :attr:`quality` is the same state typed.
         beta: total min ||w|| over the window's bins: the dynamics (NaN when not judged).
         beta_lower: general solver's certified lower bound (NaN for the closed form).
         beta_upper: general solver's witness upper bound (NaN for the closed form).
@@ -188,15 +195,18 @@ class WindowReport:
             was not checked (no reference yet, a transient, the check off, not judged).
         beta_total: ``sqrt(beta² + beta_op²)`` (``beta`` where the operating point was not
             checked; NaN when not judged).
-        raised_by: what made the window invalidating: ``"dynamics"``, ``"operating point"``,
-            ``"dynamics and operating point"`` (each below 1, together above); empty when it
-            is valid or not judged.
+        raised_by: what made the window invalidating (:class:`~.states.RaisedBy`, its text
+            ``"dynamics"``, ``"operating point"``, ``"dynamics and operating point"``: both,
+            or each below 1 and together above); ``RaisedBy.NONE`` (``""``) when it is valid
+            or not judged.
         operating_point: the reference's state (``commissioning``, ``given``,
             ``commissioned``, ``moved by a setpoint change``, ``off``) and, after a colon,
             why the window was not checked or what happened.
         diagnosis: the live diagnosis in force at this window (the most likely effect behind
             the alarm, :mod:`~twotank_validation.online.livediag`); None before one is ready,
             while the alarm is not ERROR, and without a diagnoser.
+        quality: the window's state typed (:class:`~.states.WindowQuality`): judged (ok,
+            recovered) or why not, with the kind of the first unusable sample.
     """
 
     model: str
@@ -220,20 +230,21 @@ class WindowReport:
     warnings: tuple[str, ...] = ()
     beta_op: float = math.nan
     beta_total: float = math.nan
-    raised_by: str = ""
+    raised_by: RaisedBy = RaisedBy.NONE
     operating_point: str = ""
     diagnosis: LiveDiagnosis | None = None
+    quality: WindowQuality = QUALITY_OK
 
 
-def raised_by(beta: float, beta_op: float, beta_total: float) -> str:
-    """Which part of the verdict made a window invalidating (empty if it is valid)."""
+def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
+    """Which part of the verdict made a window invalidating (``NONE`` if it is valid)."""
     if not beta_total > 1.0:
-        return ""
+        return RaisedBy.NONE
     if beta > 1.0:
-        return "dynamics" if not beta_op > 1.0 else "dynamics and operating point"
+        return RaisedBy.DYNAMICS if not beta_op > 1.0 else RaisedBy.BOTH
     if beta_op > 1.0:
-        return "operating point"
-    return "dynamics and operating point"
+        return RaisedBy.OPERATING_POINT
+    return RaisedBy.BOTH
 
 
 def evidence_alarm(alarm: AlarmConfig, hops_per_period: int) -> AlarmConfig:
@@ -263,7 +274,7 @@ def verdict_text(rep: WindowReport) -> str:
     """
     op = f", operating point beta_op {rep.beta_op:.3g}" if math.isfinite(rep.beta_op) else ""
     verdict = f"INVALIDATED by the {rep.raised_by}" if rep.invalidated else "not invalidated"
-    if rep.invalidated and rep.raised_by == "dynamics and operating point":
+    if rep.invalidated and rep.raised_by == RaisedBy.BOTH:
         verdict = "INVALIDATED by the dynamics and the operating point"
     return f"beta {rep.beta:.3f} (margin {rep.margin:+.3f}){op}: {verdict}"
 
@@ -471,7 +482,8 @@ class WindowMonitor:
             rtol=cfg.input_periodic_rtol,
         )
 
-    def _quality(self, rec: Recovery, flags: list[str | None]) -> str:
+    def _quality(self, rec: Recovery, flags: list[str | None]) -> tuple[str, WindowQuality]:
+        """Whether the span can be judged: the text and the typed state (``OK`` or why not)."""
         cfg = self.config
         L = cfg.period_samples
         span = len(flags)
@@ -480,15 +492,18 @@ class WindowMonitor:
             first = f"; first: {bad[0]}" if bad else ""
             n_bad = max(len(bad), int(rec.recovered.sum()))
             head = f"{n_bad} unusable sample(s) in the window or its settling periods"
+            unusable = WindowQuality(
+                WindowState.UNUSABLE_SAMPLES, SampleFlag.of(bad[0] if bad else None)
+            )
             if cfg.max_recovered_fraction <= 0.0:
-                return head + first
-            return f"{head}: {rec.reason}{first}"
+                return head + first, unusable
+            return f"{head}: {rec.reason}{first}", unusable
         u = rec.u
         if self._count < cfg.span_samples:
             return (
                 f"settling: {cfg.settle_periods} period(s) of periodic input are needed before "
                 f"the window ({self._count // L - cfg.periods_per_window} so far)"
-            )
+            ), WindowQuality(WindowState.SETTLING)
         rms = np.sqrt(column_mean(centred(u, column_mean(u)) ** 2))
         change = column_max_abs(u[L:] - u[:-L]) if span > L else np.zeros(self.n_inputs)
         if np.any(change > cfg.input_periodic_rtol * np.maximum(rms, 1e-12)):
@@ -496,15 +511,15 @@ class WindowMonitor:
             return (
                 f"input not periodic: input {j} changes by {change[j]:.3g} from one period to "
                 "the next (excitation started or changed; waiting for the plant to settle)"
-            )
+            ), WindowQuality(WindowState.INPUT_NOT_PERIODIC)
         win_u = u[-cfg.window_samples :]
         win_rms = np.sqrt(column_mean(centred(win_u, column_mean(win_u)) ** 2))
         if float(np.max(win_rms)) < cfg.min_excitation_rms:
             return (
                 f"too little excitation: input RMS {np.array2string(win_rms, precision=4)} below "
                 f"min_excitation_rms = {cfg.min_excitation_rms}"
-            )
-        return "ok"
+            ), WindowQuality(WindowState.TOO_LITTLE_EXCITATION)
+        return "ok", QUALITY_OK
 
     def _evaluate(self) -> list[WindowReport]:
         cfg = self.config
@@ -513,22 +528,24 @@ class WindowMonitor:
         u_span, y_span, stamps, flags = self._ordered(min(self._count, cfg.span_samples))
         start_ns, end_ns = int(stamps[-n]), int(stamps[-1])
         rec = self._recovered(u_span, y_span, flags)
-        quality = self._quality(rec, flags)
+        quality, reason = self._quality(rec, flags)
         u, y = rec.u[-n:], rec.y[-n:]
-        judged_quality = "ok"
+        judged_quality, judged_reason = "ok", QUALITY_OK
         if rec.recovered.any():
             judged_quality = (
                 f"ok; recovered {int(rec.recovered.sum())} sample(s) from the other periods "
                 f"({rec.summary(self._signal_names)})"
             )
+            judged_reason = WindowQuality(WindowState.RECOVERED)
         # one datum per distinct channel selection: the samples' order for every model that
         # takes all channels in it (the common case), the model's own order otherwise
-        data: dict[tuple[tuple[int, ...], tuple[int, ...]], Datum | str] = {}
+        data: dict[tuple[tuple[int, ...], tuple[int, ...]], Datum | tuple[str, WindowQuality]]
+        data = {}
         reports = []
         for model in self.models:
             pick = self._select[model.name]
             key = (pick.inputs, pick.outputs)
-            if quality == "ok" and key not in data:
+            if reason.state is WindowState.OK and key not in data:
                 try:
                     data[key] = make_datum(
                         *pick.select(u, y),
@@ -537,10 +554,13 @@ class WindowMonitor:
                         convention=cfg.convention,
                     )
                 except TwotankError as err:
-                    data[key] = f"datum rejected: {err}"
-            datum = data.get(key, quality)
-            if isinstance(datum, str):
-                reports.append(self._unjudged(model.name, start_ns, end_ns, datum))
+                    data[key] = (
+                        f"datum rejected: {err}",
+                        WindowQuality(WindowState.DATUM_REJECTED),
+                    )
+            datum = data.get(key, (quality, reason))
+            if isinstance(datum, tuple):
+                reports.append(self._unjudged(model.name, start_ns, end_ns, *datum))
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()
@@ -589,11 +609,14 @@ class WindowMonitor:
                     beta_total=total,
                     raised_by=raised_by(res.beta, op.beta, total),
                     operating_point=f"{op.state}: {op.note}" if op.note else str(op.state),
+                    quality=judged_reason,
                 )
             )
         return reports
 
-    def _unjudged(self, name: str, start_ns: int, end_ns: int, reason: str) -> WindowReport:
+    def _unjudged(
+        self, name: str, start_ns: int, end_ns: int, reason: str, quality: WindowQuality
+    ) -> WindowReport:
         state = update_alarm(
             self.alarms[name], self._alarm, judged=False, invalidated=False, beta=math.nan
         )
@@ -617,6 +640,7 @@ class WindowMonitor:
             freqs_hz=np.zeros(0),
             w_min=np.zeros(0),
             compute_time_s=0.0,
+            quality=quality,
         )
 
 

@@ -2,7 +2,7 @@
 
 A :class:`Fault` switches on at a given simulated time: a leak, heat loss to ambient, a stuck,
 weak or saturating valve, a sensor bias or delay, a changed mixing delay, a changed hot-supply
-temperature (kinds in ``FAULT_KINDS``).
+temperature (:class:`FaultKind`, each kind's properties one :class:`FaultKindRecord`).
 :class:`FaultEffects` sums the active faults into what the simulator's balances need.
 
 Text form, for ROS parameters and command lines:
@@ -16,38 +16,43 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from enum import StrEnum
+from types import MappingProxyType
+from typing import NamedTuple, cast
 
 from twotank_validation.errors import ModelError
 
-FAULT_KINDS: tuple[str, ...] = (
-    "leak",
-    "sensor_bias",
-    "valve_stuck",
-    "valve_weak",
-    "sensor_delay",
-    "mixing_delay",
-    "heat_loss",
-    "valve_saturation",
-    "hot_supply",
-)
-"""Kinds of :class:`Fault` that TankSimulator implements."""
+
+class FaultKind(StrEnum):
+    """A kind of :class:`Fault` that TankSimulator implements; its text is its value.
+
+    Its properties are one record each (:attr:`record`, :data:`FAULT_RECORDS`).
+    """
+
+    LEAK = "leak"
+    SENSOR_BIAS = "sensor_bias"
+    VALVE_STUCK = "valve_stuck"
+    VALVE_WEAK = "valve_weak"
+    SENSOR_DELAY = "sensor_delay"
+    MIXING_DELAY = "mixing_delay"
+    HEAT_LOSS = "heat_loss"
+    VALVE_SATURATION = "valve_saturation"
+    HOT_SUPPLY = "hot_supply"
+
+    def __repr__(self) -> str:
+        """The text's repr (``'leak'``): a Fault prints as it did when kinds were strings."""
+        return repr(self.value)
+
+    @property
+    def record(self) -> FaultKindRecord:
+        """This kind's properties."""
+        return FAULT_RECORDS[self]
+
 
 VALVE_CHANNELS: tuple[str, ...] = ("hot", "cold")
 SENSOR_CHANNELS: tuple[str, ...] = ("height", "temperature")
-_CHANNELS: dict[str, tuple[str, ...]] = {
-    "leak": (),
-    "sensor_bias": SENSOR_CHANNELS,
-    "valve_stuck": VALVE_CHANNELS,
-    "valve_weak": VALVE_CHANNELS,
-    "sensor_delay": SENSOR_CHANNELS,
-    "mixing_delay": (),
-    "heat_loss": (),
-    "valve_saturation": VALVE_CHANNELS,
-    "hot_supply": (),
-}
 
 MAX_FAULT_DELAY_S = 600.0
 """Largest ``sensor_delay`` or ``mixing_delay`` magnitude accepted, seconds."""
@@ -56,22 +61,150 @@ MAX_HOT_SUPPLY_SHIFT = 0.5
 """Largest size of a ``hot_supply`` change accepted (model temperature units; the nominal
 supplies are 1 and 0)."""
 
-# (low, high, low_inclusive, unit) of the magnitude of each kind; valve_stuck: any finite value.
-_MAGNITUDE_RANGES: dict[str, tuple[float, float, bool, str]] = {
-    "leak": (0.0, 1.0, True, "extra outflow, model flow units (nominal outflow 0.8)"),
-    "sensor_bias": (-1.0, 1.0, True, "additive offset, model units"),
-    "valve_weak": (0.0, 1.0, False, "fraction of the commanded flow delivered"),
-    "sensor_delay": (0.0, MAX_FAULT_DELAY_S, True, "extra transport delay, seconds"),
-    "mixing_delay": (0.0, MAX_FAULT_DELAY_S, True, "mixing delay at mixing_ref_level, seconds"),
-    "heat_loss": (0.0, 1.0, True, "heat-loss coefficient, model flow units"),
-    "valve_saturation": (0.0, 1.0, False, "largest command the valve follows, model units"),
-    "hot_supply": (
-        -MAX_HOT_SUPPLY_SHIFT,
-        MAX_HOT_SUPPLY_SHIFT,
-        True,
-        "change of the hot supply temperature, model temperature units",
-    ),
-}
+
+@dataclass(frozen=True)
+class MagnitudeRange:
+    """The range of a fault's ``magnitude``: ``(low, high]`` or ``[low, high]``, and its unit.
+
+    Attributes:
+        low, high: the bounds.
+        low_inclusive: whether ``low`` itself is accepted (``high`` always is).
+        unit: what the magnitude is, in words with its unit.
+    """
+
+    low: float
+    high: float
+    low_inclusive: bool
+    unit: str
+
+    def contains(self, value: float) -> bool:
+        """Whether ``value`` lies in the range."""
+        above_low = value >= self.low if self.low_inclusive else value > self.low
+        return above_low and value <= self.high
+
+    @property
+    def text(self) -> str:
+        """``"[0, 1]"`` or ``"(0, 1]"``."""
+        return f"{'[' if self.low_inclusive else '('}{self.low:g}, {self.high:g}]"
+
+
+@dataclass(frozen=True)
+class FaultKindRecord:
+    """Everything about one kind of fault, in one place.
+
+    Attributes:
+        kind: the kind.
+        magnitude: the range and unit of its ``magnitude``; None: the magnitude is ignored
+            (any finite value).
+        channels: the channels it acts on, one per fault (``()``: the whole tank, no channel).
+        moves_operating_point: a constant change that moves the steady means by itself.
+        thermal: acts on the energy balance (the heat the tank gains or loses).
+        stuck: a valve that stops following (part of) its command: stuck or clipping.
+        effect: the effect kind of the diagnosis that names it
+            (``twotank_validation.diagnose.kinds.EffectKind``, by its text; this layer does
+            not import the diagnosis).
+        effect_channel: the channel that effect names; None: the fault's own channel.
+    """
+
+    kind: FaultKind
+    magnitude: MagnitudeRange | None
+    channels: tuple[str, ...]
+    moves_operating_point: bool
+    thermal: bool
+    stuck: bool
+    effect: str
+    effect_channel: str | None
+
+
+def _record(
+    kind: FaultKind,
+    magnitude: MagnitudeRange | None,
+    channels: tuple[str, ...],
+    effect: tuple[str, str | None],
+    *,
+    moves: bool = False,
+    thermal: bool = False,
+    stuck: bool = False,
+) -> tuple[FaultKind, FaultKindRecord]:
+    return kind, FaultKindRecord(kind, magnitude, channels, moves, thermal, stuck, *effect)
+
+
+FAULT_RECORDS: Mapping[FaultKind, FaultKindRecord] = MappingProxyType(
+    dict(
+        [
+            _record(
+                FaultKind.LEAK,
+                MagnitudeRange(
+                    0.0, 1.0, True, "extra outflow, model flow units (nominal outflow 0.8)"
+                ),
+                (),
+                ("leak", "height"),
+                moves=True,
+            ),
+            _record(
+                FaultKind.SENSOR_BIAS,
+                MagnitudeRange(-1.0, 1.0, True, "additive offset, model units"),
+                SENSOR_CHANNELS,
+                ("offset", None),
+                moves=True,
+            ),
+            _record(FaultKind.VALVE_STUCK, None, VALVE_CHANNELS, ("stuck", None), stuck=True),
+            _record(
+                FaultKind.VALVE_WEAK,
+                MagnitudeRange(0.0, 1.0, False, "fraction of the commanded flow delivered"),
+                VALVE_CHANNELS,
+                ("input_gain", None),
+                moves=True,
+            ),
+            _record(
+                FaultKind.SENSOR_DELAY,
+                MagnitudeRange(0.0, MAX_FAULT_DELAY_S, True, "extra transport delay, seconds"),
+                SENSOR_CHANNELS,
+                ("delay", None),
+            ),
+            _record(
+                FaultKind.MIXING_DELAY,
+                MagnitudeRange(
+                    0.0, MAX_FAULT_DELAY_S, True, "mixing delay at mixing_ref_level, seconds"
+                ),
+                (),
+                ("delay", "temperature"),
+            ),
+            _record(
+                FaultKind.HEAT_LOSS,
+                MagnitudeRange(0.0, 1.0, True, "heat-loss coefficient, model flow units"),
+                (),
+                ("heat_loss", "temperature"),
+                moves=True,
+                thermal=True,
+            ),
+            _record(
+                FaultKind.VALVE_SATURATION,
+                MagnitudeRange(0.0, 1.0, False, "largest command the valve follows, model units"),
+                VALVE_CHANNELS,
+                ("saturation", None),
+                stuck=True,
+            ),
+            _record(
+                FaultKind.HOT_SUPPLY,
+                MagnitudeRange(
+                    -MAX_HOT_SUPPLY_SHIFT,
+                    MAX_HOT_SUPPLY_SHIFT,
+                    True,
+                    "change of the hot supply temperature, model temperature units",
+                ),
+                (),
+                ("hot_supply", "hot"),
+                moves=True,
+                thermal=True,
+            ),
+        ]
+    )
+)
+"""Each :class:`FaultKind`'s record (the one table a new kind is added to)."""
+
+FAULT_KINDS: tuple[str, ...] = tuple(k.value for k in FaultKind)
+"""The texts of the kinds of :class:`Fault` that TankSimulator implements."""
 
 
 @dataclass(frozen=True)
@@ -117,7 +250,8 @@ class Fault:
     registered last applies.
 
     Attributes:
-        kind: One of ``FAULT_KINDS``.
+        kind: The kind (a :class:`FaultKind`; its text, e.g. ``"leak"``, is accepted and
+            converted).
         onset_s: Simulated time (seconds, finite, >= 0) at which the fault takes effect.
         magnitude: Size of the fault, finite, in the range given above for its kind.
         channel: ``"hot"``/``"cold"`` for valve faults, ``"height"``/``"temperature"`` for
@@ -129,7 +263,7 @@ class Fault:
             of range, non-finite or negative onset, end not after onset).
     """
 
-    kind: str
+    kind: FaultKind
     onset_s: float
     magnitude: float
     channel: str = ""
@@ -140,7 +274,9 @@ class Fault:
             raise ModelError(
                 f"Fault.kind={self.kind!r} is not a known fault kind; use one of {FAULT_KINDS}"
             )
-        where = f"Fault(kind={self.kind!r})"
+        object.__setattr__(self, "kind", FaultKind(self.kind))
+        record = self.kind.record
+        where = f"Fault(kind={self.kind.value!r})"
         for name in ("onset_s", "magnitude", "end_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
@@ -157,16 +293,13 @@ class Fault:
             )
         if not math.isfinite(self.magnitude):
             raise ModelError(f"{where}.magnitude={self.magnitude!r} is not finite")
-        if self.kind in _MAGNITUDE_RANGES:
-            lo, hi, lo_inclusive, unit = _MAGNITUDE_RANGES[self.kind]
-            above_lo = self.magnitude >= lo if lo_inclusive else self.magnitude > lo
-            if not (above_lo and self.magnitude <= hi):
-                bracket = "[" if lo_inclusive else "("
-                raise ModelError(
-                    f"{where}.magnitude={self.magnitude!r} is outside {bracket}{lo:g}, {hi:g}] "
-                    f"({unit}); pass a magnitude inside that range"
-                )
-        allowed = _CHANNELS[self.kind]
+        rng = record.magnitude
+        if rng is not None and not rng.contains(self.magnitude):
+            raise ModelError(
+                f"{where}.magnitude={self.magnitude!r} is outside {rng.text} "
+                f"({rng.unit}); pass a magnitude inside that range"
+            )
+        allowed = record.channels
         if not isinstance(self.channel, str):
             raise ModelError(f"{where}.channel={self.channel!r} is not a string")
         if allowed and self.channel not in allowed:
@@ -217,22 +350,22 @@ class FaultEffects(NamedTuple):
         delay = [0.0, 0.0]
         mixing: float | None = None
         for f in faults:
-            if f.kind == "leak":
+            if f.kind is FaultKind.LEAK:
                 leak += f.magnitude
-            elif f.kind == "heat_loss":
+            elif f.kind is FaultKind.HEAT_LOSS:
                 heat_loss += f.magnitude
-            elif f.kind == "valve_weak":
+            elif f.kind is FaultKind.VALVE_WEAK:
                 gain[VALVE_CHANNELS.index(f.channel)] *= f.magnitude
-            elif f.kind == "valve_saturation":
+            elif f.kind is FaultKind.VALVE_SATURATION:
                 i = VALVE_CHANNELS.index(f.channel)
                 limit[i] = min(limit[i], f.magnitude)
-            elif f.kind == "hot_supply":
+            elif f.kind is FaultKind.HOT_SUPPLY:
                 hot_supply += f.magnitude
-            elif f.kind == "valve_stuck":
+            elif f.kind is FaultKind.VALVE_STUCK:
                 stuck[VALVE_CHANNELS.index(f.channel)] = True
-            elif f.kind == "sensor_bias":
+            elif f.kind is FaultKind.SENSOR_BIAS:
                 bias[SENSOR_CHANNELS.index(f.channel)] += f.magnitude
-            elif f.kind == "sensor_delay":
+            elif f.kind is FaultKind.SENSOR_DELAY:
                 delay[SENSOR_CHANNELS.index(f.channel)] += f.magnitude
             else:  # mixing_delay: the last one registered wins
                 mixing = f.magnitude
@@ -271,7 +404,7 @@ def parse_fault(spec: str) -> Fault:
         )
     try:
         return Fault(
-            kind=m["kind"],
+            kind=cast("FaultKind", m["kind"]),  # Fault checks and converts the text
             onset_s=float(m["onset"]),
             magnitude=float(m["mag"]) if m["mag"] is not None else 0.0,
             channel=m["channel"] or "",

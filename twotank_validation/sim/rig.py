@@ -16,10 +16,10 @@ The outputs are the level h1 and the bulk temperature t1 = E1 / h1. The simulato
 rig's unmodelled physics on the measured temperature (a level-dependent transport delay and an
 optional mixing lag) and white Gaussian sensor noise. Neither is in the linear models.
 
-Faults and unmodelled effects (:class:`~twotank_validation.sim.faults.Fault`, kinds in
-``FAULT_KINDS``) can be switched on at a given simulated time: a leak, heat loss to ambient, a
-stuck, weak or saturating valve, a sensor bias or delay, a changed mixing delay, a changed hot
-supply temperature. With faults the balances become
+Faults and unmodelled effects (:class:`~twotank_validation.sim.faults.Fault`, kinds
+:class:`~twotank_validation.sim.faults.FaultKind`) can be switched on at a given simulated time:
+a leak, heat loss to ambient, a stuck, weak or saturating valve, a sensor bias or delay, a
+changed mixing delay, a changed hot supply temperature. With faults the balances become
 
 * ``A1 dh1/dt = f_h + f_c - f1 - leak``,
 * ``A1 dE1/dt = f_h t_h + f_c t_c - (f1 + leak) t1 - q (t1 - t_amb)``,
@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from twotank_validation.defaults import TS_S
 from twotank_validation.errors import DatumError, DimensionError, ModelError
-from twotank_validation.sim.faults import SENSOR_CHANNELS, Fault, FaultEffects
+from twotank_validation.sim.faults import SENSOR_CHANNELS, Fault, FaultEffects, FaultKind
 
 __all__ = [
     "MODEL_HEIGHT_RANGE",
@@ -535,10 +535,12 @@ class TankSimulator:
         """
         if not isinstance(fault, Fault):
             raise ModelError(f"fault={fault!r} is not a Fault; build it with Fault(kind, ...)")
-        if fault.kind == "hot_supply":
+        if fault.kind is FaultKind.HOT_SUPPLY:
             params = self._params
             coolest = params.hot_supply_temp + sum(
-                min(f.magnitude, 0.0) for f in (*self.faults, fault) if f.kind == "hot_supply"
+                min(f.magnitude, 0.0)
+                for f in (*self.faults, fault)
+                if f.kind is FaultKind.HOT_SUPPLY
             )
             if coolest <= params.cold_supply_temp:
                 raise ModelError(
@@ -553,7 +555,7 @@ class TankSimulator:
         )
         self._faults.append((fault, first, float(stop)))
         self._next_change = -math.inf
-        if fault.kind == "mixing_delay":
+        if fault.kind is FaultKind.MIXING_DELAY:
             capacity = (
                 math.ceil(fault.magnitude / self._params.mixing_ref_level / self._dt * self._h_cap)
                 + 3
@@ -561,10 +563,10 @@ class TankSimulator:
             if capacity > len(self._history):
                 bulk = self._e / self._h
                 self._history = _regrown(self._history, self._grid_index, capacity, bulk)
-        elif fault.kind == "sensor_delay":
+        elif fault.kind is FaultKind.SENSOR_DELAY:
             total = [0.0, 0.0]
             for f, _, _ in self._faults:
-                if f.kind == "sensor_delay":
+                if f.kind is FaultKind.SENSOR_DELAY:
                     total[SENSOR_CHANNELS.index(f.channel)] += f.magnitude
             capacity = math.ceil(max(total) / self._dt) + 3
             hist_h, hist_t = self._sensor_history
