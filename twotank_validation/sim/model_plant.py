@@ -13,7 +13,7 @@ simulates such a model directly, the way the validator reads it:
 * The loop ``v = Δ z`` is closed with one member Δ of the perturbation set
   (:class:`Member`, :func:`delta_system`, :func:`close_loop`): ``nominal`` (Δ = 0),
   ``gains`` (a real scalar gain δ_i, |δ_i| <= 1, on each block: Δ_i = δ_i I) or ``random``
-  (a random stable Δ_i(z) with ``||Δ_i||∞ <= scale <= 1``, see :func:`delta_system`). The
+  (a random stable Δ_i(z) with ``||Δ_i||∞ = scale <= 1``, see :func:`delta_system`). The
   closed loop ``[w; u] -> y`` is LTI.
 * The unknown input w is white Gaussian noise of unit norm in the validator's (power)
   sense, i.e. ``E[sum_i w_i(k)^2] = 1``: each of the nw channels has variance ``1 / nw``,
@@ -285,7 +285,7 @@ class Member:
             random stable discrete system, see :func:`delta_system`).
         gains: ``gains``: one δ_i per block, each in [-1, 1] (one value: the same for all).
         seed: ``random``: seed of the draw, >= 0.
-        scale: ``random``: the bound on ``||Δ_i||∞``, in (0, 1].
+        scale: ``random``: ``||Δ_i||∞`` of every block, in (0, 1].
     """
 
     kind: str = "nominal"
@@ -625,8 +625,9 @@ class ModelSimConfig:
 # --------------------------------------------------------------------------- state spaces
 
 
-def _stack(parts: Sequence[tuple[StateSpace, FloatArray, FloatArray]], n_in: int, n_out: int,
-           dt_s: float) -> StateSpace:  # fmt: skip
+def _stack(
+    parts: Sequence[tuple[StateSpace, FloatArray, FloatArray]], n_in: int, n_out: int, dt_s: float
+) -> StateSpace:
     """Sum of paths ``M_out S M_in``: states stacked, ``(S, M_in, M_out)`` each."""
     a = scipy.linalg.block_diag(*[s.a for s, _, _ in parts]) if parts else np.zeros((0, 0))
     n = a.shape[0]
@@ -765,11 +766,9 @@ def discrete_plant(model: LFTModel, ts_s: float) -> StateSpace:
     for ch in model.noise:
         w = undelay(lti.discretise(ch.weight, ts_s))
         k_in = w.shape[1]
-        parts.append((
-            w,
-            _select(k_in, n_in, [(k, col + k) for k in range(k_in)]),
-            _select(n_out, w.shape[0], [(y_rows[o], k) for k, o in enumerate(ch.outputs)]),
-        ))  # fmt: skip
+        w_in = _select(k_in, n_in, [(k, col + k) for k in range(k_in)])
+        y_sel = [(y_rows[o], k) for k, o in enumerate(ch.outputs)]
+        parts.append((w, w_in, _select(n_out, w.shape[0], y_sel)))
         col += k_in
     return _stack([(g, u_in, g_out), *parts], n_in, n_out, ts_s)
 
@@ -778,8 +777,9 @@ def _random_allpass(rng: np.random.Generator, ts_s: float) -> StateSpace:
     """A stable first-order discrete all-pass ``(z^-1 - a) / (1 - a z^-1)``, |H(e^{jθ})| = 1."""
     a = float(rng.uniform(-0.9, 0.9))
     # H(z) = (1 - a z) / (z - a) = -a + (1 - a^2) / (z - a)
-    return StateSpace(np.array([[a]]), np.array([[1.0]]), np.array([[1.0 - a * a]]),
-                      np.array([[-a]]), ts_s)  # fmt: skip
+    return StateSpace(
+        np.array([[a]]), np.array([[1.0]]), np.array([[1.0 - a * a]]), np.array([[-a]]), ts_s
+    )
 
 
 def delta_system(model: LFTModel, member: Member, ts_s: float) -> StateSpace:
@@ -788,10 +788,11 @@ def delta_system(model: LFTModel, member: Member, ts_s: float) -> StateSpace:
     * ``nominal``: 0.
     * ``gains``: ``Δ_i = δ_i I`` (rectangular identity for a non-square block), static.
     * ``random``: ``Δ_i(z) = s Q_1 diag(g_k A_k(z)) Q_2`` with ``Q_1``, ``Q_2`` random
-      orthogonal matrices (``scipy.stats.ortho_group``; signs for 1 x 1), ``g_k`` uniform in
-      [-1, 1], ``A_k`` a random stable first-order all-pass (pole uniform in (-0.9, 0.9)):
-      ``||Δ_i(e^{jθ})||_2 = s max|g_k| <= s`` at every θ, so ``||Δ_i||∞ <= scale`` exactly
-      (no frequency grid), and Δ_i is stable. Drawn from ``default_rng(member.seed)``.
+      orthogonal matrices (QR of a Gaussian matrix; a sign for 1 x 1), ``g_k`` uniform in
+      [-1, 1] divided by the largest ``|g_k|``, ``A_k`` a random stable first-order all-pass
+      (pole uniform in (-0.9, 0.9)). The singular values of ``Δ_i(e^{jθ})`` are ``s |g_k|``
+      at every θ, so ``||Δ_i||∞ = s = scale`` exactly (no frequency grid) and Δ_i is
+      stable. Drawn from ``default_rng(member.seed)``.
 
     Raises:
         ModelSimError: A ``gains`` member with the wrong number of gains.
@@ -814,6 +815,7 @@ def delta_system(model: LFTModel, member: Member, ts_s: float) -> StateSpace:
         r = min(rows, cols)
         q1, q2 = _orthogonal(rng, rows), _orthogonal(rng, cols)
         g = rng.uniform(-1.0, 1.0, size=r)
+        g /= np.max(np.abs(g))  # the largest |g_k| is 1: ||Δ_i||∞ = scale exactly
         for k in range(r):
             ap = _random_allpass(rng, ts_s)
             col_in = q2[k : k + 1, :]  # (1, cols): the k-th row of Q_2
