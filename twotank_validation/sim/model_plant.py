@@ -367,9 +367,9 @@ def parse_member(text: str) -> Member:
 def format_member(member: Member) -> str:
     """Inverse of :func:`parse_member`."""
     if member.kind == "gains":
-        return "gains=" + ",".join(f"{g:.17g}" for g in member.gains)
+        return "gains=" + ",".join(_num(g) for g in member.gains)
     if member.kind == "random":
-        return f"random,seed={member.seed},scale={member.scale:.17g}"
+        return f"random,seed={member.seed},scale={_num(member.scale)}"
     return "nominal"
 
 
@@ -481,11 +481,17 @@ def parse_model_fault(spec: str) -> ModelFault:
         raise ModelSimError(f"fault spec {spec!r} is not {FAULT_TEXT_FORM}: {err}") from err
 
 
+def _num(x: float) -> str:
+    """Shortest text that reads back to ``x`` (``300``, not ``300.0``)."""
+    text = repr(float(x))
+    return text[:-2] if text.endswith(".0") else text
+
+
 def format_model_fault(fault: ModelFault) -> str:
-    """Inverse of :func:`parse_model_fault`."""
-    mag = "" if fault.kind == "stuck_input" else f"={fault.magnitude:.17g}"
-    end = f"-{fault.end_s:.17g}" if math.isfinite(fault.end_s) else ""
-    return f"{fault.kind}:{fault.channel}{mag}@{fault.onset_s:.17g}{end}"
+    """Inverse of :func:`parse_model_fault` (the shortest numbers that read back the same)."""
+    mag = "" if fault.kind == "stuck_input" else f"={_num(fault.magnitude)}"
+    end = f"-{_num(fault.end_s)}" if math.isfinite(fault.end_s) else ""
+    return f"{fault.kind}:{fault.channel}{mag}@{_num(fault.onset_s)}{end}"
 
 
 def _check_fault(fault: ModelFault, model: LFTModel, ts_s: float) -> None:
