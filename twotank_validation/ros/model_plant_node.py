@@ -118,7 +118,10 @@ class ModelPlantNode(Node):
             for n in model.output_names
         ]
         if v["self_timed"]:
-            self.create_timer(self.config.ts_s, self.tick)
+            self.create_timer(self.config.ts_s, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self.tick()
 
     def tick(self) -> PlantSample:
         """Compute the next sample, publish its inputs and outputs, and return it."""
