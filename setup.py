@@ -76,6 +76,7 @@ setup(
             "twotank-validation = twotank_validation.cli:main",
             "twotank_validator = twotank_validation.ros.validator_node:main",
             "twotank_plant = twotank_validation.ros.plant_node:main",
+            "twotank_model_plant = twotank_validation.ros.model_plant_node:main",
             "twotank_excitation = twotank_validation.ros.excitation_node:main",
             "twotank_controller = twotank_validation.ros.controller_node:main",
             "twotank_supervisor = twotank_validation.ros.supervisor_node:main",

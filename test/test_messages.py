@@ -318,6 +318,7 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     assert set(scripts) == {
         "twotank_validator",
         "twotank_plant",
+        "twotank_model_plant",
         "twotank_excitation",
         "twotank_controller",
         "twotank_supervisor",
