@@ -211,8 +211,30 @@ def from_flat(cls: type[T], values: Mapping[str, Any], prefix: str = "") -> T:
         meta: Setting = f.metadata[_KEY]
         name = meta.name or prefix + f.name
         if name in values:
+            if meta.choices:  # named before an enum's own error could hide the setting
+                _check(_label(cls, f.name, meta), meta, values[name], SettingError)
             kwargs[f.name] = _from_flat_value(hints[f.name], values[name])
     return cls(**kwargs)
+
+
+def _label(cls: type, field: str, meta: Setting) -> str:
+    """``"alarm_evidence (AlarmConfig.evidence)"``, or ``"MonitorConfig.ts_s"``."""
+    label = f"{cls.__name__}.{field}"
+    return f"{meta.name} ({label})" if meta.name else label
+
+
+def _check(label: str, meta: Setting, value: Any, error: type[Exception]) -> None:
+    """Raise ``error`` naming the setting if ``value`` is out of its range or choices."""
+    if meta.choices:
+        if to_flat(str, value) not in meta.choices:
+            raise error(f"{label} = {value!r} is not one of {list(meta.choices)}")
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return
+    low = -math.inf if meta.low is None else meta.low
+    high = math.inf if meta.high is None else meta.high
+    if not low <= value <= high:  # NaN fails too
+        raise error(f"{label} = {value!r} is outside its allowed range {meta.range_text()}")
 
 
 def check_settings(config: object, error: type[Exception] = SettingError) -> None:
@@ -227,19 +249,5 @@ def check_settings(config: object, error: type[Exception] = SettingError) -> Non
     """
     for f in _fields(type(config)):
         meta = f.metadata.get(_KEY)
-        if not isinstance(meta, Setting):
-            continue
-        value = getattr(config, f.name)
-        label = f"{type(config).__name__}.{f.name}"
-        if meta.name:
-            label = f"{meta.name} ({label})"
-        if meta.choices:
-            if to_flat(str, value) not in meta.choices:
-                raise error(f"{label} = {value!r} is not one of {list(meta.choices)}")
-            continue
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            continue
-        low = -math.inf if meta.low is None else meta.low
-        high = math.inf if meta.high is None else meta.high
-        if not low <= value <= high:  # NaN fails too
-            raise error(f"{label} = {value!r} is outside its allowed range {meta.range_text()}")
+        if isinstance(meta, Setting):
+            _check(_label(type(config), f.name, meta), meta, getattr(config, f.name), error)
