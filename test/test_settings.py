@@ -423,7 +423,7 @@ def test_cli_docs_list_the_options_with_the_trees_defaults() -> None:
     tables = (DOCS / "cli.md").read_text().split("| option | default | meaning |")
     header = "| option | default | meaning |"
     live = _rows_of(header + tables[1])
-    bag = next(_rows_of(header + t) for t in tables[1:] if "`--periods-per-window" in t)
+    bag = next(r for t in tables[1:] if "--periods-per-window" in (r := _rows_of(header + t)))
     for option, s in BY_OPTION.items():
         assert option in bag, f"docs/cli.md's validate table lacks {option}"
         assert _doc_value(bag[option][0]) == s.param_default, (option, bag[option][0])
