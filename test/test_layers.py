@@ -2,7 +2,7 @@
 
 The layers, lowest first (a module may import its own layer and the layers below it):
 
-    errors, defaults -> core -> online -> sim -> bags -> tables -> diagnose -> replay
+    errors, defaults, settings -> core -> online -> sim -> bags -> tables -> diagnose -> replay
     -> experiment -> calibrate -> report -> fleet -> ros -> cli
 
 The package root (``twotank_validation/__init__.py``) is the public surface above them all; it
@@ -22,7 +22,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = "twotank_validation"
 LAYERS = (
-    ("errors", "defaults"),
+    ("errors", "defaults", "settings"),
     ("core",),
     ("online",),
     ("sim",),

@@ -18,11 +18,11 @@ from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import WindowReport
-from twotank_validation.online.alarm import DEBOUNCE_RULES
 from twotank_validation.online.window import verdict_text
 
 if TYPE_CHECKING:
     from twotank_validation.online.interface import InterfaceMap
+    from twotank_validation.settings import FlatSetting
 
 EXIT_OK = 0
 """The command ran and judged what it was asked to judge."""
@@ -224,19 +224,19 @@ def _replay_config(
 ) -> object:
     """The ``replay.ReplayConfig`` of the shared bag options (validate, diagnose)."""
     from twotank_validation import replay  # noqa: PLC0415
-    from twotank_validation.online import AlarmConfig, MonitorConfig  # noqa: PLC0415
+    from twotank_validation.online import MonitorConfig  # noqa: PLC0415
+    from twotank_validation.settings import from_flat  # noqa: PLC0415
 
     try:
         return replay.ReplayConfig(
-            monitor=MonitorConfig(
-                ts_s=ts_s,
-                period_samples=period_samples,
-                periods_per_window=args.periods_per_window,
-                settle_periods=args.settle_periods,
-                hop_samples=args.hop,
-                convention=NormConvention(args.norm),
-                alarm=AlarmConfig(debounce=args.debounce),
-                input_periodic_rtol=_input_periodic_rtol(args),
+            monitor=from_flat(
+                MonitorConfig,
+                {s.name: getattr(args, option_dest(s.meta.option)) for s in _option_settings()}
+                | {
+                    "ts_s": ts_s,
+                    "period_samples": period_samples,
+                    "input_periodic_rtol": _input_periodic_rtol(args),
+                },
             ),
             interface=_interface_map(args),
             oversampling=oversampling or {},
@@ -1054,6 +1054,38 @@ def _add_calibrate_parser(command: Callable[[str, str], argparse.ArgumentParser]
     cal.set_defaults(func=_cmd_calibrate)
 
 
+def _option_settings() -> tuple[FlatSetting, ...]:
+    """The settings that are options of the bag commands (the window and alarm options)."""
+    from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS  # noqa: PLC0415
+
+    return tuple(s for s in VALIDATOR_SETTINGS if s.meta.option)
+
+
+def option_dest(option: str) -> str:
+    """The ``argparse`` destination of an option (``--settle-periods``: ``settle_periods``)."""
+    return option.removeprefix("--").replace("-", "_")
+
+
+def _add_setting_options(parser: argparse.ArgumentParser) -> None:
+    """The window and alarm options, generated from the settings tree.
+
+    One option per setting with an ``option`` name: default, choices, type and help are the
+    setting's (``online/validator_settings.py``).
+    """
+    from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS  # noqa: PLC0415
+
+    defaults = {s.name: s.param_default for s in VALIDATOR_SETTINGS}
+    for s in _option_settings():
+        kwargs: dict[str, Any] = {"default": s.param_default}
+        if s.meta.choices:
+            kwargs["choices"] = s.meta.choices
+        else:
+            kwargs["type"] = s.kind
+        parser.add_argument(
+            s.meta.option, help=(s.meta.cli_help or s.meta.description).format(**defaults), **kwargs
+        )
+
+
 def _add_bag_options(val: argparse.ArgumentParser) -> None:
     """Topic, unit and window options shared by ``validate`` and ``diagnose``."""
     from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
@@ -1099,35 +1131,13 @@ def _add_bag_options(val: argparse.ArgumentParser) -> None:
         help="excitation period (samples); None: from the bag's metadata, else inferred "
         "from the commands' repetition (said on stderr)",
     )
-    val.add_argument(
-        "--periods-per-window", type=int, default=2, help="excitation periods per window"
-    )
-    val.add_argument(
-        "--settle-periods", type=int, default=1, help="periods of settled input before a window"
-    )
-    val.add_argument(
-        "--debounce",
-        choices=DEBOUNCE_RULES,
-        default="sequential",
-        help="count: ERROR after 2 invalidating windows in a row; sequential: after the CUSUM "
-        "of beta's excess over 1 (weighted by hop/period) reaches 0.1",
-    )
+    _add_setting_options(val)
     val.add_argument(
         "--closed-loop",
         action="store_true",
         help="the recording is of a plant under feedback control: its valve commands are not "
         "periodic, so the input periodicity gate is opened to 0.25 of their RMS (windows in "
         "which the loop moves the valves are left unjudged)",
-    )
-    val.add_argument(
-        "--hop",
-        type=int,
-        default=0,
-        help="samples between judged (overlapping) windows, dividing the period; 0: a quarter "
-        "period",
-    )
-    val.add_argument(
-        "--norm", choices=[c.value for c in NormConvention], default="power", help="norm of w"
     )
     val.add_argument(
         "--pascal-per-unit", type=float, default=units.pascal_per_unit, help="Pa per level unit"

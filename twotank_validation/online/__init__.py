@@ -11,7 +11,9 @@ diagnosis scheduled once an alarm rises),
 :mod:`~twotank_validation.online.window` (gates, validation, reports),
 :mod:`~twotank_validation.online.faults` (input faults, the STALE text) and
 :mod:`~twotank_validation.online.validator` (:class:`OnlineValidator`, which the live node
-and bag replay both feed).
+and bag replay both feed); :mod:`~twotank_validation.online.validator_settings` is the
+validator's settings tree, from which the node's parameters and the CLI's window options are
+generated.
 """
 
 from twotank_validation.online.alarm import (

@@ -20,6 +20,8 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
+from twotank_validation.settings import check_settings, setting
+
 
 class Alarm(enum.IntEnum):
     """Alarm levels, equal to diagnostic_msgs/DiagnosticStatus levels."""
@@ -49,25 +51,37 @@ class AlarmConfig:
             period's window at β 1.1, or a quarter period at β 1.4).
     """
 
-    alarm_windows: int = 2
-    clear_windows: int = 3
-    warn_beta: float = 0.8
-    latch: bool = False
-    debounce: str = "sequential"
-    evidence: float = 0.1
+    alarm_windows: int = setting(
+        2, "consecutive invalidating windows that raise ERROR", low=1, high=1000
+    )
+    clear_windows: int = setting(3, "consecutive valid windows that clear ERROR", low=1, high=1000)
+    warn_beta: float = setting(
+        0.8, "beta at or above which a valid window reports WARN", low=1e-6, high=1e6
+    )
+    latch: bool = setting(
+        False, "keep ERROR until the reset_alarm service is called", name="latch_alarm"
+    )
+    debounce: str = setting(
+        "sequential",
+        "count: ERROR after alarm_windows invalidating windows in a row; sequential: after "
+        "the CUSUM of the excess of beta over 1 (weighted by hop/period) reaches alarm_evidence",
+        choices=DEBOUNCE_RULES,
+        option="--debounce",
+        cli_help="count: ERROR after {alarm_windows} invalidating windows in a row; sequential: "
+        "after the CUSUM of beta's excess over 1 (weighted by hop/period) reaches "
+        "{alarm_evidence}",
+    )
+    evidence: float = setting(
+        0.1,
+        "the sequential debounce's threshold (periods times excess beta)",
+        unit="periods",
+        low=1e-6,
+        high=1e6,
+        name="alarm_evidence",
+    )
 
     def __post_init__(self) -> None:
-        if self.alarm_windows < 1 or self.clear_windows < 1:
-            raise ValueError(
-                f"alarm_windows and clear_windows must be >= 1, found {self.alarm_windows}, "
-                f"{self.clear_windows}"
-            )
-        if not (math.isfinite(self.warn_beta) and self.warn_beta > 0):
-            raise ValueError(f"warn_beta must be positive and finite, found {self.warn_beta}")
-        if self.debounce not in DEBOUNCE_RULES:
-            raise ValueError(f"debounce must be one of {DEBOUNCE_RULES}, found {self.debounce!r}")
-        if not (math.isfinite(self.evidence) and self.evidence > 0):
-            raise ValueError(f"evidence must be positive and finite, found {self.evidence}")
+        check_settings(self)
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,7 @@ import numpy as np
 from twotank_validation.errors import DatumError
 from twotank_validation.online.alarm import Alarm
 from twotank_validation.online.states import RaisedBy
+from twotank_validation.settings import check_settings, setting
 
 UNEXPLAINED = "unexplained"
 """The answer's kind when no effect explains the change
@@ -181,6 +182,9 @@ class Report(Protocol):
     def raised_by(self) -> RaisedBy: ...  # noqa: D102
 
 
+_INTERNAL = "internal: how much history the diagnosis keeps and offers, sized to the window counts"
+
+
 @dataclass(frozen=True)
 class LiveDiagConfig:
     """Settings of the live diagnosis.
@@ -199,21 +203,31 @@ class LiveDiagConfig:
         models: diagnose only these models (empty: all).
     """
 
-    max_updates: int = 6
-    max_post_windows: int = 3
-    pre_windows: int = 2
-    earlier_windows: int = 4
-    keep_windows: int = 48
-    keep_means: int = 96
-    models: tuple[str, ...] = ()
+    max_updates: int = setting(
+        6,
+        "diagnoses per alarm episode (at the alarm, then one per new non-overlapping window)",
+        low=1,
+        high=1000,
+    )
+    max_post_windows: int = setting(
+        3, "the newest windows after the onset that are diagnosed", low=1, hidden=_INTERNAL
+    )
+    pre_windows: int = setting(
+        2, "windows before the onset whose means are the reference", low=0, hidden=_INTERNAL
+    )
+    earlier_windows: int = setting(
+        4, "further windows before those, offered to date the change", low=0, hidden=_INTERNAL
+    )
+    keep_windows: int = setting(48, "judged windows kept per model", low=1, hidden=_INTERNAL)
+    keep_means: int = setting(96, "judged windows' means kept per model", low=1, hidden=_INTERNAL)
+    models: tuple[str, ...] = setting(
+        (),
+        "diagnose only these models (empty: all)",
+        hidden="the validator diagnoses every model it validates (its models parameter)",
+    )
 
     def __post_init__(self) -> None:
-        for name in ("max_updates", "max_post_windows", "keep_windows", "keep_means"):
-            if getattr(self, name) < 1:
-                raise DatumError(f"{name} must be >= 1, found {getattr(self, name)}")
-        for name in ("pre_windows", "earlier_windows"):
-            if getattr(self, name) < 0:
-                raise DatumError(f"{name} must be >= 0, found {getattr(self, name)}")
+        check_settings(self, DatumError)
 
 
 @dataclass

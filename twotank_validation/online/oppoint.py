@@ -39,6 +39,7 @@ from twotank_validation.core.oppoint import (
     OperatingPointCheck,
     check_operating_point,
 )
+from twotank_validation.settings import check_settings, setting
 
 
 class OpState(enum.StrEnum):
@@ -71,20 +72,41 @@ class OpPointConfig:
         reference_y: a given reference of the output means; given together with reference_u.
     """
 
-    enabled: bool = True
-    commission_windows: int = 2
-    drift_allowance: float = 0.002
-    input_tolerance: float = 1e-3
-    reference_u: tuple[float, ...] = ()
-    reference_y: tuple[float, ...] = ()
+    enabled: bool = setting(
+        True, "check the operating point (window means against a reference)", name="op_check"
+    )
+    commission_windows: int = setting(
+        2,
+        "steady judged windows whose means commission the reference operating point",
+        low=1,
+        high=1000,
+    )
+    drift_allowance: float = setting(
+        0.002,
+        "dead band on each output's mean deviation from the reference (model units)",
+        unit="model units",
+        low=0.0,
+        high=1e6,
+    )
+    input_tolerance: float = setting(
+        1e-3,
+        "input mean change (model units) above which the inputs moved (a setpoint change)",
+        unit="model units",
+        low=0.0,
+        high=1e6,
+    )
+    reference_u: tuple[float, ...] = setting(
+        (),
+        "given reference input means (model units), one per input; [0.0] alone or empty: "
+        "commission from the first steady windows (reset_operating_point: commission again)",
+        unit="model units",
+    )
+    reference_y: tuple[float, ...] = setting(
+        (), "given reference output means, with op_reference_u", unit="model units"
+    )
 
     def __post_init__(self) -> None:
-        if self.commission_windows < 1:
-            raise ValueError(f"op commission_windows must be >= 1, found {self.commission_windows}")
-        for name in ("drift_allowance", "input_tolerance"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"op {name} must be finite and >= 0, found {value}")
+        check_settings(self)
         if bool(self.reference_u) != bool(self.reference_y):
             raise ValueError(
                 "give the operating point's reference_u and reference_y together (or neither, "

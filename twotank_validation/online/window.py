@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -56,6 +56,7 @@ from twotank_validation.online.states import (
     WindowQuality,
     WindowState,
 )
+from twotank_validation.settings import check_settings, group, setting
 
 
 @dataclass(frozen=True)
@@ -87,61 +88,84 @@ class MonitorConfig:
             (:func:`evidence_alarm`).
     """
 
-    ts_s: float = TS_S
-    period_samples: int = PERIOD_SAMPLES
-    periods_per_window: int = 2
-    settle_periods: int = 1
-    min_excitation_rms: float = 0.005
-    input_periodic_rtol: float = 1e-6
-    convention: NormConvention = NormConvention.POWER
-    method: str = "auto"
-    alarm: AlarmConfig = field(default_factory=AlarmConfig)
-    max_recovered_fraction: float = MAX_RECOVERED_FRACTION
-    op: OpPointConfig = field(default_factory=OpPointConfig)
-    hop_samples: int = 0
+    ts_s: float = setting(TS_S, "sample period of the data (s)", unit="s", low=1e-3, high=60.0)
+    period_samples: int = setting(
+        PERIOD_SAMPLES, "excitation period (samples)", unit="samples", low=4, high=1_000_000
+    )
+    periods_per_window: int = setting(
+        2,
+        "periods validated together; a window every period",
+        unit="periods",
+        low=1,
+        high=64,
+        option="--periods-per-window",
+        cli_help="excitation periods per window",
+    )
+    settle_periods: int = setting(
+        1,
+        "periods of periodic input required before a window is judged",
+        unit="periods",
+        low=0,
+        high=64,
+        option="--settle-periods",
+        cli_help="periods of settled input before a window",
+    )
+    min_excitation_rms: float = setting(
+        0.005,
+        "minimum input RMS deviation (model units) to judge a window",
+        unit="model units",
+        low=0.0,
+        high=1.0,
+    )
+    input_periodic_rtol: float = setting(
+        1e-6, "accepted period-to-period input change relative to its RMS", low=0.0, high=1.0
+    )
+    convention: NormConvention = setting(
+        NormConvention.POWER,
+        "meaning of ||w||: power (RMS) or energy",
+        choices=tuple(c.value for c in NormConvention),
+        name="norm_convention",
+        option="--norm",
+        cli_help="norm of w",
+    )
+    method: str = setting(
+        Method.AUTO.value, "solver: auto, closed_form, fast or sdp", choices=METHODS
+    )
+    alarm: AlarmConfig = group(AlarmConfig)
+    max_recovered_fraction: float = setting(
+        MAX_RECOVERED_FRACTION,
+        "largest fraction of a window per signal whose unusable samples are recovered from "
+        "the other periods (0: any unusable sample leaves the window unjudged)",
+        low=0.0,
+        high=0.49,
+    )
+    op: OpPointConfig = group(OpPointConfig, prefix="op_")
+    hop_samples: int = setting(
+        0,
+        "samples between judged (overlapping) windows, dividing period_samples; 0: a quarter "
+        "period (one period if period_samples is not a multiple of 4)",
+        unit="samples",
+        low=0,
+        high=1_000_000_000,
+        option="--hop",
+        cli_help="samples between judged (overlapping) windows, dividing the period; 0: a "
+        "quarter period",
+    )
 
     def __post_init__(self) -> None:
-        checks = [
-            (
-                math.isfinite(self.ts_s) and self.ts_s > 0,
-                f"ts_s must be positive, found {self.ts_s}",
-            ),
-            (self.period_samples >= 4, f"period_samples must be >= 4, found {self.period_samples}"),
-            (
-                self.periods_per_window >= 1,
-                f"periods_per_window must be >= 1, found {self.periods_per_window}",
-            ),
-            (self.settle_periods >= 0, f"settle_periods must be >= 0, found {self.settle_periods}"),
-            (
-                self.min_excitation_rms >= 0,
-                f"min_excitation_rms must be >= 0, found {self.min_excitation_rms}",
-            ),
-            (
-                self.input_periodic_rtol >= 0,
-                f"input_periodic_rtol must be >= 0, found {self.input_periodic_rtol}",
-            ),
-            (
-                self.method in METHODS,
-                f"unknown method {self.method!r}",
-            ),
-            (
-                0.0 <= self.max_recovered_fraction < 0.5,
-                f"max_recovered_fraction must be in [0, 0.5), found {self.max_recovered_fraction}",
-            ),
-            (
-                self.hop_samples == 0
-                or (
-                    0 < self.hop_samples <= self.period_samples
-                    and self.period_samples % self.hop_samples == 0
-                ),
+        check_settings(self)
+        if not (
+            self.hop_samples == 0
+            or (
+                0 < self.hop_samples <= self.period_samples
+                and self.period_samples % self.hop_samples == 0
+            )
+        ):
+            raise ValueError(
                 f"hop_samples must divide period_samples = {self.period_samples} (e.g. "
                 f"{self.period_samples // 4} for a quarter period), or be 0 for the default; "
-                f"found {self.hop_samples}",
-            ),
-        ]
-        for ok, msg in checks:
-            if not ok:
-                raise ValueError(msg)
+                f"found {self.hop_samples}"
+            )
 
     @property
     def window_samples(self) -> int:

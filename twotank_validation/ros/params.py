@@ -15,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.streams import RigUnits
+from twotank_validation.settings import FlatSetting
 
 LATCHED = QoSProfile(
     depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
@@ -38,6 +39,19 @@ class Param:
     low: float | None = None
     high: float | None = None
     choices: tuple[str, ...] = ()
+
+
+def setting_params(settings: Sequence[FlatSetting]) -> tuple[Param, ...]:
+    """The node parameters of a settings tree's flat settings (the hidden ones left out).
+
+    Name, default (flat form), description, range and choices are the setting's own
+    (:mod:`twotank_validation.settings`): the parameters restate nothing.
+    """
+    return tuple(
+        Param(s.name, s.param_default, s.meta.description, s.meta.low, s.meta.high, s.meta.choices)
+        for s in settings
+        if not s.meta.hidden
+    )
 
 
 _UNITS = RigUnits()

@@ -56,27 +56,17 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
-from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
-from twotank_validation.defaults import (
-    JITTER_FRACTION,
-    MAX_RECOVERED_FRACTION,
-    METHODS,
-    NS_PER_S,
-    PERIOD_SAMPLES,
-    TS_S,
-)
+from twotank_validation.defaults import NS_PER_S
 from twotank_validation.diagnose.live import catalogue_diagnosis
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import (
     Alarm,
-    AlarmConfig,
     MonitorConfig,
     OnlineValidator,
     WindowReport,
 )
 from twotank_validation.online import streams as itf
-from twotank_validation.online.alarm import DEBOUNCE_RULES
 from twotank_validation.online.interface import (
     InterfaceMap,
     InterfaceMapError,
@@ -87,8 +77,8 @@ from twotank_validation.online.interface import (
     source_stamp_ns,
 )
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser, LiveDiagnosis
-from twotank_validation.online.oppoint import OpPointConfig
 from twotank_validation.online.validator import parse_oversampling
+from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS
 from twotank_validation.online.window import verdict_text
 from twotank_validation.replay import model_documents
 from twotank_validation.ros import messages
@@ -99,119 +89,12 @@ from twotank_validation.ros.params import (
     ParameterError,
     declare,
     run_node,
+    setting_params,
 )
+from twotank_validation.settings import from_flat
 
 VALIDATOR_PARAMS = (
-    Param("models", ["A", "B"], "models to validate: built-in names (A, B) or YAML file paths"),
-    Param("ts_s", TS_S, "sample period of the data (s)", 1e-3, 60.0),
-    Param("period_samples", PERIOD_SAMPLES, "excitation period (samples)", 4, 1_000_000),
-    Param("periods_per_window", 2, "periods validated together; a window every period", 1, 64),
-    Param(
-        "settle_periods", 1, "periods of periodic input required before a window is judged", 0, 64
-    ),
-    Param(
-        "min_excitation_rms",
-        0.005,
-        "minimum input RMS deviation (model units) to judge a window",
-        0.0,
-        1.0,
-    ),
-    Param(
-        "input_periodic_rtol",
-        1e-6,
-        "accepted period-to-period input change relative to its RMS",
-        0.0,
-        1.0,
-    ),
-    Param(
-        "norm_convention",
-        "power",
-        "meaning of ||w||: power (RMS) or energy",
-        choices=("power", "energy"),
-    ),
-    Param(
-        "method",
-        "auto",
-        "solver: auto, closed_form, fast or sdp",
-        choices=METHODS,
-    ),
-    Param("alarm_windows", 2, "consecutive invalidating windows that raise ERROR", 1, 1000),
-    Param("clear_windows", 3, "consecutive valid windows that clear ERROR", 1, 1000),
-    Param("warn_beta", 0.8, "beta at or above which a valid window reports WARN", 1e-6, 1e6),
-    Param("latch_alarm", False, "keep ERROR until the reset_alarm service is called"),
-    Param(
-        "debounce",
-        "sequential",
-        "count: ERROR after alarm_windows invalidating windows in a row; sequential: after "
-        "the CUSUM of the excess of beta over 1 (weighted by hop/period) reaches alarm_evidence",
-        choices=DEBOUNCE_RULES,
-    ),
-    Param(
-        "alarm_evidence",
-        0.1,
-        "the sequential debounce's threshold (periods times excess beta)",
-        1e-6,
-        1e6,
-    ),
-    Param(
-        "hop_samples",
-        0,
-        "samples between judged (overlapping) windows, dividing period_samples; 0: a quarter "
-        "period (one period if period_samples is not a multiple of 4)",
-        0,
-        1e9,
-    ),
-    Param("op_check", True, "check the operating point (window means against a reference)"),
-    Param(
-        "op_commission_windows",
-        2,
-        "steady judged windows whose means commission the reference operating point",
-        1,
-        1000,
-    ),
-    Param(
-        "op_drift_allowance",
-        0.002,
-        "dead band on each output's mean deviation from the reference (model units)",
-        0.0,
-        1e6,
-    ),
-    Param(
-        "op_input_tolerance",
-        1e-3,
-        "input mean change (model units) above which the inputs moved (a setpoint change)",
-        0.0,
-        1e6,
-    ),
-    Param(
-        "op_reference_u",
-        [0.0],
-        "given reference input means (model units), one per input; [0.0] alone or empty: "
-        "commission from the first steady windows (reset_operating_point: commission again)",
-    ),
-    Param("op_reference_y", [0.0], "given reference output means, with op_reference_u"),
-    Param(
-        "stale_timeout_s",
-        2.0,
-        "a stream silent this long (ROS time) makes the status STALE",
-        0.01,
-        3600.0,
-    ),
-    Param(
-        "max_recovered_fraction",
-        MAX_RECOVERED_FRACTION,
-        "largest fraction of a window per signal whose unusable samples are recovered from "
-        "the other periods (0: any unusable sample leaves the window unjudged)",
-        0.0,
-        0.49,
-    ),
-    Param(
-        "jitter_fraction",
-        JITTER_FRACTION,
-        "accepted stamp distance from the sample grid, fraction of ts_s",
-        0.0,
-        0.49,
-    ),
+    *setting_params(VALIDATOR_SETTINGS),  # the settings tree (online/validator_settings.py)
     *UNIT_PARAMS,
     Param(
         "interface_map",
@@ -227,26 +110,6 @@ VALIDATOR_PARAMS = (
         "model order: NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=receive]; empty: none",
     ),
     Param("outputs", [""], "the interface map's output sources as text, as inputs"),
-    Param(
-        "diagnosis",
-        True,
-        "name the fault live: once a model's alarm is ERROR, diagnose the windows after the "
-        "onset against those before it and publish validation/M/diagnosis",
-    ),
-    Param(
-        "diagnosis_max_updates",
-        6,
-        "diagnoses per alarm episode (at the alarm, then one per new non-overlapping window)",
-        1,
-        1000,
-    ),
-    Param(
-        "oversampling",
-        [""],
-        "streams published faster than ts_s, one STREAM=N per entry (N messages per sample, "
-        "decimated to the grid): e.g. flow_cmd=2 and height=2 with ts_s 0.2 for commands and "
-        "level at 10 Hz, temperature at 5 Hz; empty: every stream at ts_s",
-    ),
 )
 
 
@@ -319,43 +182,10 @@ def op_reference_text(op: dict[str, Any]) -> str:
     )
 
 
-def _given(values: Any) -> tuple[float, ...]:
-    """A double-array parameter as a tuple; ``[0.0]`` (the declared default) and ``[]``: none."""
-    out = tuple(float(v) for v in (values or ()))
-    return () if out == (0.0,) else out
-
-
 def monitor_config(values: dict[str, Any]) -> MonitorConfig:
     """Build the core config from parameter values (raises ParameterError if inconsistent)."""
     try:
-        return MonitorConfig(
-            ts_s=float(values["ts_s"]),
-            period_samples=int(values["period_samples"]),
-            periods_per_window=int(values["periods_per_window"]),
-            settle_periods=int(values["settle_periods"]),
-            min_excitation_rms=float(values["min_excitation_rms"]),
-            input_periodic_rtol=float(values["input_periodic_rtol"]),
-            convention=NormConvention(values["norm_convention"]),
-            method=str(values["method"]),
-            max_recovered_fraction=float(values["max_recovered_fraction"]),
-            hop_samples=int(values["hop_samples"]),
-            op=OpPointConfig(
-                enabled=bool(values["op_check"]),
-                commission_windows=int(values["op_commission_windows"]),
-                drift_allowance=float(values["op_drift_allowance"]),
-                input_tolerance=float(values["op_input_tolerance"]),
-                reference_u=_given(values["op_reference_u"]),
-                reference_y=_given(values["op_reference_y"]),
-            ),
-            alarm=AlarmConfig(
-                alarm_windows=int(values["alarm_windows"]),
-                clear_windows=int(values["clear_windows"]),
-                warn_beta=float(values["warn_beta"]),
-                latch=bool(values["latch_alarm"]),
-                debounce=str(values["debounce"]),
-                evidence=float(values["alarm_evidence"]),
-            ),
-        )
+        return from_flat(MonitorConfig, values)
     except ValueError as err:
         raise ParameterError(str(err)) from err
 
