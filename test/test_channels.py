@@ -308,3 +308,25 @@ def test_the_online_validator_takes_a_1x3_plants_topics() -> None:
     n = cfg.window_samples
     datum = make_datum(u[-n:], y[-n:], ts_s=1.0, period_samples=128)
     assert last.beta == pytest.approx(validate(datum, model).beta, rel=1e-9)
+
+
+def test_fleet_and_live_refuse_mismatched_names_before_any_work(
+    nominal_bag: Path, tmp_path, capsys
+) -> None:
+    """Several recordings, or the live composition, with a model whose channels the two-tank
+    interface does not carry: exit 2 naming both sides, before any task or node runs."""
+    doc = renamed(_model_b(), {"height": "level"}, "R")
+    model_file = tmp_path / "r.yaml"
+    model_file.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "fleet"
+    args = ["validate", str(nominal_bag), str(nominal_bag.parent), "--out", str(out)]
+    code = cli.main([*args, "--model", str(model_file), "--serial", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_ERROR
+    assert "model R names output 'level', which the two-tank interface" in err
+    assert not out.exists()  # nothing ran
+    code = cli.main(["live", "--model", str(model_file), "--duration", "20"])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_ERROR
+    assert "names output 'level'" in err
+    assert "Traceback" not in err
