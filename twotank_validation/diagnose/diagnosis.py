@@ -688,6 +688,38 @@ def _summary(  # noqa: PLR0917 - everything the paragraph says
     outputs: Sequence[str],
     explained: Explained,
 ) -> str:
+    if math.isfinite(before.beta) and before.beta <= 1.0:
+        # a model set that explains the data needs no repair: that first; what structure its
+        # residual has inside the stated uncertainty is the detail, never the headline
+        valid = f"not invalidated (held-out beta {before.beta:.3f} <= 1)"
+        if not chosen and not explained.unexplained:
+            return (
+                f"Model {name} is adequate for this datum: {valid}, and no effect of the "
+                "catalogue removes enough of the held-out error to be worth its parameters."
+            )
+        head = (
+            f"Model {name} is {valid}: the data lie inside its model set and nothing needs "
+            "fixing. Detail, inside the stated uncertainty: "
+        )
+        if explained.unexplained:
+            detail = _invalid_summary(name, before, after, chosen, outputs, explained)
+            return head + detail.removeprefix(f"Model {name}: ")
+        added = " and ".join(f"{e.spec.label(outputs)} ({_values_text(e)})" for e in chosen)
+        return (
+            f"{head}adding {added} would take the held-out beta from {before.beta:.3f} to "
+            f"{after.beta:.3f} (a tighter model, not a repair)."
+        )
+    return _invalid_summary(name, before, after, chosen, outputs, explained)
+
+
+def _invalid_summary(  # noqa: PLR0917 - everything the paragraph says
+    name: str,
+    before: Assessment,
+    after: Assessment,
+    chosen: Sequence[FittedEffect],
+    outputs: Sequence[str],
+    explained: Explained,
+) -> str:
     not_white = [o for o, ok in explained.white.items() if not ok]
     if explained.unexplained:
         worst = max(
