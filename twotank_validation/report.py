@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum
-from twotank_validation.core.model import LFTModel, load_model
+from twotank_validation.core.model import LFTModel, PlantResponse, load_model
 from twotank_validation.core.validate import ValidationResult, inverse_dft
 from twotank_validation.diagnose import Diagnosis, EvidencePoints, FittedEffect, excited_bins
 from twotank_validation.experiment import ExperimentResult
@@ -87,50 +88,170 @@ def experiment_numbers(res: ExperimentResult) -> dict[str, Any]:
     return _jsonable(out)
 
 
-def plot_nyquist(model: LFTModel, d: Datum, path: Path, n_discs: int = 12) -> None:
-    """Nominal hot-flow-to-temperature response with its perturbation discs (paper Fig. 6)."""
-    theta = np.linspace(1e-4, np.pi / 20, 600)
-    g = lti.frequency_response(model.nominal_discrete(d.ts_s), theta)[:, 1, 0]
-    pert = next(p for p in model.perturbations if 1 in p.outputs)
-    harm = np.flatnonzero(d.harmonic_bins)[1 : n_discs + 1]
-    th_d = d.theta[harm]
-    g_d = lti.frequency_response(model.nominal_discrete(d.ts_s), th_d)[:, 1, 0]
-    w_d = lti.frequency_response(lti.discretise(pert.weight, d.ts_s), th_d)[:, 0, 0]
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(g.real, g.imag, "k-", lw=1, label="nominal t1/f_hc")
-    for gi, wi in zip(g_d, w_d, strict=True):
-        ax.add_patch(
-            plt.Circle((gi.real, gi.imag), abs(wi * gi), fill=False, color="tab:blue", lw=0.8)
-        )
-    ax.plot(
-        g_d.real, g_d.imag, "o", ms=3, color="tab:blue", label="perturbation discs at harmonics"
+def _excited_mask(d: Datum) -> np.ndarray:
+    """(n_bins,) bool: the excited harmonic bins (the diagnosis's ``excited_bins``)."""
+    mask = np.zeros(d.theta.size, dtype=bool)
+    mask[excited_bins(d, 1e-10)] = True
+    return mask
+
+
+@dataclass(frozen=True)
+class NyquistView:
+    """What the Nyquist figure of one window shows (the paper's Fig. 8, for any shape).
+
+    Attributes:
+        bin: the excited bin of largest min ||W(n)|| (the worst one).
+        output: index of the output with the largest raw error ``|Y - G U|`` there.
+        input: index of the input whose nominal part of that output ``|G_ji U_i|`` is the
+            largest there.
+        freq_hz: the bin's frequency (Hz).
+        measured: the response the data ask of ``G[output, input]`` at the bin:
+            ``(Y_j - sum_{k != i} G_jk U_k) / U_i`` (output units per input unit).
+        nominal: ``G[output, input]`` at the bin.
+        radius: the perturbations' reach around the nominal there (:func:`_disc_radii`).
+        noise_radius: the noise weights' reach at the bin for a unit budget, in response
+            units: ``||P22_j|| / |U_i|``.
+    """
+
+    bin: int
+    output: int
+    input: int
+    freq_hz: float
+    measured: complex
+    nominal: complex
+    radius: float
+    noise_radius: float
+
+
+def nyquist_view(model: LFTModel, d: Datum, res: ValidationResult) -> NyquistView:
+    """The worst bin of a window and the channel pair and disc the Nyquist figure shows."""
+    excited = _excited_mask(d)
+    if not np.any(excited):
+        raise ValueError("the window excites no bin: nothing to show")
+    n = int(np.flatnonzero(excited)[np.argmax(res.w_min[excited])])
+    p = model.response(d.theta[n : n + 1], d.ts_s)
+    g = p.p23[0]  # (ny, nu)
+    u, y = d.u_bins[n], d.y_bins[n]
+    j = int(np.argmax(np.abs(y - g @ u)))
+    reach = np.abs(g[j] * u)  # each input's part of the output's nominal response
+    i = int(np.argmax(reach if np.any(reach > 0) else np.abs(u)))
+    others = g[j] @ u - g[j, i] * u[i]
+    return NyquistView(
+        bin=n,
+        output=j,
+        input=i,
+        freq_hz=float(d.freqs_hz[n]),
+        measured=complex((y[j] - others) / u[i]),
+        nominal=complex(g[j, i]),
+        radius=float(_disc_radii(model, p, j, i)[0]),
+        noise_radius=float(np.linalg.norm(p.p22[0, j]) / abs(u[i])),
     )
+
+
+def _disc_radii(model: LFTModel, p: PlantResponse, output: int, input_: int) -> np.ndarray:
+    """(k,) float: how far the perturbations move ``G[output, input]`` at each bin.
+
+    The sum over blocks of ``||P21[output, v_b]|| ||P13[z_b, input]||``: each block with
+    ``||Delta_b|| <= 1`` moves the response within a disc of that radius (exact for a block
+    alone, with no feedback through ``P11``); the blocks together reach the sum.
+    """
+    radii = np.zeros(p.p.shape[0])
+    for vs, zs in zip(model.blocks.v_slices, model.blocks.z_slices, strict=True):
+        radii += np.linalg.norm(p.p21[:, output, vs], axis=1) * np.linalg.norm(
+            p.p13[:, zs, input_], axis=1
+        )
+    return radii
+
+
+def plot_nyquist(
+    model: LFTModel, d: Datum, res: ValidationResult, path: Path, n_discs: int = 12
+) -> NyquistView:
+    """The worst bin of a window on the Nyquist plane (the paper's Fig. 8, any shape).
+
+    The nominal response of the channel pair of :func:`nyquist_view` over the excited band,
+    the perturbation discs at up to ``n_discs`` excited harmonics and at the worst bin, and
+    the measured point there with the noise weights' reach: the point lies outside the
+    worst bin's disc by what ``w`` must make up.
+    """
+    view = nyquist_view(model, d, res)
+    excited = np.flatnonzero(_excited_mask(d))
+    theta = np.linspace(d.theta[excited[0]], d.theta[excited[-1]], 600)
+    nominal = model.nominal_discrete(d.ts_s)
+    g = lti.frequency_response(nominal, theta)[:, view.output, view.input]
+    shown = excited[np.linspace(0, len(excited) - 1, min(n_discs, len(excited))).astype(int)]
+    p = model.response(d.theta[shown], d.ts_s)
+    ins, outs = model.input_names[view.input], model.output_names[view.output]
+    fig, ax = plt.subplots(figsize=(6.4, 6))
+    ax.plot(g.real, g.imag, "k-", lw=1, label=f"nominal {outs}/{ins} over the excited band")
+    radii = _disc_radii(model, p, view.output, view.input)
+    for k in range(len(shown)):
+        c = p.p23[k, view.output, view.input]
+        ax.add_patch(plt.Circle((c.real, c.imag), radii[k], fill=False, color="tab:blue", lw=0.6))
+    c = view.nominal
+    ax.add_patch(plt.Circle((c.real, c.imag), view.radius, fill=False, color="tab:blue", lw=1.6))
+    ax.plot([], [], color="tab:blue", lw=0.8, label="perturbation discs (‖Δ‖ ≤ 1)")
+    m = view.measured
+    ax.add_patch(
+        plt.Circle((m.real, m.imag), view.noise_radius, fill=False, color="tab:red", ls="--")
+    )
+    ax.plot(
+        [m.real], [m.imag], "x", color="tab:red", ms=9, mew=2,
+        label=f"measured at {view.freq_hz:.4g} Hz (noise weight's reach dashed)",
+    )  # fmt: skip
     ax.set_aspect("equal")
+    ax.autoscale_view()
     ax.axhline(0, color="0.8", lw=0.5)
     ax.axvline(0, color="0.8", lw=0.5)
-    ax.set_xlabel("Re")
-    ax.set_ylabel("Im")
-    ax.set_title(f"Model {model.name}: temperature response with |W_Δt G| discs")
-    ax.legend(loc="lower left", fontsize=8)
+    ax.set_xlabel(f"Re ({outs} units per {ins} unit)")
+    ax.set_ylabel(f"Im ({outs} units per {ins} unit)")
+    ax.set_title(
+        f"Model {model.name}, worst bin {view.freq_hz:.4g} Hz: min‖W(n)‖ "
+        f"{res.w_min[view.bin]:.3g}, β {res.beta:.3g}",
+        fontsize=9,
+    )
+    ax.legend(loc="best", fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return view
 
 
-def plot_per_bin(results: Mapping[str, ValidationResult], path: Path, title: str = "") -> None:
-    """Per-bin minimum ||W(n)|| against frequency for every model."""
+def plot_per_bin(
+    results: Mapping[str, ValidationResult],
+    path: Path,
+    title: str = "",
+    excited: np.ndarray | None = None,
+) -> None:
+    """Per-bin minimum ||W(n)|| against frequency for every model.
+
+    Args:
+        results: the models' results on one datum.
+        path: the PNG.
+        title: the title (default: the convention).
+        excited: (n_bins,) bool, the excited harmonic bins: drawn as markers
+            joined in order; the other bins (where only noise is) as faint dots. None: every
+            bin joined.
+    """
     fig, ax = plt.subplots(figsize=(8, 4))
     convention = ""
     for name, v in results.items():
         convention = v.convention.value
         keep = v.freqs_hz > 0
-        ax.semilogx(
-            v.freqs_hz[keep], v.w_min[keep], lw=0.8, label=f"Model {name} (β = {v.beta:.2f})"
-        )
+        label = f"Model {name}: β = √(Σ weight·min‖W(n)‖²) = {v.beta:.3g}"
+        if excited is None:
+            ax.semilogx(v.freqs_hz[keep], v.w_min[keep], lw=0.8, label=label)
+            continue
+        line = ax.semilogx(v.freqs_hz[excited], v.w_min[excited], ".-", lw=0.8, ms=3, label=label)[
+            0
+        ]
+        rest = keep & ~excited
+        ax.semilogx(v.freqs_hz[rest], v.w_min[rest], ",", color=line.get_color(), alpha=0.3)
+    if excited is not None:
+        ax.plot([], [], ",", color="0.5", label="bins not excited (faint)")
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("min ||W(n)||")
+    ax.set_ylabel("min ‖W(n)‖ (model units, unit budget over all bins)")
     ax.set_title(title or f"Per-bin minimum noise norm ({convention} convention)")
-    ax.legend()
+    ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -229,9 +350,11 @@ def _markdown(numbers: dict[str, Any]) -> str:
         "## Figures",
         "",
         "- `data.png`: the recorded datum.",
-        "- `nyquist_A.png`, `nyquist_B.png`: nominal temperature response with perturbation discs "
-        "(paper Fig. 6).",
-        "- `per_bin.png`: per-bin minimum ||W(n)|| for both models.",
+        "- `nyquist_A.png`, `nyquist_B.png`: the worst bin on the Nyquist plane: the nominal "
+        "response of the output with the largest error to the input with the largest excitation "
+        "there, its perturbation discs, and the measured point (paper Fig. 8).",
+        "- `per_bin.png`: per-bin minimum ||W(n)|| for both models at the excited bins "
+        "(the others faint); β is their root weighted sum of squares, not the peak.",
         "- `time_signals.png`: minimum-norm W_n w(k) and v(k) (paper Figs. 8 and 9).",
         "",
         "Numbers: `results.json`.",
@@ -262,8 +385,8 @@ def write_report(
     models = {name: load_model(name) for name in res.outcomes}
     results = {name: oc.validation for name, oc in res.outcomes.items()}
     for name, model in models.items():
-        plot_nyquist(model, res.datum, out_dir / f"nyquist_{name}.png")
-    plot_per_bin(results, out_dir / "per_bin.png")
+        plot_nyquist(model, res.datum, results[name], out_dir / f"nyquist_{name}.png")
+    plot_per_bin(results, out_dir / "per_bin.png", excited=_excited_mask(res.datum))
     plot_time_signals(results, models, res.time_s, out_dir / "time_signals.png")
     text = _markdown(numbers)
     if diagnosis is not None:
@@ -303,7 +426,8 @@ def plot_alarm_timeline(summary: Mapping[str, Any], path: Path) -> None:
     )
     for ax, (name, entry) in zip(axes[:, 0], models.items(), strict=False):
         for w in entry["windows"]:
-            beta = w["beta"]
+            # what the verdict and the alarm use: the dynamics and the operating point
+            beta = w["beta_total"] if w.get("beta_total") is not None else w["beta"]
             y = beta if beta is not None else 0.0
             ax.plot(
                 [w["start"], w["end"]],
@@ -313,13 +437,17 @@ def plot_alarm_timeline(summary: Mapping[str, Any], path: Path) -> None:
                 solid_capstyle="butt",
             )
         ax.axhline(1.0, color="k", lw=0.8, ls="--")
-        ax.set_ylabel(f"β, model {name}")
+        ax.set_ylabel(f"β_total, model {name}")
         ax.grid(alpha=0.3)
     for level, colour in colours.items():
         axes[0, 0].plot([], [], color=colour, lw=3, label=level)
     axes[0, 0].legend(loc="upper left", fontsize=7, ncol=4)
     axes[-1, 0].set_xlabel("bag time (s)")
-    axes[0, 0].set_title("Validation windows (bar = window span; grey at 0 = not judged)")
+    axes[0, 0].set_title(
+        "Validation windows: β_total = √(β² + β_op²), what the verdict and the alarm use "
+        "(bar = window span; grey at 0 = not judged; dashed: 1, the limit)",
+        fontsize=8,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -357,8 +485,13 @@ def write_replay_report(
             )
             res = validate(d, model)
             stem = f"{name}_{why}"
-            plot_nyquist(model, d, out_dir / f"nyquist_{stem}.png")
-            plot_per_bin({name: res}, out_dir / f"per_bin_{stem}.png", title=f"model {name}, {why}")
+            plot_nyquist(model, d, res, out_dir / f"nyquist_{stem}.png")
+            plot_per_bin(
+                {name: res},
+                out_dir / f"per_bin_{stem}.png",
+                title=f"model {name}, {why}",
+                excited=_excited_mask(d),
+            )
             t = (snap.stamps_ns - replay.bag_start_ns) / 1e9
             plot_time_signals({name: res}, {name: model}, t, out_dir / f"time_signals_{stem}.png")
             written += [
