@@ -34,9 +34,10 @@ def run_alarm(verdicts, cfg=None):
 def test_alarm_sequence_by_hand() -> None:
     ok, w, e, s = Alarm.OK, Alarm.WARN, Alarm.ERROR, Alarm.STALE
     # invalid once -> WARN (beta 1.5 >= 0.8), twice -> ERROR, one valid -> still ERROR,
-    # a stale window keeps counters, three valid in a row clear it.
-    seq = [False, True, True, False, None, False, False, True, False]
-    assert run_alarm(seq) == [ok, w, e, e, s, e, ok, w, ok]
+    # a stale window keeps counters, three valid in a row clear it; after an invalidating
+    # window the level returns to OK only through the clear rule's valid windows (WARN until)
+    seq = [False, True, True, False, None, False, False, True, False, None, False, False]
+    assert run_alarm(seq) == [ok, w, e, e, s, e, ok, w, w, s, w, ok]
 
 
 def test_latched_alarm_needs_reset() -> None:
@@ -55,7 +56,8 @@ def test_latched_alarm_needs_reset() -> None:
 )
 def test_alarm_matches_reference_definition(verdicts, n_alarm, n_clear) -> None:
     """ERROR iff, looking back over judged windows, the last run of >= n_alarm invalidating
-    windows is not followed by >= n_clear valid ones."""
+    windows is not followed by >= n_clear valid ones; WARN on an invalidating window, and on a
+    valid one while the last invalidating window is not followed by >= n_clear valid ones."""
     cfg = AlarmConfig(alarm_windows=n_alarm, clear_windows=n_clear, debounce="count")
     levels = run_alarm(verdicts, cfg)
     for i, v in enumerate(verdicts):
@@ -71,7 +73,8 @@ def test_alarm_matches_reference_definition(verdicts, n_alarm, n_clear) -> None:
                 in_error = True
             elif in_error and run_good >= n_clear:
                 in_error = False
-        expected = Alarm.ERROR if in_error else (Alarm.WARN if v else Alarm.OK)
+        unsettled = any(judged) and run_good < n_clear
+        expected = Alarm.ERROR if in_error else (Alarm.WARN if v or unsettled else Alarm.OK)
         assert levels[i] is expected
 
 

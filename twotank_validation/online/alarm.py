@@ -94,6 +94,9 @@ class AlarmState:
         invalid_run: consecutive invalidating judged windows.
         valid_run: consecutive valid judged windows.
         evidence: the sequential rule's CUSUM ``S`` (0 under the count rule).
+        unsettled: a judged window invalidated the model and the clear rule's run of valid
+            judged windows has not followed yet: the level is at least WARN (a fault may be
+            active while the windows after it go unjudged or pass the gate one by one).
     """
 
     level: Alarm = Alarm.OK
@@ -101,6 +104,7 @@ class AlarmState:
     invalid_run: int = 0
     valid_run: int = 0
     evidence: float = 0.0
+    unsettled: bool = False
 
 
 def update_alarm(
@@ -118,7 +122,10 @@ def update_alarm(
     extends the run of its verdict; ERROR rises after ``alarm_windows`` invalidating windows in
     a row (the count rule) or once the CUSUM of ``(beta - 1) weight`` reaches ``evidence`` on
     an invalidating window (the sequential rule), and clears after ``clear_windows`` valid
-    ones (never, while latched). Otherwise WARN when ``beta >= warn_beta``, else OK.
+    ones (never, while latched). Otherwise WARN when ``beta >= warn_beta`` or while the
+    model stands invalidated by a judged window without the clear rule's valid windows since
+    (``AlarmState.unsettled``: the level returns to OK only through them, as ERROR clears),
+    else OK.
 
     Args:
         state: the state after the previous window.
@@ -148,9 +155,10 @@ def update_alarm(
         in_error = True
     elif in_error and not config.latch and valid_run >= config.clear_windows:
         in_error = False
+    unsettled = invalidated or (state.unsettled and valid_run < config.clear_windows)
     if in_error:
         level = Alarm.ERROR
-    elif beta >= config.warn_beta:
+    elif beta >= config.warn_beta or unsettled:
         level = Alarm.WARN
     else:
         level = Alarm.OK
@@ -160,6 +168,7 @@ def update_alarm(
         invalid_run=invalid_run,
         valid_run=valid_run,
         evidence=evidence,
+        unsettled=unsettled,
     )
 
 
