@@ -288,6 +288,19 @@ def test_negative_control_adds_nothing(seed):
     assert all(why for _, _, why in diag.rejected)
 
 
+def test_a_steady_state_finding_is_not_called_nothing_to_fix():
+    """The held-out beta is the dynamics': a level that reads 0.05 off leaves it below 1, but
+    the offset found means the operating point does not hold, so the summary must not say
+    that nothing needs fixing."""
+    bias = faults.Fault("sensor_bias", 0.0, -0.05, "height")
+    diag = run("B", RigParams(**NOISE), [bias, sensor_delay(12.0)])
+    assert [f.kind for f in diag.findings] == ["offset"]
+    assert [e.spec.kind for e in diag.effects] == ["delay"]  # a detail would be appended
+    assert diag.before.beta <= 1.0
+    assert "nothing needs fixing" not in diag.summary
+    assert diag.summary.startswith("Model B: offset on height")
+
+
 def test_no_excitation_is_a_clear_error():
     ws = rig_windows(RigParams(**NOISE), rms=(0.0, 0.0), n_windows=2)
     doc, _ = load_model_document("B")

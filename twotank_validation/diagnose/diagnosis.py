@@ -456,7 +456,7 @@ def diagnose(
         outputs,
         cfg,
     )
-    summary = _summary(model.name, before, after, chosen, outputs, explained)
+    summary = _summary(model.name, before, after, chosen, outputs, explained, bool(findings))
     if findings:
         summary = finding_summary(model.name, findings, summary if chosen else "")
     return Diagnosis(
@@ -687,8 +687,11 @@ def _summary(  # noqa: PLR0917 - everything the paragraph says
     chosen: Sequence[FittedEffect],
     outputs: Sequence[str],
     explained: Explained,
+    steady_findings: bool = False,
 ) -> str:
-    if math.isfinite(before.beta) and before.beta <= 1.0:
+    # the held-out beta is the dynamics'; a steady-state finding (an offset, a saturation)
+    # means the operating point may invalidate the model although the dynamics do not
+    if not steady_findings and math.isfinite(before.beta) and before.beta <= 1.0:
         # a model set that explains the data needs no repair: that first; what structure its
         # residual has inside the stated uncertainty is the detail, never the headline
         valid = f"not invalidated (held-out beta {before.beta:.3f} <= 1)"
