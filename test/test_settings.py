@@ -80,6 +80,9 @@ NOT_SETTINGS_OPTIONS = {
     "--excitation-entry": "live: the controller node's parameter",
     "--supervisor": "live: the supervisor node's models",
     "--no-sdp": "demo: the cross-check",
+    "--plant-model": "live: any model's simulated plant (the model plant node's model)",
+    "--member": "live: the model plant node's member of its set",
+    "--noise-scale": "live: the model plant node's noise",
 }
 """Options of the checked commands that are not settings of the tree, and why."""
 

@@ -202,6 +202,181 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- live --plant-model
+
+
+def _add_live_model_options(live: argparse.ArgumentParser) -> None:
+    """``live --plant-model FILE``'s options; the command then runs :func:`_cmd_live_model`."""
+    group = live.add_argument_group("any model's plant (--plant-model; docs/simulate.md)")
+    group.add_argument(
+        "--plant-model",
+        help="run the plant of this model (YAML file or built-in name) instead of the "
+        "two-tank rig; --model then names the validated models (default: this one), "
+        "--fault takes KIND:CHANNEL[=MAGNITUDE]@ONSET_S[-END_S] on its channels",
+    )
+    group.add_argument(
+        "--member",
+        default="nominal",
+        help="--plant-model: the member of its set: nominal, gains=G[,G...] or "
+        "random[,seed=S][,scale=R]",
+    )
+    group.add_argument(
+        "--noise-scale",
+        type=float,
+        default=1.0,
+        help="--plant-model: noise as a fraction of what the model's noise weights admit",
+    )
+    live.set_defaults(func=_cmd_live_model)
+
+
+def _cmd_live_model(args: argparse.Namespace) -> int:
+    """``live``: the two-tank rig, or any model's plant with ``--plant-model``."""
+    if args.plant_model is None:
+        if args.member != "nominal" or args.noise_scale != 1.0:
+            raise UsageError("--member and --noise-scale are for --plant-model")
+        return _cmd_live(args)
+    if args.closed_loop or args.supervisor is not None:
+        raise UsageError(
+            "--closed-loop and --supervisor run the two-tank rig's controller; a "
+            "--plant-model runs open loop"
+        )
+    _loopback_only()
+    from twotank_validation.ros.live_model import (  # noqa: PLC0415 (needs rclpy)
+        ModelLiveConfig,
+        run_model_live,
+    )
+
+    cfg = ModelLiveConfig(
+        plant_model=args.plant_model,
+        models=tuple(args.model or ()),
+        n_steps=round(args.duration / args.ts),
+        ts_s=args.ts,
+        period_samples=args.period,
+        faults=tuple(args.fault or ()),
+        member=args.member,
+        noise_scale=args.noise_scale,
+        noise_seed=args.seed,
+        record_samples=False,
+    )
+
+    def show(rep: WindowReport) -> None:
+        if args.json:
+            _out(json.dumps(report_dict(rep)))
+            return
+        verdict = verdict_text(rep) if rep.judged else f"not judged: {rep.data_quality}"
+        warned = "".join(f"  warning: {w}" for w in rep.warnings)
+        _out(
+            f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
+            f"{verdict}  alarm {rep.alarm.name}{warned}"
+        )
+
+    result = run_model_live(cfg, on_report=show)
+    simulated = cfg.n_steps * cfg.ts_s
+    print(
+        f"simulated {simulated:.0f} s in {result.wall_s:.1f} s wall "
+        f"({simulated / max(result.wall_s, 1e-9):.0f}x real time); "
+        f"{len(result.reports)} reports; aligner: {result.counters}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+# --------------------------------------------------------------------------- simulate --model
+
+
+def _add_simulate_model_options(sim: argparse.ArgumentParser) -> None:
+    """``simulate --model FILE``'s options; the command then runs :func:`_cmd_simulate_model`."""
+    group = sim.add_argument_group("any model (--model; docs/simulate.md)")
+    group.add_argument(
+        "--model",
+        help="simulate this model (YAML file or built-in name) instead of a scenario: its "
+        "nominal or a member of its set, its noise, faults on its named channels",
+    )
+    group.add_argument(
+        "--format",
+        choices=["mcap", "sqlite3", "csv"],
+        default=None,
+        help="--model: a rosbag2 bag (one std_msgs/Float64 topic per channel) or a CSV table "
+        "(--out ends in .csv); the interface map is written beside it (<out>.map.yaml, "
+        "<stem>.map.yaml for a table); None: mcap",
+    )
+    group.add_argument("--ts", type=float, default=TS_S, help="--model: sample period (s)")
+    group.add_argument(
+        "--period", type=int, default=PERIOD_SAMPLES, help="--model: excitation period (samples)"
+    )
+    group.add_argument(
+        "--periods", type=int, default=2, help="--model: periods recorded after settling"
+    )
+    group.add_argument(
+        "--settle-periods",
+        type=int,
+        default=None,
+        help="--model: periods to let the transient die out first; None: as many as the "
+        "plant needs",
+    )
+    group.add_argument(
+        "--member",
+        default="nominal",
+        help="--model: the member of the perturbation set: nominal, gains=G[,G...] or "
+        "random[,seed=S][,scale=R]",
+    )
+    group.add_argument(
+        "--fault",
+        action="append",
+        help="--model: KIND:CHANNEL[=MAGNITUDE]@ONSET_S[-END_S], KIND one of input_gain, "
+        "stuck_input, sensor_bias, output_delay (repeat)",
+    )
+    group.add_argument("--rms", type=float, default=0.1, help="--model: RMS of every input")
+    group.add_argument(
+        "--offset", type=float, default=0.0, help="--model: operating point of every input"
+    )
+    group.add_argument("--seed", type=int, default=0, help="--model: excitation seed")
+    group.add_argument(
+        "--noise-scale",
+        type=float,
+        default=1.0,
+        help="--model: noise as a fraction of what the model's noise weights admit",
+    )
+    group.add_argument("--noise-seed", type=int, default=0, help="--model: noise seed")
+    sim.set_defaults(func=_cmd_simulate_model)
+
+
+def _cmd_simulate_model(args: argparse.Namespace) -> int:
+    """``simulate``: a scenario (``--scenario``) or any model (``--model``), exactly one."""
+    if (args.scenario is None) == (args.model is None):
+        raise UsageError(
+            "simulate needs exactly one of --scenario NAME (the two-tank rig) and --model FILE "
+            "(any model), found " + ("both" if args.scenario is not None else "neither")
+        )
+    if args.scenario is not None:
+        if args.format is not None:
+            raise UsageError("--format is for --model; a scenario's bag takes --storage")
+        return _cmd_simulate(args)
+    if args.storage != "mcap":
+        raise UsageError("--storage is for --scenario; with --model give --format")
+    from twotank_validation.bags.model_bag import simulate_model_command  # noqa: PLC0415
+    from twotank_validation.sim.model_record import interface_map_path  # noqa: PLC0415
+
+    path = simulate_model_command(
+        args.model,
+        args.out,
+        args.format or "mcap",
+        ts_s=args.ts,
+        period_samples=args.period,
+        periods=args.periods,
+        settle_periods=args.settle_periods,
+        rms=args.rms,
+        offset=args.offset,
+        seed=args.seed,
+        member=args.member,
+        noise_scale=args.noise_scale,
+        noise_seed=args.noise_seed,
+        faults=tuple(args.fault or ()),
+    )
+    print(f"wrote {path} and its interface map {interface_map_path(path)}")
+    return 0
+
+
 def _topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
     from twotank_validation.online.streams import STREAMS  # noqa: PLC0415
 
@@ -895,14 +1070,17 @@ def build_parser() -> argparse.ArgumentParser:
         "transitions are printed at the end",
     )
     live.set_defaults(func=_cmd_live)
+    _add_live_model_options(live)
 
-    sim = command("simulate", "simulate a scenario of the rig into a rosbag2 bag")
-    sim.add_argument(
-        "--scenario", required=True, help="scenario YAML file or shipped name (e.g. nominal, leak)"
+    sim = command(
+        "simulate",
+        "simulate a scenario of the rig into a rosbag2 bag, or any model (--model) into a bag "
+        "or a CSV table with its interface map",
     )
+    sim.add_argument("--scenario", help="scenario YAML file or shipped name (e.g. nominal, leak)")
     sim.add_argument("--out", required=True, help="bag to write (must not exist)")
     sim.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage")
-    sim.set_defaults(func=_cmd_simulate)
+    _add_simulate_model_options(sim)
 
     rec = command("record", "record the interface topics of a live system into a bag")
     rec.add_argument("--out", required=True, help="bag to write (must not exist)")

@@ -80,8 +80,9 @@ class Table:
             times, else the time column's own origin), non-decreasing.
         inputs: (n, nu) float64, the input columns in model units, in the order of ``u``.
         outputs: (n, ny) float64, the output columns in model units, in the order of ``y``.
-        time_column: The time column used.
-        time_unit: Its unit as read: ``s``, ``ms``, ``us``, ``ns`` or ``iso``.
+        time_column: The time column used ("" for rows stamped by the map's ``step_s``).
+        time_unit: Its unit as read: ``s``, ``ms``, ``us``, ``ns`` or ``iso`` (``row``: rows
+            stamped ``k step_s``).
         columns: Every column of the file, in file order.
         bad_cells: Column -> (cells that are empty or not numbers, first such row, 1-based
             after the header), for the mapped columns that have any.
@@ -196,7 +197,8 @@ def _time_column(path: Path, time: TimeColumn, columns: Sequence[str]) -> str:
     raise TableError(
         f"{path}: no time column: none of the columns {list(columns)} is named "
         f"{', '.join(TIME_COLUMNS)}; name it in the map, e.g. time: {{column: NAME, unit: s}} "
-        "(units s, ms, us, ns, iso)"
+        "(units s, ms, us, ns, iso), or, if the rows are evenly spaced samples without a time "
+        "column, give their spacing: time: {step_s: SECONDS}"
     )
 
 
@@ -227,7 +229,7 @@ def read_table(path: str | Path, imap: InterfaceMap) -> Table:
     kind = _checked_file(path)
     columns = table_columns(path)
     time = imap.time if imap.time is not None else TimeColumn()
-    time_col = _time_column(path, time, columns)
+    time_col = "" if time.step_s is not None else _time_column(path, time, columns)
     sources = imap.sources()
     missing = [s for s in sources if s.column not in columns]
     if missing:
@@ -236,11 +238,14 @@ def read_table(path: str | Path, imap: InterfaceMap) -> Table:
             f"{path}: no column {src.column!r} (source {src.name!r}){_near(src.column, columns)}; "
             f"the table's columns: {list(columns)}; set 'column:' of that source to one of them"
         )
-    wanted = list(dict.fromkeys([time_col, *(s.column for s in sources)]))
+    wanted = list(dict.fromkeys([*([time_col] if time_col else []), *(s.column for s in sources)]))
     frame = _read_frame(path, kind, wanted)
     if len(frame) == 0:
         raise TableError(f"{path} holds no rows (only the header); nothing to validate")
-    stamps, unit = _stamps_ns(path, frame[time_col], time.unit, time_col)
+    if time.step_s is not None:  # no time column: row k at k step_s (file order)
+        stamps, unit = np.arange(len(frame), dtype=np.int64) * round(time.step_s * NS_PER_S), "row"
+    else:
+        stamps, unit = _stamps_ns(path, frame[time_col], time.unit, time_col)
     order = np.argsort(stamps, kind="stable")
     bad: dict[str, tuple[int, int]] = {}
 

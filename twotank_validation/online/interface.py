@@ -120,7 +120,7 @@ _PATH_STEP = re.compile(r"\.?([A-Za-z][A-Za-z0-9_]*)|\[([0-9]+)\]")
 _KEYS: Final = ("name", "topic", "type", "field", "stamp", "offset", "scale", "column")
 _REQUIRED: Final = ("name", "topic", "type", "field")
 _BAG_KEYS: Final = ("topic", "type", "field", "stamp")  # keys a table's source cannot have
-_TIME_KEYS: Final = ("column", "unit")
+_TIME_KEYS: Final = ("column", "unit", "step_s")
 _ATTR = {"type": "msgtype"}  # YAML/text key -> Source attribute, where they differ
 
 
@@ -424,6 +424,10 @@ class TimeColumn:
             origin), ``iso`` (ISO-8601 text, or a datetime column; naive times are taken as
             UTC), or ``auto`` (the default: a numeric column is seconds, a datetime or text
             column ISO-8601).
+        step_s: A table without a time column whose rows are evenly spaced samples (e.g. a
+            benchmark file): row k after the header, in file order, is at ``k step_s``
+            seconds; ``column`` and ``unit`` then stay unset. None: the time column stamps
+            the rows.
 
     Raises:
         InterfaceMapError: If the column is not a string or the unit is not one of
@@ -432,16 +436,18 @@ class TimeColumn:
 
     column: str = ""
     unit: str = "auto"
+    step_s: float | None = None
 
     def __post_init__(self) -> None:
         try:
-            _checked_time({"column": self.column, "unit": self.unit})
+            _checked_time({"column": self.column, "unit": self.unit, "step_s": self.step_s})
         except _BadKeyError as bad:
             raise InterfaceMapError(f"time: {bad.key}: {bad.detail}") from None
 
     def to_dict(self) -> dict[str, str]:
         """The YAML mapping (keys at their defaults left out)."""
-        out = {"column": self.column} if self.column else {}
+        out: dict[str, Any] = {"column": self.column} if self.column else {}
+        out |= {"step_s": self.step_s} if self.step_s is not None else {}
         return out | ({"unit": self.unit} if self.unit != "auto" else {})
 
 
@@ -456,6 +462,25 @@ def _checked_time(values: Mapping[str, Any]) -> None:
             "unit",
             f"{unit!r} is not a time unit; use one of {list(TIME_UNITS)} (s, ms, us, ns: "
             "numbers; iso: ISO-8601 text such as 2024-05-01T12:00:00.8Z)",
+        )
+    step = values.get("step_s")
+    if step is None:
+        return
+    if (
+        isinstance(step, bool)
+        or not isinstance(step, int | float)
+        or not math.isfinite(step)
+        or step <= 0
+        or round(step * NS_PER_S) < 1
+    ):
+        raise _BadKeyError(
+            "step_s", f"{step!r} is not a sample spacing; give the seconds between rows (> 0)"
+        )
+    if column or unit != "auto":
+        raise _BadKeyError(
+            "step_s",
+            "stamps rows that have no time column: give either step_s (rows evenly spaced) "
+            "or the time column's column and unit, not both",
         )
 
 
@@ -732,12 +757,13 @@ def _time_from_node(node: Any, source: str) -> TimeColumn:
         raise InterfaceMapError(
             f"{source}: time: unknown keys {unknown}; allowed: {list(_TIME_KEYS)}"
         )
-    values = {"column": "", "unit": "auto", **node}
+    values = {"column": "", "unit": "auto", "step_s": None, **node}
     try:
         _checked_time(values)
     except _BadKeyError as bad:
         raise InterfaceMapError(f"{source}: time.{bad.key}: {bad.detail}") from None
-    return TimeColumn(values["column"], values["unit"])
+    step = values["step_s"]
+    return TimeColumn(values["column"], values["unit"], None if step is None else float(step))
 
 
 def load_interface_map(path: str | Path) -> InterfaceMap:

@@ -39,30 +39,62 @@ input the plant gets, and ``y(k) = C x(k) + D [w(k); u_applied(k) - offset] + y_
 measured (with direct feed-through when the model has it) before the state advances.
 :class:`ModelPlant` steps one sample at a time (the ROS node); :func:`simulate_model` runs
 the same steps for the whole record, so both are equal bit for bit.
+
+The simulator is three modules: :mod:`twotank_validation.sim.model_faults` (the fault records,
+their text form, :class:`ModelSimError` and the setting checks),
+:mod:`twotank_validation.sim.model_members` (the member Δ, the discrete state spaces, the
+closed loop, the settling) and this one (the excitation, the configuration, the stepping and
+the batch). Every public name of the other two is importable from here as well.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Final, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
-from twotank_validation.core import lti
 from twotank_validation.core.lti import StateSpace
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
-from twotank_validation.errors import DatumError, ModelError, UnstableModelError
+from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.sim import excitation
+from twotank_validation.sim.model_faults import (
+    _ONSET_SLACK,
+    FAULT_TEXT_FORM,
+    MAX_DELAY_SAMPLES,
+    MODEL_FAULT_KINDS,
+    ModelFault,
+    ModelSimError,
+    _check_fault,
+    _integer,
+    _per_channel,
+    _real,
+    format_model_fault,
+    parse_model_fault,
+)
+from twotank_validation.sim.model_members import (
+    MAX_SETTLE_PERIODS,
+    MEMBER_KINDS,
+    SETTLE_TOL,
+    Member,
+    close_loop,
+    delta_system,
+    discrete_plant,
+    format_member,
+    parse_member,
+    settling_periods,
+    undelay,
+)
 
 __all__ = [
+    "FAULT_TEXT_FORM",
     "MAX_DELAY_SAMPLES",
+    "MAX_SETTLE_PERIODS",
     "MEMBER_KINDS",
     "MODEL_FAULT_KINDS",
     "SETTLE_TOL",
@@ -88,79 +120,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-MEMBER_KINDS: Final = ("nominal", "gains", "random")
-"""Members of the perturbation set :class:`Member` offers."""
-
-MODEL_FAULT_KINDS: Final = ("input_gain", "stuck_input", "sensor_bias", "output_delay")
-"""Faults of :class:`ModelFault`: two on inputs, two on outputs."""
-
-_INPUT_FAULTS: Final = ("input_gain", "stuck_input")
-
-SETTLE_TOL: Final = 1e-9
-"""Automatic settling: periods until ``||A_cl^(k)||_2`` of the closed loop is below this."""
-
-MAX_SETTLE_PERIODS: Final = 1000
-"""Automatic settling refuses a closed loop that needs more periods than this."""
-
-MAX_DELAY_SAMPLES: Final = 1_000_000
-"""Largest ``output_delay`` fault, in samples of ``ts_s``."""
-
-_ONSET_SLACK: Final = 1e-9
-"""A fault starts at the first sample k with ``k ts_s >= onset_s`` to this many samples."""
-
-
-class ModelSimError(ModelError):
-    """A model simulation is set up wrongly (the message names the setting and the fix)."""
-
-
-# --------------------------------------------------------------------------- checks
-
-
-def _real(where: str, value: object, *, lo: float | None = None, lo_open: bool = False) -> float:
-    """A finite real (>= lo, or > lo with lo_open); ModelSimError naming ``where``."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ModelSimError(f"{where}={value!r} is not a number")
-    x = float(value)
-    if not math.isfinite(x):
-        raise ModelSimError(f"{where}={value!r} must be finite (not NaN or inf)")
-    if lo is not None and (x <= lo if lo_open else x < lo):
-        raise ModelSimError(f"{where}={value!r} must be {'>' if lo_open else '>='} {lo:g}")
-    return x
-
-
-def _integer(where: str, value: object, *, lo: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
-        raise ModelSimError(f"{where}={value!r} must be an integer >= {lo}")
-    return int(value)
-
-
-def _per_channel(
-    where: str, value: object, names: Sequence[str], default: float, *, lo: float | None = None
-) -> tuple[float, ...]:
-    """One finite number per channel from a number, a sequence or a mapping by name."""
-    if isinstance(value, Mapping):
-        unknown = sorted(str(k) for k in value if k not in names)
-        if unknown:
-            raise ModelSimError(
-                f"{where}: unknown channel(s) {unknown}; the model's channels are {list(names)}"
-            )
-        return tuple(_real(f"{where}[{n!r}]", value.get(n, default), lo=lo) for n in names)
-    if isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
-        x = _real(where, value, lo=lo)
-        return (x,) * len(names)
-    if isinstance(value, str) or not isinstance(value, Sequence | np.ndarray):
-        raise ModelSimError(
-            f"{where}={value!r}: give a number, one number per channel {list(names)}, or a "
-            "mapping of channel name to number"
-        )
-    items = list(value)
-    if len(items) != len(names):
-        raise ModelSimError(
-            f"{where}={items!r} has {len(items)} entries but the model has {len(names)} "
-            f"channels {list(names)}: give one per channel (or one number for all)"
-        )
-    return tuple(_real(f"{where}[{i}]", v, lo=lo) for i, v in enumerate(items))
 
 
 # --------------------------------------------------------------------------- excitation
@@ -266,252 +225,6 @@ class ModelExcitation:
         except DatumError as err:
             raise ModelSimError(f"excitation: {err}") from err
         return np.column_stack(cols) if cols else np.zeros((self.period_samples, 0))
-
-
-# --------------------------------------------------------------------------- members
-
-
-@dataclass(frozen=True, kw_only=True)
-class Member:
-    """Which member Δ of the model's perturbation set the simulated plant is.
-
-    Text form (:func:`parse_member`): ``nominal``, ``gains=G`` or ``gains=G1,G2,...`` (one
-    per block), ``random`` with optional ``,seed=S`` and ``,scale=R``.
-
-    Attributes:
-        kind: ``"nominal"`` (Δ = 0: the nominal plant), ``"gains"`` (block i is the real
-            gain ``gains[i]`` times the identity, ``Δ_i = δ_i I`` of the block's shape;
-            a non-square block takes the rectangular identity), or ``"random"`` (each block a
-            random stable discrete system, see :func:`delta_system`).
-        gains: ``gains``: one δ_i per block, each in [-1, 1] (one value: the same for all).
-        seed: ``random``: seed of the draw, >= 0.
-        scale: ``random``: ``||Δ_i||∞`` of every block, in (0, 1].
-    """
-
-    kind: str = "nominal"
-    gains: tuple[float, ...] = ()
-    seed: int = 0
-    scale: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.kind not in MEMBER_KINDS:
-            raise ModelSimError(f"member kind={self.kind!r} is unknown; use one of {MEMBER_KINDS}")
-        gains = tuple(self.gains) if isinstance(self.gains, Sequence) else (self.gains,)
-        values = tuple(_real(f"member gains[{i}]", g) for i, g in enumerate(gains))
-        if any(abs(g) > 1.0 for g in values):
-            raise ModelSimError(
-                f"member gains {list(values)} must lie in [-1, 1]: the model's set holds "
-                "||Δ_i|| <= 1 only"
-            )
-        if self.kind == "gains" and not values:
-            raise ModelSimError("member 'gains' needs at least one gain, e.g. gains=0.5")
-        if self.kind != "gains" and values:
-            raise ModelSimError(f"member {self.kind!r} takes no gains; use kind='gains'")
-        object.__setattr__(self, "gains", values)
-        object.__setattr__(self, "seed", _integer("member seed", self.seed, lo=0))
-        scale = _real("member scale", self.scale, lo=0.0, lo_open=True)
-        if scale > 1.0:
-            raise ModelSimError(f"member scale={scale!r} must be <= 1 (||Δ||∞ <= 1)")
-        object.__setattr__(self, "scale", scale)
-
-    def block_gains(self, n_blocks: int) -> tuple[float, ...]:
-        """The gain of each of ``n_blocks`` blocks (``gains`` member).
-
-        Raises:
-            ModelSimError: A count other than 1 or ``n_blocks``.
-        """
-        if len(self.gains) == 1:
-            return self.gains * n_blocks
-        if len(self.gains) != n_blocks:
-            raise ModelSimError(
-                f"member gains {list(self.gains)}: the model has {n_blocks} perturbation "
-                "block(s); give one gain per block or one for all"
-            )
-        return self.gains
-
-
-def parse_member(text: str) -> Member:
-    """``"nominal"``, ``"gains=0.5,-1"``, ``"random"``, ``"random,seed=3,scale=0.8"`` -> Member.
-
-    Raises:
-        ModelSimError: Text of another form (the message shows the forms).
-    """
-    usage = (
-        f"member {text!r}: write nominal, gains=G[,G...] (one per block, each in [-1, 1]) or "
-        "random[,seed=S][,scale=R]"
-    )
-    if not isinstance(text, str):
-        raise ModelSimError(usage)
-    body = text.strip()
-    if body == "nominal":
-        return Member()
-    try:
-        if body.startswith("gains="):
-            return Member(kind="gains", gains=tuple(float(g) for g in body[6:].split(",")))
-        head, *options = body.split(",")
-        if head != "random":
-            raise ModelSimError(usage)
-        kwargs: dict[str, float | int] = {}
-        for opt in options:
-            key, sep, value = opt.partition("=")
-            if not sep or key.strip() not in ("seed", "scale") or key.strip() in kwargs:
-                raise ModelSimError(usage)
-            kwargs[key.strip()] = int(value) if key.strip() == "seed" else float(value)
-        return Member(
-            kind="random", seed=int(kwargs.get("seed", 0)), scale=float(kwargs.get("scale", 1.0))
-        )
-    except ValueError as err:
-        raise ModelSimError(f"{usage} ({err})") from err
-
-
-def format_member(member: Member) -> str:
-    """Inverse of :func:`parse_member`."""
-    if member.kind == "gains":
-        return "gains=" + ",".join(_num(g) for g in member.gains)
-    if member.kind == "random":
-        return f"random,seed={member.seed},scale={_num(member.scale)}"
-    return "nominal"
-
-
-# --------------------------------------------------------------------------- faults
-
-
-@dataclass(frozen=True)
-class ModelFault:
-    """A fault of the simulated plant on one named channel, active from ``onset_s`` to ``end_s``.
-
-    A fault takes effect at the first sample k with ``k ts_s >= onset_s`` and is removed at
-    the first sample with ``k ts_s >= end_s`` (to 1e-9 sample). The recorded inputs are the
-    commands; input faults change what the plant gets, output faults what is measured.
-
-    * ``input_gain``: the plant gets ``magnitude`` times the commanded input (its absolute
-      value in model units, as a weak actuator delivers a fraction of its command; with a
-      non-zero offset the input's mean moves too). Any finite factor.
-    * ``stuck_input``: the input the plant gets holds the value it had at the sample before
-      the onset (the offset if the onset is at 0); ``magnitude`` is unused.
-    * ``sensor_bias``: ``magnitude`` (model units) is added to the measured output.
-    * ``output_delay``: the measured output is the fault-free measured output ``magnitude``
-      seconds earlier (0 <= magnitude <= :data:`MAX_DELAY_SAMPLES` samples), linearly
-      interpolated between samples; before time 0 the output rests at its operating point.
-
-    Faults combine: gains of one input multiply, a stuck input overrides its gain; biases and
-    delays of one output add, the delay acting first (a bias is not delayed).
-
-    Attributes:
-        kind: One of :data:`MODEL_FAULT_KINDS`.
-        channel: The model's input (input faults) or output (output faults) name.
-        magnitude: Factor, bias (model units) or delay (s), see above.
-        onset_s: Time it takes effect, s, finite, >= 0.
-        end_s: Time it is removed, s, > onset_s; default never.
-    """
-
-    kind: str
-    channel: str
-    magnitude: float = 0.0
-    onset_s: float = 0.0
-    end_s: float = math.inf
-
-    def __post_init__(self) -> None:
-        if self.kind not in MODEL_FAULT_KINDS:
-            raise ModelSimError(
-                f"fault kind {self.kind!r} is unknown; use one of {MODEL_FAULT_KINDS}"
-            )
-        where = f"fault {self.kind}"
-        if not isinstance(self.channel, str) or not self.channel:
-            raise ModelSimError(f"{where}: channel={self.channel!r} must name a model channel")
-        object.__setattr__(self, "magnitude", _real(f"{where} magnitude", self.magnitude))
-        object.__setattr__(self, "onset_s", _real(f"{where} onset_s", self.onset_s, lo=0.0))
-        end = self.end_s
-        if isinstance(end, bool) or not isinstance(end, int | float) or math.isnan(end):
-            raise ModelSimError(f"{where}: end_s={end!r} must be a time in s or inf")
-        if end <= self.onset_s:
-            raise ModelSimError(
-                f"{where}: end_s={end!r} must be later than onset_s={self.onset_s!r}"
-            )
-        object.__setattr__(self, "end_s", float(end))
-        if self.kind == "output_delay" and self.magnitude < 0.0:
-            raise ModelSimError(f"{where}: the delay {self.magnitude!r} s must be >= 0")
-
-    @property
-    def on_input(self) -> bool:
-        """The fault acts on an input (else on an output)."""
-        return self.kind in _INPUT_FAULTS
-
-
-_FAULT_TEXT: Final = re.compile(
-    r"^\s*(?P<kind>[a-z_]+):(?P<channel>[^=@:\s]+)(?:=(?P<mag>[^@\s]+))?"
-    r"@(?P<onset>[^-\s]+)(?:-(?P<end>\S+))?\s*$"
-)
-FAULT_TEXT_FORM: Final = "KIND:CHANNEL[=MAGNITUDE]@ONSET_S[-END_S]"
-"""The grammar of :func:`parse_model_fault`."""
-
-
-def parse_model_fault(spec: str) -> ModelFault:
-    """Parse ``KIND:CHANNEL[=MAGNITUDE]@ONSET_S[-END_S]``.
-
-    Examples: ``input_gain:u1=0.5@300``, ``stuck_input:u1@300``, ``sensor_bias:y2=0.1@300``,
-    ``output_delay:y1=2.5@300``, ``input_gain:u2=0.8@100-400``. ``MAGNITUDE`` is a factor,
-    a bias (model units) or a delay (s); ``stuck_input`` takes none. Times in s.
-
-    Raises:
-        ModelSimError: Malformed text or an invalid fault (the message shows the form).
-    """
-    m = _FAULT_TEXT.match(spec) if isinstance(spec, str) else None
-    if m is None:
-        raise ModelSimError(
-            f"fault spec {spec!r} is not {FAULT_TEXT_FORM}, e.g. 'input_gain:u1=0.5@300' or "
-            f"'stuck_input:u1@300'; kinds: {', '.join(MODEL_FAULT_KINDS)}"
-        )
-    kind = m["kind"]
-    if kind == "stuck_input" and m["mag"] is not None:
-        raise ModelSimError(f"fault spec {spec!r}: stuck_input takes no magnitude")
-    if kind in MODEL_FAULT_KINDS and kind != "stuck_input" and m["mag"] is None:
-        raise ModelSimError(f"fault spec {spec!r}: {kind} needs =MAGNITUDE")
-    try:
-        return ModelFault(
-            kind=kind,
-            channel=m["channel"],
-            magnitude=float(m["mag"]) if m["mag"] is not None else 0.0,
-            onset_s=float(m["onset"]),
-            end_s=float(m["end"]) if m["end"] is not None else math.inf,
-        )
-    except ValueError as err:  # float() of bad text; ModelSimError is a ValueError too
-        if isinstance(err, ModelSimError):
-            raise ModelSimError(f"fault spec {spec!r}: {err}") from err
-        raise ModelSimError(f"fault spec {spec!r} is not {FAULT_TEXT_FORM}: {err}") from err
-
-
-def _num(x: float) -> str:
-    """Shortest text that reads back to ``x`` (``300``, not ``300.0``)."""
-    text = repr(float(x))
-    return text[:-2] if text.endswith(".0") else text
-
-
-def format_model_fault(fault: ModelFault) -> str:
-    """Inverse of :func:`parse_model_fault` (the shortest numbers that read back the same)."""
-    mag = "" if fault.kind == "stuck_input" else f"={_num(fault.magnitude)}"
-    end = f"-{_num(fault.end_s)}" if math.isfinite(fault.end_s) else ""
-    return f"{fault.kind}:{fault.channel}{mag}@{_num(fault.onset_s)}{end}"
-
-
-def _check_fault(fault: ModelFault, model: LFTModel, ts_s: float) -> None:
-    names = model.input_names if fault.on_input else model.output_names
-    role = "input" if fault.on_input else "output"
-    if fault.channel not in names:
-        other = model.output_names if fault.on_input else model.input_names
-        hint = f" ({fault.channel!r} is an {'output' if fault.on_input else 'input'})" * (
-            fault.channel in other
-        )
-        raise ModelSimError(
-            f"fault {format_model_fault(fault)}: model {model.name!r} has no {role} "
-            f"{fault.channel!r}{hint}; its inputs are {list(model.input_names)}, its outputs "
-            f"{list(model.output_names)}"
-        )
-    if fault.kind == "output_delay" and fault.magnitude / ts_s > MAX_DELAY_SAMPLES:
-        raise ModelSimError(
-            f"fault {format_model_fault(fault)}: a delay of {fault.magnitude:g} s is more than "
-            f"{MAX_DELAY_SAMPLES} samples of ts_s={ts_s:g}"
-        )
 
 
 # --------------------------------------------------------------------------- the configuration
@@ -628,265 +341,7 @@ class ModelSimConfig:
         return np.asarray(self.offset) + self.excitation.deviations(self.ts_s, self.rms)
 
 
-# --------------------------------------------------------------------------- state spaces
-
-
-def _stack(
-    parts: Sequence[tuple[StateSpace, FloatArray, FloatArray]], n_in: int, n_out: int, dt_s: float
-) -> StateSpace:
-    """Sum of paths ``M_out S M_in``: states stacked, ``(S, M_in, M_out)`` each."""
-    a = scipy.linalg.block_diag(*[s.a for s, _, _ in parts]) if parts else np.zeros((0, 0))
-    n = a.shape[0]
-    b = np.zeros((n, n_in))
-    c = np.zeros((n_out, n))
-    d = np.zeros((n_out, n_in))
-    row = 0
-    for s, m_in, m_out in parts:
-        k = s.n_states
-        b[row : row + k] = s.b @ m_in
-        c[:, row : row + k] = m_out @ s.c
-        d += m_out @ s.d @ m_in
-        row += k
-    return StateSpace(a if n else np.zeros((0, 0)), b, c, d, dt_s)
-
-
-def _series(first: StateSpace, second: StateSpace) -> StateSpace:
-    """``second`` after ``first`` (discrete, delay-free)."""
-    n1 = first.n_states
-    a = np.block(
-        [
-            [first.a, np.zeros((n1, second.n_states))],
-            [second.b @ first.c, second.a],
-        ]
-    )
-    b = np.vstack([first.b, second.b @ first.d])
-    c = np.hstack([second.d @ first.c, second.c])
-    return StateSpace(a if a.size else np.zeros((0, 0)), b, c, second.d @ first.d, first.dt_s)
-
-
-def undelay(sys: StateSpace) -> StateSpace:
-    """A discrete system with its output delays turned into shift-register states.
-
-    Output i delayed by d_i samples (``output_delays_s[i] / dt_s``) gets d_i states
-    ``s_1(k+1) = [C x + D u]_i(k)``, ``s_j(k+1) = s_{j-1}(k)``, ``y_i = s_{d_i}``.
-
-    Raises:
-        ModelSimError: A delay that is not a whole number of samples (the time domain cannot
-            hold the band-limited fractional delay the validator's frequency response uses).
-    """
-    if not sys.output_delays_s:
-        return sys
-    assert sys.dt_s is not None
-    shifts = []
-    for i, tau in enumerate(sys.output_delays_s):
-        samples = tau / sys.dt_s
-        if abs(samples - round(samples)) > 1e-9 * max(1.0, samples):
-            raise ModelSimError(
-                f"output {i} has a transport delay of {tau:g} s, not a whole number of samples "
-                f"of ts_s={sys.dt_s:g}: simulate at a ts_s that divides it, or round the delay "
-                "in the model file"
-            )
-        shifts.append(round(samples))
-    n0, (p, m) = sys.n_states, sys.shape
-    total = n0 + sum(shifts)
-    a = np.zeros((total, total))
-    b = np.zeros((total, m))
-    c = np.zeros((p, total))
-    d = np.zeros((p, m))
-    a[:n0, :n0], b[:n0] = sys.a, sys.b
-    pos = n0
-    for i, k in enumerate(shifts):
-        if k == 0:
-            c[i, :n0], d[i] = sys.c[i], sys.d[i]
-            continue
-        a[pos, :n0], b[pos] = sys.c[i], sys.d[i]  # s_1(k+1) = (C x + D u)_i
-        for j in range(1, k):
-            a[pos + j, pos + j - 1] = 1.0
-        c[i, pos + k - 1] = 1.0
-        pos += k
-    return StateSpace(a, b, c, d, sys.dt_s)
-
-
-def _select(rows: int, cols: int, pairs: Sequence[tuple[int, int]]) -> FloatArray:
-    m = np.zeros((rows, cols))
-    for r, c in pairs:
-        m[r, c] = 1.0
-    return m
-
-
-def discrete_plant(model: LFTModel, ts_s: float) -> StateSpace:
-    """The generalised plant ``P: [v; w; u] -> [z; y]`` as one discrete, delay-free state space.
-
-    Each continuous part is discretised by ZOH at ``ts_s`` on its own (as
-    :meth:`LFTModel.response`), so ``P(e^{jθ})`` equals ``model.response(θ, ts_s).p`` (for
-    whole-sample delays). A structured model is the sum of its paths: the nominal G on u
-    (into y and into the z of output-multiplicative blocks), per block its weight on v (into
-    y, through G[:, S] for an input-multiplicative block) and its selection of u or G u
-    into z, per noise channel its weight on w.
-
-    Args:
-        model: The model set.
-        ts_s: Sample period, s.
-
-    Returns:
-        (nz + ny, nv + nw + nu) discrete state space with sample period ``ts_s``.
-
-    Raises:
-        ModelError: A discrete part with another sample period; a fractional delay.
-    """
-    nz, nv, nw, nu, ny = model.blocks.nz, model.blocks.nv, model.nw, model.nu, model.ny
-    n_in, n_out = nv + nw + nu, nz + ny
-    if model.generalized is not None:
-        return undelay(lti.discretise(model.generalized, ts_s))
-    assert model.nominal is not None
-    g = undelay(lti.discretise(model.nominal, ts_s))
-    u_cols = [nv + nw + j for j in range(nu)]
-    y_rows = [nz + i for i in range(ny)]
-    # the nominal on u, into y; output-multiplicative blocks read their z from this copy of G
-    y_all = _select(n_out, ny, [(y_rows[i], i) for i in range(ny)])
-    u_in = _select(nu, n_in, [(j, u_cols[j]) for j in range(nu)])
-    g_out = y_all.copy()
-    parts: list[tuple[StateSpace, FloatArray, FloatArray]] = []
-    for pert, vs, zs in zip(
-        model.perturbations, model.blocks.v_slices, model.blocks.z_slices, strict=True
-    ):
-        w = undelay(lti.discretise(pert.weight, ts_s))
-        v_in = _select(w.shape[1], n_in, [(k, vs.start + k) for k in range(w.shape[1])])
-        if pert.kind == "output_multiplicative":
-            for k, o in enumerate(pert.outputs):
-                g_out[zs.start + k, o] = 1.0  # z_i = E_S G u, from the nominal's copy of G
-            y_sel = [(y_rows[o], k) for k, o in enumerate(pert.outputs)]
-            parts.append((w, v_in, _select(n_out, w.shape[0], y_sel)))
-            continue
-        # z_i = E_in u: a static path
-        z_sel = _select(n_out, nu, [(zs.start + k, j) for k, j in enumerate(pert.inputs)])
-        parts.append((lti.static_gain(np.eye(nu), ts_s), u_in, z_sel))
-        if pert.kind == "input_multiplicative":  # y += G E_S^T W v
-            ins = list(pert.inputs)
-            g_s = StateSpace(g.a, g.b[:, ins], g.c, g.d[:, ins], ts_s)
-            parts.append((_series(w, g_s), v_in, y_all))
-        else:  # additive: y[S_out] += W v
-            y_sel = [(y_rows[o], k) for k, o in enumerate(pert.outputs)]
-            parts.append((w, v_in, _select(n_out, w.shape[0], y_sel)))
-    col = nv
-    for ch in model.noise:
-        w = undelay(lti.discretise(ch.weight, ts_s))
-        k_in = w.shape[1]
-        w_in = _select(k_in, n_in, [(k, col + k) for k in range(k_in)])
-        y_sel = [(y_rows[o], k) for k, o in enumerate(ch.outputs)]
-        parts.append((w, w_in, _select(n_out, w.shape[0], y_sel)))
-        col += k_in
-    return _stack([(g, u_in, g_out), *parts], n_in, n_out, ts_s)
-
-
-def _random_allpass(rng: np.random.Generator, ts_s: float) -> StateSpace:
-    """A stable first-order discrete all-pass ``(z^-1 - a) / (1 - a z^-1)``, |H(e^{jθ})| = 1."""
-    a = float(rng.uniform(-0.9, 0.9))
-    # H(z) = (1 - a z) / (z - a) = -a + (1 - a^2) / (z - a)
-    return StateSpace(
-        np.array([[a]]), np.array([[1.0]]), np.array([[1.0 - a * a]]), np.array([[-a]]), ts_s
-    )
-
-
-def delta_system(model: LFTModel, member: Member, ts_s: float) -> StateSpace:
-    """The member Δ = diag(Δ_1 .. Δ_m) as one discrete state space ``z -> v`` (nv x nz).
-
-    * ``nominal``: 0.
-    * ``gains``: ``Δ_i = δ_i I`` (rectangular identity for a non-square block), static.
-    * ``random``: ``Δ_i(z) = s Q_1 diag(g_k A_k(z)) Q_2`` with ``Q_1``, ``Q_2`` random
-      orthogonal matrices (QR of a Gaussian matrix; a sign for 1 x 1), ``g_k`` uniform in
-      [-1, 1] divided by the largest ``|g_k|``, ``A_k`` a random stable first-order all-pass
-      (pole uniform in (-0.9, 0.9)). The singular values of ``Δ_i(e^{jθ})`` are ``s |g_k|``
-      at every θ, so ``||Δ_i||∞ = s = scale`` exactly (no frequency grid) and Δ_i is
-      stable. Drawn from ``default_rng(member.seed)``.
-
-    Raises:
-        ModelSimError: A ``gains`` member with the wrong number of gains.
-    """
-    shapes = model.blocks.shapes
-    parts: list[tuple[StateSpace, FloatArray, FloatArray]] = []
-    nv, nz = model.blocks.nv, model.blocks.nz
-    if member.kind == "nominal" or not shapes:
-        return lti.static_gain(np.zeros((nv, nz)), ts_s)
-    rng = np.random.default_rng(member.seed)
-    gains = member.block_gains(len(shapes)) if member.kind == "gains" else ()
-    for i, ((rows, cols), vs, zs) in enumerate(
-        zip(shapes, model.blocks.v_slices, model.blocks.z_slices, strict=True)
-    ):
-        m_in = _select(cols, nz, [(k, zs.start + k) for k in range(cols)])
-        m_out = _select(nv, rows, [(vs.start + k, k) for k in range(rows)])
-        if member.kind == "gains":
-            parts.append((lti.static_gain(gains[i] * np.eye(rows, cols), ts_s), m_in, m_out))
-            continue
-        r = min(rows, cols)
-        q1, q2 = _orthogonal(rng, rows), _orthogonal(rng, cols)
-        g = rng.uniform(-1.0, 1.0, size=r)
-        g /= np.max(np.abs(g))  # the largest |g_k| is 1: ||Δ_i||∞ = scale exactly
-        for k in range(r):
-            ap = _random_allpass(rng, ts_s)
-            col_in = q2[k : k + 1, :]  # (1, cols): the k-th row of Q_2
-            col_out = member.scale * g[k] * q1[:, k : k + 1]  # (rows, 1)
-            parts.append((ap, col_in @ m_in, m_out @ col_out))
-    return _stack(parts, nz, nv, ts_s)
-
-
-def _orthogonal(rng: np.random.Generator, n: int) -> FloatArray:
-    """A random n x n orthogonal matrix (QR of a Gaussian matrix, signs fixed: Haar)."""
-    q, r = np.linalg.qr(rng.standard_normal((n, n)))
-    return np.asarray(q * np.sign(np.diag(r))[None, :])
-
-
-def close_loop(p: StateSpace, delta: StateSpace, nz: int, nv: int) -> StateSpace:
-    """The upper LFT ``F_u(P, Δ)``: ``[w; u] -> y`` with ``v = Δ z``.
-
-    Args:
-        p: ``[v; w; u] -> [z; y]``, discrete, delay-free.
-        delta: ``z -> v`` (nv x nz), discrete, delay-free, same sample period.
-        nz: Rows of z in P's outputs (the first ones).
-        nv: Columns of v in P's inputs (the first ones).
-
-    Returns:
-        The closed loop, states ``[x_P; x_Δ]``.
-
-    Raises:
-        ModelSimError: ``I - D11 D_Δ`` singular (the loop is not well posed).
-        UnstableModelError: The closed loop is unstable for this member.
-    """
-    a, b, c, d = p.a, p.b, p.c, p.d
-    b1, b2 = b[:, :nv], b[:, nv:]
-    c1, c2 = c[:nz], c[nz:]
-    d11, d12, d21, d22 = d[:nz, :nv], d[:nz, nv:], d[nz:, :nv], d[nz:, nv:]
-    ad, bd, cd, dd = delta.a, delta.b, delta.c, delta.d
-    np_, nd = p.n_states, delta.n_states
-    loop = np.eye(nz) - d11 @ dd
-    if nz and np.linalg.cond(loop) > 1e12:
-        raise ModelSimError(
-            "the loop v = Δ z is not well posed for this member (I - P11(∞) Δ(∞) is "
-            "singular): choose smaller gains"
-        )
-    m = np.linalg.inv(loop) if nz else np.zeros((0, 0))
-    # z = Zx [x_P; x_Δ] + Zq q,  v = Vx x + Vq q  (q = [w; u])
-    zx = m @ np.hstack([c1, d11 @ cd])
-    zq = m @ d12
-    vx = np.hstack([np.zeros((nv, np_)), cd]) + dd @ zx
-    vq = dd @ zq
-    a_cl = np.vstack(
-        [
-            np.hstack([a, np.zeros((np_, nd))]) + b1 @ vx,
-            np.hstack([np.zeros((nd, np_)), ad]) + bd @ zx,
-        ]
-    )
-    b_cl = np.vstack([b2 + b1 @ vq, bd @ zq])
-    c_cl = np.hstack([c2, np.zeros((c2.shape[0], nd))]) + d21 @ vx
-    d_cl = d22 + d21 @ vq
-    n = np_ + nd
-    sys = StateSpace(a_cl if n else np.zeros((0, 0)), b_cl, c_cl, d_cl, p.dt_s)
-    if n and np.max(np.abs(np.linalg.eigvals(sys.a))) >= 1.0 - 1e-9:
-        raise UnstableModelError(
-            "the simulated plant (the model closed with the chosen member Δ) is unstable: "
-            "choose the nominal or smaller gains, or a model whose P11 has gain < 1"
-        )
-    return sys
+# --------------------------------------------------------------------------- the closed loop
 
 
 def closed_loop_system(config: ModelSimConfig) -> StateSpace:
@@ -900,36 +355,6 @@ def closed_loop_system(config: ModelSimConfig) -> StateSpace:
         raise ModelSimError(f"model {model.name!r} at ts_s={config.ts_s:g}: {err}") from err
     delta = delta_system(model, config.member, config.ts_s)
     return close_loop(p, delta, model.blocks.nz, model.blocks.nv)
-
-
-def settling_periods(system: StateSpace, period_samples: int, tol: float = SETTLE_TOL) -> int:
-    """Periods after which the transient from rest has decayed: ``||A^(p N)||_2 <= tol``.
-
-    Args:
-        system: The discrete closed loop.
-        period_samples: N.
-        tol: Relative size of the remaining transient.
-
-    Returns:
-        The smallest p >= 1 (0 for a static system).
-
-    Raises:
-        ModelSimError: More than :data:`MAX_SETTLE_PERIODS` periods would be needed (give
-            ``settle_periods`` yourself, or lengthen the period).
-    """
-    if system.n_states == 0:
-        return 0
-    step = np.linalg.matrix_power(system.a, period_samples)
-    power = step.copy()
-    for p in range(1, MAX_SETTLE_PERIODS + 1):
-        if np.linalg.norm(power, 2) <= tol:
-            return p
-        power = power @ step
-    raise ModelSimError(
-        f"the plant's transient needs more than {MAX_SETTLE_PERIODS} periods of "
-        f"{period_samples} samples to decay by {tol:g}: lengthen the period or set "
-        "settle_periods yourself"
-    )
 
 
 # --------------------------------------------------------------------------- stepping
