@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim import rig

@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from report_checks import assert_same_reports
 
-from tools.records import two_tank_value
+from tools.events import two_tank_value
 from twotank_validation import bags, replay
 from twotank_validation.bags import decode
 from twotank_validation.core.model import load_model

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twotank_validation.bags.errors import BagExistsError
+from twotank_validation.bags.bag_errors import BagExistsError
 from twotank_validation.bags.model_bag import CUSTOM_DATA_KEY, simulate_model_command
 from twotank_validation.bags.reader import open_bag
 from twotank_validation.core.model import load_model

@@ -58,7 +58,7 @@ from std_srvs.srv import Trigger
 
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.diagnose.live import catalogue_diagnosis
+from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import (
     Alarm,

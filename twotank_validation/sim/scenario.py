@@ -7,7 +7,7 @@ mixing delay) and faults in their text form (:mod:`twotank_validation.sim.faults
 With a ``closed_loop`` section (:class:`ClosedLoop`) the valves are driven by the PI
 controller of :mod:`twotank_validation.sim.control` and the excitation enters at its output or
 its setpoints. ``simulate_scenario`` runs it in memory, ``iter_scenario`` sample by sample;
-writing it into a bag is :func:`twotank_validation.bags.scenario.write_scenario_bag`.
+writing it into a bag is :func:`twotank_validation.bags.scenario_bag.write_scenario_bag`.
 
 Shipped scenarios live in ``twotank_validation/sim/scenarios/*.yaml`` (``shipped_scenarios()``);
 a YAML file holds the keys of :class:`Scenario` (``units`` as a mapping of
