@@ -33,10 +33,8 @@ from twotank_validation.bags import columnar, decode
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online import streams as itf
-from twotank_validation.online.interface import (
-    InterfaceMap,
-    interface_map_from_text,
-)
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.interface_text import interface_map_from_text
 from twotank_validation.sim import scenario as sc
 from twotank_validation.sim.faults import parse_fault
 

@@ -28,7 +28,7 @@ from twotank_validation.bags import decode
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online import streams as itf
-from twotank_validation.online.interface import convert
+from twotank_validation.online.sources import convert
 from twotank_validation.sim import scenario as sc
 
 sys.path.insert(0, str(Path(__file__).parent / "data"))

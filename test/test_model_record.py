@@ -13,7 +13,8 @@ from twotank_validation.bags.bag_errors import BagExistsError
 from twotank_validation.bags.model_bag import CUSTOM_DATA_KEY, simulate_model_command
 from twotank_validation.bags.reader import open_bag
 from twotank_validation.core.model import load_model
-from twotank_validation.online.interface import extract, load_interface_map, source_stamp_ns
+from twotank_validation.online.extraction import extract, source_stamp_ns
+from twotank_validation.online.interface_map import load_interface_map
 from twotank_validation.sim import model_plant as mp
 from twotank_validation.sim import model_record as mr
 from twotank_validation.tables import read_table

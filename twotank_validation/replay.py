@@ -46,6 +46,7 @@ from twotank_validation.diagnose.stretches import WindowFindings
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online.aligner import COMMAND
+from twotank_validation.online.extraction import check_message, extract, source_stamp_ns
 from twotank_validation.online.infer import (
     MIN_PERIOD_SAMPLES,
     grid_samples,
@@ -53,20 +54,14 @@ from twotank_validation.online.infer import (
     infer_sample_period,
     supported_rate,
 )
-from twotank_validation.online.interface import (
+from twotank_validation.online.interface_map import (
     INPUT,
-    STAMP_HEADER,
     InterfaceMap,
-    InterfaceMapError,
-    Source,
     TopicSources,
-    check_message,
-    convert,
-    extract,
     message_sources,
-    source_stamp_ns,
 )
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
+from twotank_validation.online.sources import STAMP_HEADER, InterfaceMapError, Source, convert
 from twotank_validation.online.states import WindowQuality
 from twotank_validation.online.streams import two_tank_map
 

@@ -30,7 +30,7 @@ from twotank_validation.online.aligner import (
 from twotank_validation.online.assembler import CommandAssembler
 from twotank_validation.online.channels import Channels, match_channels
 from twotank_validation.online.input_faults import STOPPED_STREAMS, InputFaults
-from twotank_validation.online.interface import (
+from twotank_validation.online.interface_map import (
     INPUT,
     InterfaceMap,
     TopicSources,
