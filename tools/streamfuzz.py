@@ -1,6 +1,6 @@
 """Hostile message streams for the online validator, and the invariants it must keep.
 
-Used by ``test/test_hostile_streams.py`` (a short, bounded, property-based run) and
+Used by ``test/online/test_hostile_streams.py`` (a short, bounded, property-based run) and
 ``bench/fuzz_streams.py`` (long runs). A run is: clean rig data through
 :class:`~twotank_validation.online.validator.OnlineValidator` for a while, then a hostile stretch
 (random stamps, NaN and inf, huge values, bursts far above the sample rate, long silences,
@@ -38,7 +38,7 @@ CONFIG = MonitorConfig(ts_s=0.8, period_samples=256, max_recovered_fraction=0.0)
 """The same 204.8 s period as the defaults with 8x fewer samples (as the node tests), and no
 recovery of unusable samples: the invariants are about the flags themselves (a short hostile
 stretch would otherwise be recovered, as :mod:`twotank_validation.online.recovery` does on
-purpose; ``test/test_recovery.py`` checks that)."""
+purpose; ``test/online/test_recovery.py`` checks that)."""
 
 HOSTILE_KINDS = (
     "nan",

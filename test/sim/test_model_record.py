@@ -19,7 +19,7 @@ from twotank_validation.sim import model_plant as mp
 from twotank_validation.sim import model_record as mr
 from twotank_validation.tables import read_table
 
-DATA = Path(__file__).parent / "data" / "models"
+DATA = Path(__file__).resolve().parents[1] / "data" / "models"
 OPTIONS = {"ts_s": 0.1, "period_samples": 64, "periods": 2, "settle_periods": 1, "f_max_hz": 1.0}
 
 

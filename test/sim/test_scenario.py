@@ -147,7 +147,7 @@ def test_shipped_scenarios() -> None:
 
 
 def test_shipped_files_are_package_data() -> None:
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     folder = root / "twotank_validation" / "sim" / "scenarios"
     files = sorted(p.stem for p in folder.glob("*.yaml"))
     assert files == list(shipped_scenarios())

@@ -40,7 +40,7 @@ from twotank_validation.online.streams import (
 )
 from twotank_validation.online.streams import two_tank_map as default_interface_map
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs" / "interface.md"
 FLOW = "twotank_validation_msgs/msg/FlowCommand"
 

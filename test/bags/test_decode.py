@@ -13,9 +13,9 @@ import dataclasses
 import math
 import shutil
 import struct
-import sys
 from pathlib import Path
 
+import make_bags as mb
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -31,10 +31,7 @@ from twotank_validation.online import streams as itf
 from twotank_validation.online.sources import convert
 from twotank_validation.sim import scenario as sc
 
-sys.path.insert(0, str(Path(__file__).parent / "data"))
-import make_bags as mb
-
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 TYPES = {
     mb.FLOW_CMD_TYPE: ("hot", "cold"),
     mb.HEIGHT_TYPE: ("fluid_pressure", "variance"),
