@@ -33,10 +33,10 @@ import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, AlarmConfig, MonitorConfig, OnlineValidator
-from twotank_validation.online.oppoint import OpPointConfig
+from twotank_validation.online.op_tracker import OpPointConfig
 from twotank_validation.sim import scenario as sc
 
 P_S = 204.8

@@ -17,7 +17,7 @@ import argparse
 import statistics
 import time
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL

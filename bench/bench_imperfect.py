@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from tools.records import arrival_order
+from tools.events import arrival_order
 from twotank_validation.core.model import load_model
 from twotank_validation.defaults import MAX_RECOVERED_FRACTION
 from twotank_validation.online import COMMAND, Alarm, MonitorConfig, OnlineValidator

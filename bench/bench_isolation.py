@@ -32,10 +32,10 @@ import time
 
 import numpy as np
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose.kinds import expected_effect
-from twotank_validation.diagnose.live import catalogue_diagnosis
+from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL

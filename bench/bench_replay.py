@@ -28,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.records import two_tank_value
+from tools.events import two_tank_value
 from twotank_validation import bags, replay
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.online import STREAMS, OnlineValidator, WindowReport

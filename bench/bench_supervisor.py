@@ -23,7 +23,7 @@ import itertools
 import statistics
 import time
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online.supervisor import (

@@ -77,7 +77,7 @@ from twotank_validation.online import (
     OnlineValidator,
     WindowReport,
 )
-from twotank_validation.sim import faults, rig
+from twotank_validation.sim import faults, simulator
 from twotank_validation.sim.faults import format_fault
 from twotank_validation.sim.scenario import Scenario, simulate_scenario
 
@@ -282,7 +282,7 @@ class Run:
         self.rows = scenario.command_table()
         self.ts_ns = scenario.ts_ns
         self.ts_s = scenario.ts_s
-        self.sim = rig.TankSimulator(
+        self.sim = simulator.TankSimulator(
             scenario.rig_params(),
             scenario.ts_s,
             op=scenario.operating_point(),
@@ -305,7 +305,7 @@ class Run:
         commands = self.rows[np.arange(k0, k_end) % period]
         measured = np.empty((n, 2))
         sim = self.sim
-        # TankSimulator.step without its per-call argument checks, as rig.simulate does: the
+        # TankSimulator.step without its per-call argument checks, as simulator.simulate does: the
         # scenario's commands are checked finite and inside [0, 1] (the shortcut check compares
         # with simulate_scenario, which calls step)
         advance = sim._advance

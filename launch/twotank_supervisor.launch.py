@@ -6,7 +6,7 @@ given models and publishes `control/mode` for the controller. Arguments: `models
 (comma-separated, default B), `latch` (default false), `clear_after_s` (default 204.8),
 `clear_reports` (default 2), `stale_after_s` (default 180), `startup_grace_s` (default 900),
 `use_sim_time` (default false; true beside the simulated rig, whose plant owns /clock).
-Not exercised by the test suite (no launch wheels on PyPI); test/test_supervisor.py runs the
+Not exercised by the test suite (no launch wheels on PyPI); test/online/test_supervisor.py runs the
 node in-process.
 """
 

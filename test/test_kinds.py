@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation import replay
 from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose import catalogue

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import ast
 import importlib
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -38,3 +41,30 @@ def test_readme_core_example_runs() -> None:
     datum = make_datum(u, y, ts_s=0.8, period_samples=p)
     result = validate(datum, model)
     assert result.beta == pytest.approx(validate(datum, model, method="sdp").beta, rel=1e-3)
+
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+_DOC_IMPORT = re.compile(r"^from (twotank_validation\S*) import (\([^)]*\)|[^\n]*)", re.MULTILINE)
+
+
+def _documented_imports() -> list[tuple[str, str, str]]:
+    """(page, module, name) of every ``from twotank_validation... import`` in the docs' code."""
+    out: set[tuple[str, str, str]] = set()
+    for page in sorted(DOCS.glob("*.md")):
+        for block in re.findall(r"```python\n(.*?)```", page.read_text(), re.DOTALL):
+            for match in _DOC_IMPORT.finditer(block):
+                node = ast.parse(match.group(0)).body[0]
+                assert isinstance(node, ast.ImportFrom)
+                out |= {(page.name, match.group(1), alias.name) for alias in node.names}
+    return sorted(out)
+
+
+def test_the_docs_show_imports() -> None:
+    pages = {page for page, _, _ in _documented_imports()}
+    assert {"api.md", "interface.md"} <= pages
+
+
+@pytest.mark.parametrize(("page", "module", "name"), _documented_imports())
+def test_documented_import_paths_work(page: str, module: str, name: str) -> None:
+    """Every name the docs import from a module path is there (modules moved, names stay)."""
+    assert hasattr(importlib.import_module(module), name), f"{page}: from {module} import {name}"

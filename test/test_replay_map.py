@@ -21,7 +21,7 @@ from twotank_validation import cli, load_model, replay
 from twotank_validation.bags import BagWriter, write_scenario_bag
 from twotank_validation.bags.writer import typestore
 from twotank_validation.online import MonitorConfig
-from twotank_validation.online.interface import interface_map_from_text
+from twotank_validation.online.interface_text import interface_map_from_text
 from twotank_validation.online.streams import RigUnits
 from twotank_validation.sim import scenario as sc
 

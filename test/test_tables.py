@@ -30,18 +30,15 @@ from twotank_validation import cli, load_model, replay
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import MonitorConfig
-from twotank_validation.online.interface import (
+from twotank_validation.online.interface_map import InterfaceMap, load_interface_map
+from twotank_validation.online.interface_text import (
     TABLE_TEXT_FORM,
-    InterfaceMap,
-    InterfaceMapError,
-    Source,
-    TimeColumn,
     interface_map_from_text,
-    load_interface_map,
     source_from_text,
     source_to_text,
     time_column_from_text,
 )
+from twotank_validation.online.sources import InterfaceMapError, Source, TimeColumn
 from twotank_validation.online.streams import RigUnits
 from twotank_validation.sim import scenario as sc
 from twotank_validation.tables import TableError, is_table, read_table, table_columns

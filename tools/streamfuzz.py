@@ -1,6 +1,6 @@
 """Hostile message streams for the online validator, and the invariants it must keep.
 
-Used by ``test/test_hostile_streams.py`` (a short, bounded, property-based run) and
+Used by ``test/online/test_hostile_streams.py`` (a short, bounded, property-based run) and
 ``bench/fuzz_streams.py`` (long runs). A run is: clean rig data through
 :class:`~twotank_validation.online.validator.OnlineValidator` for a while, then a hostile stretch
 (random stamps, NaN and inf, huge values, bursts far above the sample rate, long silences,
@@ -32,13 +32,13 @@ from twotank_validation import experiment
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.errors import DatumError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
-from twotank_validation.sim import excitation, rig
+from twotank_validation.sim import excitation, rig, simulator
 
 CONFIG = MonitorConfig(ts_s=0.8, period_samples=256, max_recovered_fraction=0.0)
 """The same 204.8 s period as the defaults with 8x fewer samples (as the node tests), and no
 recovery of unusable samples: the invariants are about the flags themselves (a short hostile
 stretch would otherwise be recovered, as :mod:`twotank_validation.online.recovery` does on
-purpose; ``test/test_recovery.py`` checks that)."""
+purpose; ``test/online/test_recovery.py`` checks that)."""
 
 HOSTILE_KINDS = (
     "nan",
@@ -67,7 +67,7 @@ def clean_record(n_periods: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.
     )
     op = rig.operating_point(cfg.rig)
     u = excitation.excitation_commands(exc, op.commands)
-    sim = rig.simulate(cfg.rig, u, CONFIG.ts_s, seed=seed, substeps=16)
+    sim = simulator.simulate(cfg.rig, u, CONFIG.ts_s, seed=seed, substeps=16)
     stamps = np.arange(len(u), dtype=np.int64) * round(CONFIG.ts_s * 1e9)
     return stamps, sim.commands, sim.measured
 

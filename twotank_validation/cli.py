@@ -195,7 +195,7 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from twotank_validation.bags.scenario import simulate_command  # noqa: PLC0415
+    from twotank_validation.bags.scenario_bag import simulate_command  # noqa: PLC0415
 
     path = simulate_command(args.scenario, args.out, args.storage)
     print(f"wrote {path}")

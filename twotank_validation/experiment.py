@@ -26,7 +26,7 @@ from twotank_validation.core.model import LFTModel, load_model, load_model_docum
 from twotank_validation.core.validate import ValidationResult, inverse_dft, validate
 from twotank_validation.defaults import Method
 from twotank_validation.diagnose import Diagnosis, Window, diagnose
-from twotank_validation.sim import excitation, rig
+from twotank_validation.sim import excitation, rig, simulator
 from twotank_validation.sim.faults import Fault
 
 
@@ -130,7 +130,7 @@ def simulate_datum(
     """
     op = rig.operating_point(config.rig, config.height, config.temperature)
     commands = excitation.excitation_commands(config.excitation, op.commands)
-    sim = rig.simulate(
+    sim = simulator.simulate(
         config.rig, commands, config.excitation.ts_s, op=op, seed=config.seed, faults=config.faults
     )
     rec = excitation.record_slice(config.excitation)

@@ -41,11 +41,12 @@ from twotank_validation import tables
 from twotank_validation.core.model import LFTModel, load_model_document
 from twotank_validation.defaults import JITTER_FRACTION, NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.diagnose import Window
-from twotank_validation.diagnose.live import catalogue_diagnosis
+from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
 from twotank_validation.diagnose.stretches import WindowFindings
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online.aligner import COMMAND
+from twotank_validation.online.extraction import check_message, extract, source_stamp_ns
 from twotank_validation.online.infer import (
     MIN_PERIOD_SAMPLES,
     grid_samples,
@@ -53,20 +54,14 @@ from twotank_validation.online.infer import (
     infer_sample_period,
     supported_rate,
 )
-from twotank_validation.online.interface import (
+from twotank_validation.online.interface_map import (
     INPUT,
-    STAMP_HEADER,
     InterfaceMap,
-    InterfaceMapError,
-    Source,
     TopicSources,
-    check_message,
-    convert,
-    extract,
     message_sources,
-    source_stamp_ns,
 )
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
+from twotank_validation.online.sources import STAMP_HEADER, InterfaceMapError, Source, convert
 from twotank_validation.online.states import WindowQuality
 from twotank_validation.online.streams import two_tank_map
 
@@ -791,7 +786,7 @@ class Timing:
 
 def _metadata_timing(custom: Mapping[str, str]) -> tuple[float | None, int | None]:
     """ts_s and period_samples from a bag's custom_data (a scenario's, or plain keys)."""
-    from twotank_validation.bags.scenario import CUSTOM_DATA_KEY  # noqa: PLC0415
+    from twotank_validation.bags.scenario_bag import CUSTOM_DATA_KEY  # noqa: PLC0415
 
     doc: dict[str, Any] = {}
     if CUSTOM_DATA_KEY in custom:

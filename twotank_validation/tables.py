@@ -31,13 +31,8 @@ import numpy as np
 
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.errors import TwotankError
-from twotank_validation.online.interface import (
-    TIME_COLUMNS,
-    InterfaceMap,
-    Source,
-    TimeColumn,
-    convert,
-)
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.sources import TIME_COLUMNS, Source, TimeColumn, convert
 
 __all__ = [
     "CSV_SUFFIXES",

@@ -3,14 +3,14 @@
 Reading: :func:`open_bag` / :class:`BagReader` (:mod:`~twotank_validation.bags.reader`, the
 facade over the storage backends). Writing: :class:`BagWriter` and the interface messages
 (:mod:`~twotank_validation.bags.writer`); a scenario into a bag: :func:`write_scenario_bag`
-(:mod:`~twotank_validation.bags.scenario`; the scenario itself is
+(:mod:`~twotank_validation.bags.scenario_bag`; the scenario itself is
 :mod:`twotank_validation.sim.scenario`). Every failure is a :class:`BagError`
-(:mod:`~twotank_validation.bags.errors`).
+(:mod:`~twotank_validation.bags.bag_errors`).
 
 Imports rosbags (and mcap through it), never rclpy.
 """
 
-from twotank_validation.bags.errors import (
+from twotank_validation.bags.bag_errors import (
     BagCorruptError,
     BagEmptyError,
     BagError,
@@ -30,7 +30,7 @@ from twotank_validation.bags.records import (
     BagMessage,
     FieldBatch,
 )
-from twotank_validation.bags.scenario import (
+from twotank_validation.bags.scenario_bag import (
     CUSTOM_DATA_KEY,
     TOPICS,
     simulate_command,

@@ -33,7 +33,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from twotank_validation.bags.errors import BagError
+from twotank_validation.bags.bag_errors import BagError
 from twotank_validation.bags.records import FieldBatch
 from twotank_validation.defaults import NS_PER_S
 

@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
-from twotank_validation.bags.errors import BagExistsError, BagWriteError
+from twotank_validation.bags.bag_errors import BagExistsError, BagWriteError
 from twotank_validation.bags.writer import STORAGES, BagWriter
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S

@@ -35,11 +35,12 @@ Layout (as rosbags splits its own): this module is the facade (:func:`open_bag`,
 :mod:`~twotank_validation.bags.storage_rosbags` (rosbag2 through rosbags' index),
 :mod:`~twotank_validation.bags.storage_mcap` (plain MCAP through its summary),
 :mod:`~twotank_validation.bags.scan` (MCAP without its index) and
-:mod:`~twotank_validation.bags.recovery` (SQLite3 row by row), behind
+:mod:`~twotank_validation.bags.salvage_sqlite` (SQLite3 row by row), behind
 :mod:`~twotank_validation.bags.backend`; decoding is :mod:`~twotank_validation.bags.decode`;
 :meth:`BagReader.field_batches` moves the messages as arrays
 (:mod:`~twotank_validation.bags.columnar`: indexed MCAP chunks whole); the errors are in
-:mod:`~twotank_validation.bags.errors`, what comes out in :mod:`~twotank_validation.bags.records`.
+:mod:`~twotank_validation.bags.bag_errors`, what comes out in
+:mod:`~twotank_validation.bags.records`.
 
 This module (through those) imports rosbags, mcap and mcap-ros2-support, never rclpy.
 """
@@ -57,9 +58,7 @@ import numpy as np
 import yaml
 
 from twotank_validation.bags.backend import _Backend, _Damage, _NeedScan
-from twotank_validation.bags.columnar import _Channel, _Columns
-from twotank_validation.bags.decode import _decode_columns, _decode_fields, _RawBatch
-from twotank_validation.bags.errors import (
+from twotank_validation.bags.bag_errors import (
     BagCorruptError,
     BagEmptyError,
     BagError,
@@ -68,6 +67,8 @@ from twotank_validation.bags.errors import (
     TopicMissingError,
     TopicTypeError,
 )
+from twotank_validation.bags.columnar import _Channel, _Columns
+from twotank_validation.bags.decode import _decode_columns, _decode_fields, _RawBatch
 from twotank_validation.bags.records import (
     STORAGE_MCAP,
     STORAGE_MCAP_PLAIN,
@@ -79,7 +80,7 @@ from twotank_validation.bags.records import (
     _norm_type,
     _short,
 )
-from twotank_validation.bags.recovery import _SqliteScanBackend
+from twotank_validation.bags.salvage_sqlite import _SqliteScanBackend
 from twotank_validation.bags.scan import _MCAP_MAGIC, _McapScanBackend
 from twotank_validation.bags.storage_mcap import _PlainMcapBackend
 from twotank_validation.bags.storage_rosbags import _RosbagsBackend

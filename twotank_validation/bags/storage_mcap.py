@@ -20,8 +20,8 @@ from twotank_validation.bags.backend import (
     _NeedScan,
     _Raw,
 )
+from twotank_validation.bags.bag_errors import BagFormatError
 from twotank_validation.bags.decode import _Codec, _Decoders
-from twotank_validation.bags.errors import BagFormatError
 from twotank_validation.bags.records import STORAGE_MCAP_PLAIN, _norm_type
 
 

@@ -3,7 +3,7 @@
 The reader's first choice for a rosbag2 directory and for a ``.mcap``/``.db3`` file inside
 one (or a lone ``.db3`` file). If the index cannot be used the backend raises (``_NeedScan``,
 or whatever rosbags raises) and the reader scans instead (:mod:`~twotank_validation.bags.scan`,
-:mod:`~twotank_validation.bags.recovery`).
+:mod:`~twotank_validation.bags.salvage_sqlite`).
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from twotank_validation.bags.errors import BagExistsError, BagWriteError
+from twotank_validation.bags.bag_errors import BagExistsError, BagWriteError
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online.streams import (
     FLOW_CMD_TYPE,

@@ -16,7 +16,7 @@ columns. The functions here give the same numbers in fewer calls:
 * Euclidean norms of rows of one or two entries: their squares summed in one call.
 
 Anything else (an odd number of columns, another dtype, no rows) goes to numpy itself.
-``test/test_columns.py`` holds them to numpy's results.
+``test/core/test_columns.py`` holds them to numpy's results.
 """
 
 from __future__ import annotations

@@ -46,8 +46,8 @@ Modules (each imports only those above it):
 * :mod:`~twotank_validation.diagnose.stretches`: changes inside a recording: the stationary
   stretches (:func:`find_stretches`), transient windows skipped, and each stretch diagnosed
   against the model and against the stretch before (:func:`diagnose_stretches`).
-* :mod:`~twotank_validation.diagnose.live`: the catalogue behind the live diagnosis
-  (:func:`~twotank_validation.diagnose.live.catalogue_diagnosis`): the windows after an
+* :mod:`~twotank_validation.diagnose.live_jobs`: the catalogue behind the live diagnosis
+  (:func:`~twotank_validation.diagnose.live_jobs.catalogue_diagnosis`): the windows after an
   alarm's onset against those before it, and the most likely effect named.
 
 Bags are not read here: :func:`twotank_validation.replay.windows_from_bag` gives the judged

@@ -57,7 +57,7 @@ class EffectFamily(StrEnum):
     """Judged outside the state-space fit and reported with a recommendation (it cannot be
     written into an LTI model file, :data:`REPORTED_KINDS`)."""
     ANSWER = "answer"
-    """Only a live answer (:mod:`twotank_validation.diagnose.live`): a saturation that clips
+    """Only a live answer (:mod:`twotank_validation.diagnose.live_jobs`): a saturation that clips
     almost everything, or no effect at all."""
 
 

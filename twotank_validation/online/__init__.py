@@ -9,7 +9,7 @@ Layers, each importing only those before it (and :mod:`twotank_validation.core`)
 :mod:`~twotank_validation.online.livediag` (the fault named live: windows buffered, the
 diagnosis scheduled once an alarm rises),
 :mod:`~twotank_validation.online.window` (gates, validation, reports),
-:mod:`~twotank_validation.online.faults` (input faults, the STALE text) and
+:mod:`~twotank_validation.online.input_faults` (input faults, the STALE text) and
 :mod:`~twotank_validation.online.validator` (:class:`OnlineValidator`, which the live node
 and bag replay both feed); :mod:`~twotank_validation.online.validator_settings` is the
 validator's settings tree, from which the node's parameters and the CLI's window options are
@@ -30,7 +30,7 @@ from twotank_validation.online.aligner import (
     SampleAligner,
     SampleBlock,
 )
-from twotank_validation.online.faults import InputFaults, input_fault_text
+from twotank_validation.online.input_faults import InputFaults, input_fault_text
 from twotank_validation.online.states import (
     RaisedBy,
     SampleFlag,

@@ -6,7 +6,7 @@ non-overlapping judged windows after the estimated onset (the newest
 ``max_post_windows``), the non-overlapping windows before it (their steady means are the
 reference operating point) and the per-hop means of the recent windows (how the operating
 point moved). Which effect the job names is computed by a function it is given (ROS-free
-and diagnosis-free here; :func:`twotank_validation.diagnose.live.catalogue_diagnosis` runs the
+and diagnosis-free here; :func:`twotank_validation.diagnose.live_jobs.catalogue_diagnosis` runs the
 catalogue), synchronously or in a :class:`concurrent.futures.Executor`.
 
 **Onset.** The end of the last judged window that did not invalidate the model before the
@@ -160,7 +160,7 @@ class DiagnosisJob:
 
 
 DiagnoseFn = Callable[[DiagnosisJob], LiveDiagnosis]
-"""Runs one job (e.g. :func:`twotank_validation.diagnose.live.catalogue_diagnosis`)."""
+"""Runs one job (e.g. :func:`twotank_validation.diagnose.live_jobs.catalogue_diagnosis`)."""
 
 
 class Report(Protocol):

@@ -13,7 +13,7 @@ periods' samples differs from the one that was lost by a zero-mean error of vari
 ``(1 + 1/q) σ²`` (σ² the sensor noise variance), and it carries no transient (the window is
 steady by the settling gate). ``m`` such samples in a window of ``N`` change the per-bin noise
 energy by a fraction of order ``m / N`` (1 % of the window: about 1 % of the energy, so β
-by about 0.5 %); ``test/test_recovery.py`` measures it against the clean record.
+by about 0.5 %); ``test/online/test_recovery.py`` measures it against the clean record.
 
 The commands need one more rule. A lost command message is not a gap for the aligner: the
 valve holds its last command, and so does the record. Such a sample equals its predecessor

@@ -20,7 +20,9 @@ import numpy as np
 
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online.aligner import COMMAND
-from twotank_validation.online.interface import InterfaceMap, InterfaceMapError, Source, stamp_ns
+from twotank_validation.online.extraction import stamp_ns
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.sources import InterfaceMapError, Source
 
 _V = TypeVar("_V", float, np.ndarray)  # one value, or many at once (same float operations)
 

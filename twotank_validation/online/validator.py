@@ -3,7 +3,7 @@
 :class:`OnlineValidator` is what the live ROS node and bag replay both feed: it runs the
 :class:`~twotank_validation.online.aligner.SampleAligner`, the
 :class:`~twotank_validation.online.window.WindowMonitor` (gates, validation, alarm) and keeps
-the input-fault state (:class:`~twotank_validation.online.faults.InputFaults`). It is
+the input-fault state (:class:`~twotank_validation.online.input_faults.InputFaults`). It is
 ROS-free: callers feed it stamped values (integer nanoseconds) and get
 :class:`~twotank_validation.online.window.WindowReport` objects back.
 """
@@ -29,8 +29,8 @@ from twotank_validation.online.aligner import (
 )
 from twotank_validation.online.assembler import CommandAssembler
 from twotank_validation.online.channels import Channels, match_channels
-from twotank_validation.online.faults import STOPPED_STREAMS, InputFaults
-from twotank_validation.online.interface import (
+from twotank_validation.online.input_faults import STOPPED_STREAMS, InputFaults
+from twotank_validation.online.interface_map import (
     INPUT,
     InterfaceMap,
     TopicSources,

@@ -3,7 +3,7 @@
 :class:`ValidatorSettings` is the root. Its nodes are the configs the code takes:
 :class:`~twotank_validation.online.window.MonitorConfig` (windows, gates, solver; with
 :class:`~twotank_validation.online.alarm.AlarmConfig` and
-:class:`~twotank_validation.online.oppoint.OpPointConfig`),
+:class:`~twotank_validation.online.op_tracker.OpPointConfig`),
 :class:`~twotank_validation.online.livediag.LiveDiagConfig`, and the alignment and node
 settings kept here (jitter, oversampling, the stale timeout, the models). Each field is a
 :func:`~twotank_validation.settings.setting` (default, unit, description, range, choices, its

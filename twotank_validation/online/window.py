@@ -47,7 +47,7 @@ from twotank_validation.online.alarm import (
 from twotank_validation.online.aligner import Sample, SampleBlock
 from twotank_validation.online.channels import Channels, match_channels
 from twotank_validation.online.livediag import LiveDiagnosis
-from twotank_validation.online.oppoint import OperatingPointTracker, OpPointConfig
+from twotank_validation.online.op_tracker import OperatingPointTracker, OpPointConfig
 from twotank_validation.online.recovery import Recovery, recover_span
 from twotank_validation.online.states import (
     QUALITY_OK,
@@ -79,7 +79,7 @@ class MonitorConfig:
             samples (lost, late, non-finite; a held command) are recovered from the same phase
             of the other periods (:mod:`~twotank_validation.online.recovery`); 0: a window with
             any unusable sample is not judged.
-        op: the operating-point check (:mod:`~twotank_validation.online.oppoint`).
+        op: the operating-point check (:mod:`~twotank_validation.online.op_tracker`).
         hop_samples: samples between two judged windows; 0: a quarter period (one period
             where the period is not a multiple of 4). A window spans
             whole periods but may start at any sample, so a hop of a fraction of a period
@@ -215,7 +215,7 @@ class WindowReport:
             decaying in the window); empty when there is nothing to say, and for a window
             not judged (``data_quality`` says why).
         beta_op: the operating point's min ``|W(0)|``: the window's input and output means
-            against the reference (:mod:`~twotank_validation.online.oppoint`); NaN where it
+            against the reference (:mod:`~twotank_validation.online.op_tracker`); NaN where it
             was not checked (no reference yet, a transient, the check off, not judged).
         beta_total: ``sqrt(beta² + beta_op²)`` (``beta`` where the operating point was not
             checked; NaN when not judged).

@@ -1,9 +1,9 @@
 """Simulated two-tank plant node: valve commands in, level and temperature measurements out.
 
-Runs :class:`twotank_validation.sim.rig.TankSimulator`. Every sample (``ts_s``) it publishes the
-measurement taken now on ``height`` (sensor_msgs/FluidPressure, Pa) and ``temperature``
-(sensor_msgs/Temperature, degC) stamped with the node's clock, then applies the latest
-``flow_cmd`` for one sample. Faults and unmodeled effects are set at run time through the
+Runs :class:`twotank_validation.sim.simulator.TankSimulator`. Every sample (``ts_s``) it
+publishes the measurement taken now on ``height`` (sensor_msgs/FluidPressure, Pa) and
+``temperature`` (sensor_msgs/Temperature, degC) stamped with the node's clock, then applies the
+latest ``flow_cmd`` for one sample. Faults and unmodeled effects are set at run time through the
 string-array parameter ``faults`` (``KIND[:CHANNEL][=MAGNITUDE]@ONSET_S[-END_S]``, see
 :mod:`twotank_validation.sim.faults`); setting it replaces the fault set, onsets in simulated
 seconds since the plant started. With ``publish_clock`` the node owns the simulated clock and
@@ -31,7 +31,7 @@ from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
-from twotank_validation.sim import faults, rig
+from twotank_validation.sim import faults, rig, simulator
 from twotank_validation.sim.faults import parse_fault
 
 PLANT_PARAMS = (
@@ -83,7 +83,7 @@ class PlantNode(Node):
                 noise_std_temperature=float(v["noise_std_temperature"]),
             )
             op = rig.operating_point(params, float(v["height"]), float(v["temperature"]))
-            self.sim = rig.TankSimulator(
+            self.sim = simulator.TankSimulator(
                 params,
                 float(v["ts_s"]),
                 op=op,

@@ -58,7 +58,7 @@ from std_srvs.srv import Trigger
 
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.diagnose.live import catalogue_diagnosis
+from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import (
     Alarm,
@@ -67,16 +67,11 @@ from twotank_validation.online import (
     WindowReport,
 )
 from twotank_validation.online import streams as itf
-from twotank_validation.online.interface import (
-    InterfaceMap,
-    InterfaceMapError,
-    check_message,
-    extract,
-    interface_map_from_text,
-    load_interface_map,
-    source_stamp_ns,
-)
+from twotank_validation.online.extraction import check_message, extract, source_stamp_ns
+from twotank_validation.online.interface_map import InterfaceMap, load_interface_map
+from twotank_validation.online.interface_text import interface_map_from_text
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser, LiveDiagnosis
+from twotank_validation.online.sources import InterfaceMapError
 from twotank_validation.online.validator import parse_oversampling
 from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS
 from twotank_validation.online.window import verdict_text

@@ -23,13 +23,8 @@ import numpy as np
 import yaml
 
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.online.interface import (
-    STAMP_RECEIVE,
-    InterfaceMap,
-    InterfaceMapError,
-    Source,
-    TimeColumn,
-)
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.sources import STAMP_RECEIVE, InterfaceMapError, Source, TimeColumn
 from twotank_validation.sim.model_plant import ModelSimError, ModelSimResult
 
 __all__ = [

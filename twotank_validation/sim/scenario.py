@@ -7,7 +7,7 @@ mixing delay) and faults in their text form (:mod:`twotank_validation.sim.faults
 With a ``closed_loop`` section (:class:`ClosedLoop`) the valves are driven by the PI
 controller of :mod:`twotank_validation.sim.control` and the excitation enters at its output or
 its setpoints. ``simulate_scenario`` runs it in memory, ``iter_scenario`` sample by sample;
-writing it into a bag is :func:`twotank_validation.bags.scenario.write_scenario_bag`.
+writing it into a bag is :func:`twotank_validation.bags.scenario_bag.write_scenario_bag`.
 
 Shipped scenarios live in ``twotank_validation/sim/scenarios/*.yaml`` (``shipped_scenarios()``);
 a YAML file holds the keys of :class:`Scenario` (``units`` as a mapping of
@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.online.streams import RigUnits
-from twotank_validation.sim import control, excitation, rig
+from twotank_validation.sim import control, excitation, rig, simulator
 from twotank_validation.sim.faults import MAX_FAULT_DELAY_S, Fault, parse_fault
 
 __all__ = [
@@ -669,13 +669,13 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
     Yields:
         ``(stamp_ns, hot, cold, height, temperature)`` for k = 0 .. n_samples - 1: the stamp
         k ts_ns, the commands applied from k ts_s on and the measurement taken at k ts_s
-        (before command k acts), as :func:`twotank_validation.sim.rig.simulate`.
+        (before command k acts), as :func:`twotank_validation.sim.simulator.simulate`.
 
     Raises:
         ModelError: If the tank empties.
     """
     ts_ns = scenario.ts_ns
-    sim = rig.TankSimulator(
+    sim = simulator.TankSimulator(
         scenario.rig_params(),
         scenario.ts_s,
         op=scenario.operating_point(),
@@ -701,7 +701,7 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
 
 
 def _iter_closed_loop(
-    scenario: Scenario, sim: rig.TankSimulator
+    scenario: Scenario, sim: simulator.TankSimulator
 ) -> Iterator[tuple[int, float, float, float, float]]:
     """The closed-loop body of :func:`iter_scenario`."""
     cfg = scenario.controller_config()

@@ -18,7 +18,7 @@ from twotank_validation.core.model import load_model
 from twotank_validation.ros.model_plant_node import ModelPlantNode, main
 from twotank_validation.sim import model_plant as mp
 
-MODEL = Path(__file__).parent / "data" / "models" / "three_by_two.yaml"
+MODEL = Path(__file__).resolve().parents[1] / "data" / "models" / "three_by_two.yaml"
 PARAMS = {
     "model": str(MODEL),
     "ts_s": 0.1,

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools import streamfuzz
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model
 from twotank_validation.core.validate import validate

@@ -44,7 +44,7 @@ from twotank_validation.sim.scenario import Scenario, simulate_scenario
 
 FLOW = "twotank_validation_msgs/msg/FlowCommand"
 REPORT = "twotank_validation_msgs/msg/ValidationReport"
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # 40 s at 0.1 s with a sensor bias from 20 s: 400 samples per topic.
 SHORT = Scenario(

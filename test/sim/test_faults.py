@@ -12,7 +12,8 @@ import pytest
 
 from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.sim.faults import FAULT_KINDS, Fault
-from twotank_validation.sim.rig import RigParams, TankSimulator, operating_point, simulate
+from twotank_validation.sim.rig import RigParams, operating_point
+from twotank_validation.sim.simulator import TankSimulator, simulate
 
 ALPHA, BETA = 1.34, 0.6
 TS = 0.5  # coarse samples (substep 0.125 s, the RK4 limit) keep the long settling runs fast

@@ -9,16 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twotank_validation.bags.errors import BagExistsError
+from twotank_validation.bags.bag_errors import BagExistsError
 from twotank_validation.bags.model_bag import CUSTOM_DATA_KEY, simulate_model_command
 from twotank_validation.bags.reader import open_bag
 from twotank_validation.core.model import load_model
-from twotank_validation.online.interface import extract, load_interface_map, source_stamp_ns
+from twotank_validation.online.extraction import extract, source_stamp_ns
+from twotank_validation.online.interface_map import load_interface_map
 from twotank_validation.sim import model_plant as mp
 from twotank_validation.sim import model_record as mr
 from twotank_validation.tables import read_table
 
-DATA = Path(__file__).parent / "data" / "models"
+DATA = Path(__file__).resolve().parents[1] / "data" / "models"
 OPTIONS = {"ts_s": 0.1, "period_samples": 64, "periods": 2, "settle_periods": 1, "f_max_hz": 1.0}
 
 

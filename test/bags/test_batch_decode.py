@@ -17,14 +17,15 @@ import math
 import random
 import re
 import struct
-import sys
 from pathlib import Path
 from typing import Any
 
+import make_bags as mb
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from report_checks import assert_same_reports
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
@@ -33,17 +34,12 @@ from twotank_validation.bags import columnar, decode
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online import streams as itf
-from twotank_validation.online.interface import (
-    InterfaceMap,
-    interface_map_from_text,
-)
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.interface_text import interface_map_from_text
 from twotank_validation.sim import scenario as sc
 from twotank_validation.sim.faults import parse_fault
 
-HERE = Path(__file__).parent
-sys.path.insert(0, str(HERE / "data"))
-import make_bags as mb  # noqa: E402
-from report_checks import assert_same_reports  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 STORE = mb.typestore()
 NS = 1_000_000_000
@@ -350,9 +346,7 @@ def test_every_shipped_scenario_reads_the_same_in_bulk(tmp_path, name) -> None:
 
 
 def _fuzz_module() -> Any:
-    spec = importlib.util.spec_from_file_location(
-        "fuzz_bags", HERE.parent / "bench" / "fuzz_bags.py"
-    )
+    spec = importlib.util.spec_from_file_location("fuzz_bags", REPO / "bench" / "fuzz_bags.py")
     assert spec is not None
     assert spec.loader is not None
     module = importlib.util.module_from_spec(spec)

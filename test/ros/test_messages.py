@@ -39,7 +39,7 @@ from std_msgs.msg import Header
 
 import twotank_validation
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MSG_DIR = ROOT / "msg"
 PKG = "twotank_validation_msgs"
 
@@ -47,9 +47,7 @@ PKG = "twotank_validation_msgs"
 # plugins and setuptools<80, which must not enter the project venv).
 COLCON_REQUIREMENTS = tuple(
     ln.strip()
-    for ln in (Path(__file__).resolve().parent.parent / "requirements-colcon.txt")
-    .read_text()
-    .splitlines()
+    for ln in (ROOT / "requirements-colcon.txt").read_text().splitlines()
     if ln.strip() and not ln.startswith("#")
 )
 

@@ -12,12 +12,12 @@ import math
 
 import pytest
 
-from tools.records import record_events, two_tank_value
+from tools.events import record_events, two_tank_value
 from twotank_validation import replay
 from twotank_validation.bags import open_bag, write_scenario_bag
 from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose.kinds import expected_effect, named
-from twotank_validation.diagnose.live import catalogue_diagnosis
+from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
 from twotank_validation.online import STREAMS, MonitorConfig, OnlineValidator, RigUnits
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
 from twotank_validation.online.streams import stamp_ns
@@ -252,7 +252,7 @@ def test_mean_deviations_remove_the_response_to_the_input_means() -> None:
     import scipy.linalg  # noqa: PLC0415
 
     from twotank_validation.diagnose.effects import Nominal  # noqa: PLC0415
-    from twotank_validation.diagnose.live import mean_deviations  # noqa: PLC0415
+    from twotank_validation.diagnose.live_jobs import mean_deviations  # noqa: PLC0415
     from twotank_validation.diagnose.steady import dc_gain  # noqa: PLC0415
     from twotank_validation.online.livediag import DiagnosisJob  # noqa: PLC0415
 

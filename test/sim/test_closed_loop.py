@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
-from twotank_validation.sim import rig
+from twotank_validation.sim import rig, simulator
 from twotank_validation.sim.control import (
     CLOSED_LOOP_INPUT_PERIODIC_RTOL,
     ControllerConfig,
@@ -87,7 +87,7 @@ def _windup_run(tt_s: float) -> tuple[np.ndarray, np.ndarray]:
         ts_s=1.0, height_setpoint=0.75, u_max=0.45, tt_level_s=tt_s, filter_s=0.0
     )
     c = PIController(cfg, op.commands)
-    sim = rig.TankSimulator(params, 1.0, op=op, substeps=10)
+    sim = simulator.TankSimulator(params, 1.0, op=op, substeps=10)
     heights, commands = [], []
     for k in range(2000):
         if k == 1000:

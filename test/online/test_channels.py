@@ -28,7 +28,8 @@ from twotank_validation.core.model import load_model_document, model_from_dict
 from twotank_validation.core.validate import validate
 from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online.channels import ChannelError, match_channels
-from twotank_validation.online.interface import InterfaceMap, Source, TimeColumn
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.sources import Source, TimeColumn
 from twotank_validation.sim import scenario as sc
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=256)

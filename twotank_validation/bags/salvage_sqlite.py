@@ -24,8 +24,8 @@ from urllib.parse import quote
 from rosbags.typesys.store import Typestore
 
 from twotank_validation.bags.backend import _Backend, _Damage, _Raw, _unzstd
+from twotank_validation.bags.bag_errors import BagFormatError
 from twotank_validation.bags.decode import _Codec, _typestore_from, _unknown_type
-from twotank_validation.bags.errors import BagFormatError
 from twotank_validation.bags.records import STORAGE_SQLITE3, _norm_type
 
 _SQLITE_STALL_S: Final = 60.0  # a query producing no row for this long is aborted

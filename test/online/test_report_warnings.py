@@ -30,7 +30,7 @@ from twotank_validation.errors import ModelError
 from twotank_validation.online import MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online.streams import MEASUREMENTS, STREAM_KINDS
 from twotank_validation.online.window import with_warnings
-from twotank_validation.sim import excitation, rig
+from twotank_validation.sim import excitation, rig, simulator
 
 FAST = MonitorConfig(
     ts_s=0.8, period_samples=256, hop_samples=256
@@ -119,7 +119,7 @@ def transient_record(n_periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     )
     u = excitation.excitation_commands(exc, rig.operating_point(cfg.rig).commands)
     start = rig.operating_point(cfg.rig, height=0.40, temperature=0.42)
-    sim = rig.simulate(cfg.rig, u, FAST.ts_s, op=start, seed=0, substeps=16)
+    sim = simulator.simulate(cfg.rig, u, FAST.ts_s, op=start, seed=0, substeps=16)
     stamps = np.arange(len(u), dtype=np.int64) * round(FAST.ts_s * 1e9)
     return stamps, sim.commands, sim.measured
 
@@ -130,7 +130,7 @@ def still_record(n_periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cfg = experiment.ExperimentConfig()
     n = n_periods * FAST.period_samples
     u = np.tile(rig.operating_point(cfg.rig).commands, (n, 1))
-    sim = rig.simulate(cfg.rig, u, FAST.ts_s, seed=0, substeps=16)
+    sim = simulator.simulate(cfg.rig, u, FAST.ts_s, seed=0, substeps=16)
     stamps = np.arange(n, dtype=np.int64) * round(FAST.ts_s * 1e9)
     return stamps, sim.commands, sim.measured
 

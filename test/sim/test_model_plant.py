@@ -22,7 +22,7 @@ from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.errors import ModelError, TwotankError, UnstableModelError
 from twotank_validation.sim import model_plant as mp
 
-DATA = Path(__file__).parent / "data" / "models"
+DATA = Path(__file__).resolve().parents[1] / "data" / "models"
 SHAPES = ("siso", "one_by_three", "three_by_two")
 TS = 0.1
 N = 256

@@ -1,6 +1,6 @@
 """Scenarios: validation, loading, shipped files, and simulation against independent references.
 
-References: ``rig.simulate`` driven by commands built here from ``excitation`` (the scenario
+References: ``simulator.simulate`` driven by commands built here from ``excitation`` (the scenario
 module runs its own sample-by-sample loop) and the paper's experiment as the demo runs it
 (``experiment.simulate_datum``).
 """
@@ -26,7 +26,7 @@ from twotank_validation.bags import (
 )
 from twotank_validation.errors import DatumError, ModelError, TwotankError
 from twotank_validation.online.streams import RigUnits
-from twotank_validation.sim import excitation, faults, rig
+from twotank_validation.sim import excitation, faults, rig, simulator
 from twotank_validation.sim.faults import parse_fault
 from twotank_validation.sim.scenario import (
     Scenario,
@@ -41,7 +41,7 @@ from twotank_validation.sim.scenario import (
 def _reference(
     s: Scenario, substeps: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # (time, commands, measured)
-    """The scenario rebuilt from the rig and excitation modules, run by rig.simulate."""
+    """The scenario rebuilt from the rig and excitation modules, run by simulator.simulate."""
     params = rig.RigParams(
         mixing_delay_s=s.mixing_delay_s,
         noise_std_height=s.noise_std_height,
@@ -61,7 +61,7 @@ def _reference(
     period = excitation.excitation_period(cfg)
     n = round(s.duration_s / s.ts_s)
     commands = op.commands + period[np.arange(n) % s.period_samples]
-    sim = rig.simulate(
+    sim = simulator.simulate(
         params,
         commands,
         s.ts_s,
@@ -147,7 +147,7 @@ def test_shipped_scenarios() -> None:
 
 
 def test_shipped_files_are_package_data() -> None:
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     folder = root / "twotank_validation" / "sim" / "scenarios"
     files = sorted(p.stem for p in folder.glob("*.yaml"))
     assert files == list(shipped_scenarios())

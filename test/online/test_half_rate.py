@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tools import streamfuzz
-from tools.records import arrival_order
+from tools.events import arrival_order
 from twotank_validation import bags, cli, online, replay
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model

@@ -13,28 +13,25 @@ import dataclasses
 import math
 import shutil
 import struct
-import sys
 from pathlib import Path
 
+import make_bags as mb
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from report_checks import assert_same_reports
 
-from tools.records import two_tank_value
+from tools.events import two_tank_value
 from twotank_validation import bags, replay
 from twotank_validation.bags import decode
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online import streams as itf
-from twotank_validation.online.interface import convert
+from twotank_validation.online.sources import convert
 from twotank_validation.sim import scenario as sc
 
-sys.path.insert(0, str(Path(__file__).parent / "data"))
-import make_bags as mb
-
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 TYPES = {
     mb.FLOW_CMD_TYPE: ("hot", "cold"),
     mb.HEIGHT_TYPE: ("fluid_pressure", "variance"),

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tools import streamfuzz
-from tools.records import arrival_order
+from tools.events import arrival_order
 from twotank_validation import online
 from twotank_validation.core.model import load_model
 from twotank_validation.online import COMMAND, MonitorConfig, OnlineValidator

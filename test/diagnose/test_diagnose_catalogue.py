@@ -26,7 +26,7 @@ from twotank_validation.core.model import load_model_document, model_from_dict
 from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose import Nominal, Window, catalogue, diagnose
 from twotank_validation.diagnose.distortion import distortion_test
-from twotank_validation.sim import excitation, rig
+from twotank_validation.sim import excitation, rig, simulator
 from twotank_validation.sim.faults import Fault
 from twotank_validation.sim.linearise import linearise_model_a, linearise_model_b
 
@@ -67,7 +67,7 @@ def sim_windows(
     if clip is not None:
         applied[:, 0] = np.minimum(applied[:, 0], clip)
     weak = (Fault("valve_weak", 0.0, hot_gain, "hot"),) if hot_gain != 1.0 else ()
-    sim = rig.simulate(params, applied, exc.ts_s, op=op, seed=seed, faults=weak + faults)
+    sim = simulator.simulate(params, applied, exc.ts_s, op=op, seed=seed, faults=weak + faults)
     rec = excitation.record_slice(exc)
     u, y, n = commands[rec], sim.measured[rec], 2 * exc.period_samples
     return [

@@ -17,7 +17,7 @@ from typing import Final
 
 from tqdm import tqdm
 
-from twotank_validation.bags.errors import BagExistsError, BagWriteError
+from twotank_validation.bags.bag_errors import BagExistsError, BagWriteError
 from twotank_validation.bags.writer import (
     STORAGES,
     BagWriter,

@@ -23,24 +23,15 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from twotank_validation.errors import TwotankError
-from twotank_validation.online.interface import (
-    INPUT,
-    OUTPUT,
+from twotank_validation.online.extraction import check_message, extract, raw_value, source_stamp_ns
+from twotank_validation.online.interface_map import INPUT, OUTPUT, InterfaceMap, load_interface_map
+from twotank_validation.online.interface_text import (
     TEXT_FORM,
-    InterfaceMap,
-    InterfaceMapError,
-    Source,
-    check_message,
-    convert,
-    extract,
     interface_map_from_text,
-    load_interface_map,
-    parse_field_path,
-    raw_value,
     source_from_text,
-    source_stamp_ns,
     source_to_text,
 )
+from twotank_validation.online.sources import InterfaceMapError, Source, convert, parse_field_path
 from twotank_validation.online.streams import (
     FLOW_CMD,
     HEIGHT,
@@ -49,7 +40,7 @@ from twotank_validation.online.streams import (
 )
 from twotank_validation.online.streams import two_tank_map as default_interface_map
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs" / "interface.md"
 FLOW = "twotank_validation_msgs/msg/FlowCommand"
 

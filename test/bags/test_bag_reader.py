@@ -42,7 +42,7 @@ from twotank_validation.bags import (
 )
 from twotank_validation.errors import TwotankError
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def _load_make_bags() -> Any:

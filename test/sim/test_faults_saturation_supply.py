@@ -17,13 +17,8 @@ from hypothesis import strategies as st
 
 from twotank_validation.errors import ModelError
 from twotank_validation.sim.faults import Fault, format_fault, parse_fault
-from twotank_validation.sim.rig import (
-    RigParams,
-    SimResult,
-    TankSimulator,
-    operating_point,
-    simulate,
-)
+from twotank_validation.sim.rig import RigParams, operating_point
+from twotank_validation.sim.simulator import SimResult, TankSimulator, simulate
 
 TS = 0.1
 BASE = RigParams(mixing_delay_s=15.0, noise_std_height=0.003, noise_std_temperature=0.01)

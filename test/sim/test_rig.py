@@ -16,14 +16,8 @@ from hypothesis import strategies as st
 
 from twotank_validation.errors import DatumError, DimensionError, ModelError
 from twotank_validation.sim.linearise import LinearModel, linearise_model_a, linearise_model_b
-from twotank_validation.sim.rig import (
-    OperatingPoint,
-    RigParams,
-    SimResult,
-    TankSimulator,
-    operating_point,
-    simulate,
-)
+from twotank_validation.sim.rig import OperatingPoint, RigParams, operating_point
+from twotank_validation.sim.simulator import SimResult, TankSimulator, simulate
 
 A1, ALPHA, BETA, TAU_V = 91.4, 1.34, 0.6, 0.05
 H0, T0 = 0.47, 0.5

@@ -5,7 +5,7 @@ The limits were found with ``bench/detection_matrix.py --limits`` (bisection of 
 over onset phases and seeds, Model B): the smallest leak, sensor bias and valve loss that raise
 ERROR within 3 windows of the onset on the default excitation. Here every run is the default
 ``Scenario`` (filtered noise 0.05/0.2 RMS, cutoff 0.006 Hz, mixing delay 15 s, noise
-0.003/0.01, Ts 0.1 s, 2048-sample periods) with one fault, simulated by ``rig.simulate`` with
+0.003/0.01, Ts 0.1 s, 2048-sample periods) with one fault, simulated by ``simulator.simulate`` with
 the scenario's settings (what ``simulate_scenario`` computes, sample by sample) and fed as the
 node's three streams into ``OnlineValidator`` with one window per period and the count rule
 (``CONFIG``; the operating-point check on, as by default). The default alarm's limits
@@ -28,7 +28,7 @@ import pytest
 from twotank_validation.core.model import load_model
 from twotank_validation.defaults import PERIOD_SAMPLES
 from twotank_validation.online import COMMAND, Alarm, AlarmConfig, MonitorConfig, OnlineValidator
-from twotank_validation.sim import rig
+from twotank_validation.sim import simulator
 from twotank_validation.sim.faults import Fault, format_fault
 from twotank_validation.sim.scenario import Scenario
 
@@ -68,7 +68,7 @@ def run(faults: list[Fault], seed: int, windows_after: int = WITHIN, config=CONF
         seed=seed,
         faults=tuple(format_fault(f) for f in faults),
     )
-    sim = rig.simulate(
+    sim = simulator.simulate(
         scenario.rig_params(),
         scenario.command_table()[np.arange(n) % PERIOD],  # the excitation starts at t = 0
         TS,

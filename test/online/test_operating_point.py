@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from tools.records import record_events
+from tools.events import record_events
 from twotank_validation.core.model import load_model
 from twotank_validation.core.oppoint import (
     OperatingPoint,
@@ -28,7 +28,7 @@ from twotank_validation.core.oppoint import (
     dead_band,
 )
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
-from twotank_validation.online.oppoint import OpPointConfig, OpState
+from twotank_validation.online.op_tracker import OpPointConfig, OpState
 from twotank_validation.sim import rig
 from twotank_validation.sim import scenario as sc
 
