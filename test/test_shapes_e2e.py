@@ -204,6 +204,7 @@ def test_live_usage_errors_are_exit_2(capsys) -> None:
         (["--plant-model", plant, "--closed-loop"], "a --plant-model runs open loop"),
         (["--member", "random"], "--member and --noise-scale are for --plant-model"),
         (["--plant-model", plant, "--fault", "leak=0.02@100"], "is not KIND:CHANNEL"),
+        (["--plant-model", plant, "--ts", "0"], "give a sample period > 0"),
     ):
         assert cli.main(["live", *args]) == cli.EXIT_ERROR
         assert message in capsys.readouterr().err

@@ -240,6 +240,11 @@ def _cmd_live_model(args: argparse.Namespace) -> int:
             "--closed-loop and --supervisor run the two-tank rig's controller; a "
             "--plant-model runs open loop"
         )
+    if not (args.ts > 0 and args.duration >= args.ts):
+        raise UsageError(
+            f"--ts {args.ts:g} and --duration {args.duration:g}: give a sample period > 0 and "
+            "a duration of at least one sample"
+        )
     _loopback_only()
     from twotank_validation.ros.live_model import (  # noqa: PLC0415 (needs rclpy)
         ModelLiveConfig,
