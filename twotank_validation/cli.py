@@ -223,8 +223,10 @@ def _add_live_model_options(live: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--noise-scale",
         type=float,
-        default=1.0,
-        help="--plant-model: noise as a fraction of what the model's noise weights admit",
+        default=SIM_NOISE_SCALE,
+        help="--plant-model: noise as a fraction of what the model's noise weights admit "
+        f"(default {SIM_NOISE_SCALE}: at 1 the noise alone uses the whole unit budget of w, so "
+        "beta of the nominal sits at 1)",
     )
     live.set_defaults(func=_cmd_live_model)
 
@@ -232,7 +234,7 @@ def _add_live_model_options(live: argparse.ArgumentParser) -> None:
 def _cmd_live_model(args: argparse.Namespace) -> int:
     """``live``: the two-tank rig, or any model's plant with ``--plant-model``."""
     if args.plant_model is None:
-        if args.member != "nominal" or args.noise_scale != 1.0:
+        if args.member != "nominal" or args.noise_scale != SIM_NOISE_SCALE:
             raise UsageError("--member and --noise-scale are for --plant-model")
         return _cmd_live(args)
     if args.closed_loop or args.supervisor is not None:
@@ -339,8 +341,9 @@ def _add_simulate_model_options(sim: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--noise-scale",
         type=float,
-        default=1.0,
-        help="--model: noise as a fraction of what the model's noise weights admit",
+        default=SIM_NOISE_SCALE,
+        help="--model: noise as a fraction of what the model's noise weights admit "
+        f"(default {SIM_NOISE_SCALE}: at 1 the noise alone uses the whole unit budget of w)",
     )
     group.add_argument("--noise-seed", type=int, default=0, help="--model: noise seed")
     sim.set_defaults(func=_cmd_simulate_model)
@@ -1006,6 +1009,13 @@ def _cmd_record(args: argparse.Namespace) -> int:
     )
     print(f"wrote {args.out}: " + ", ".join(f"{t} {n}" for t, n in counts.items()))
     return 0
+
+
+SIM_NOISE_SCALE = 0.5
+"""Default noise of a simulated model (``simulate --model``, ``live --plant-model``), as a
+fraction of what its noise weights admit: at 1 the noise alone uses the whole unit budget of
+``w`` (the realised ``||w||`` scatters around 1), so the nominal's beta would sit at the
+limit and a run of nominal data would raise alarms by chance."""
 
 
 class UsageError(TwotankError, ValueError):
