@@ -43,14 +43,15 @@ def test_readme_core_example_runs() -> None:
     assert result.beta == pytest.approx(validate(datum, model, method="sdp").beta, rel=1e-3)
 
 
-DOCS = Path(__file__).resolve().parent.parent / "docs"
+ROOT = Path(__file__).resolve().parent.parent
+PAGES = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
 _DOC_IMPORT = re.compile(r"^from (twotank_validation\S*) import (\([^)]*\)|[^\n]*)", re.MULTILINE)
 
 
 def _documented_imports() -> list[tuple[str, str, str]]:
-    """(page, module, name) of every ``from twotank_validation... import`` in the docs' code."""
+    """(page, module, name) of every ``from twotank_validation... import`` in the pages' code."""
     out: set[tuple[str, str, str]] = set()
-    for page in sorted(DOCS.glob("*.md")):
+    for page in PAGES:
         for block in re.findall(r"```python\n(.*?)```", page.read_text(), re.DOTALL):
             for match in _DOC_IMPORT.finditer(block):
                 node = ast.parse(match.group(0)).body[0]
@@ -61,10 +62,10 @@ def _documented_imports() -> list[tuple[str, str, str]]:
 
 def test_the_docs_show_imports() -> None:
     pages = {page for page, _, _ in _documented_imports()}
-    assert {"api.md", "interface.md"} <= pages
+    assert {"README.md", "api.md", "interface.md"} <= pages
 
 
 @pytest.mark.parametrize(("page", "module", "name"), _documented_imports())
 def test_documented_import_paths_work(page: str, module: str, name: str) -> None:
-    """Every name the docs import from a module path is there (modules moved, names stay)."""
+    """Every name the README and docs import from a module path is there (modules moved)."""
     assert hasattr(importlib.import_module(module), name), f"{page}: from {module} import {name}"
