@@ -612,7 +612,7 @@ def _doc_blocks(lang: str) -> list[str]:
 def test_doc_examples_are_the_maps_they_describe() -> None:
     # tables: test_tables.py; the real rig's log: the map file the block shows
     default_block, rig_block, _table_block, benchmark_block = _doc_blocks("yaml")
-    benchmark = Path(__file__).parent / "data" / "cascaded_tanks" / "estimation.map.yaml"
+    benchmark = REPO / "test" / "data" / "cascaded_tanks" / "estimation.map.yaml"
     assert InterfaceMap.from_dict(yaml.safe_load(benchmark_block)) == load_interface_map(benchmark)
     assert InterfaceMap.from_dict(yaml.safe_load(default_block)) == default_interface_map()
     assert InterfaceMap.from_dict(yaml.safe_load(rig_block)) == InterfaceMap.from_dict(RIG_DOC)
