@@ -121,3 +121,34 @@ def test_settings_that_do_not_hold_are_a_usage_error() -> None:
     read = ReadSettings(monitor=MonitorConfig(ts_s=0.8, period_samples=256, hop_samples=64))
     with pytest.raises(UsageError, match="hop_samples"):
         read.replay_config(0.8, 100)
+
+
+def test_the_recording_is_opened_once_for_timing_and_replay(bag, monkeypatch) -> None:
+    import twotank_validation.bags as bags  # noqa: PLC0415
+
+    opened = []
+    real = bags.open_bag
+
+    def counting(path):
+        opened.append(path)
+        return real(path)
+
+    monkeypatch.setattr(bags, "open_bag", counting)
+    read = ReadSettings(monitor=MonitorConfig(ts_s=0.8, period_samples=256))  # timing: metadata
+    outcome = ValidateJob(str(bag), read, diagnosis=False).run()
+    assert outcome.code is ExitCode.OK
+    assert outcome.document is not None
+    assert outcome.document["timing"]["ts_from"] == "bag metadata"
+    assert opened == [str(bag)]
+
+
+def test_a_model_without_its_document_is_an_error_not_left_out() -> None:
+    from twotank_validation.core.model import load_model_document, model_from_dict  # noqa: PLC0415
+    from twotank_validation.errors import ModelError  # noqa: PLC0415
+    from twotank_validation.replay import model_documents  # noqa: PLC0415
+
+    doc, _ = load_model_document("B")
+    own = model_from_dict({**doc, "name": "B_tuned"}, "tuned.yaml")
+    with pytest.raises(ModelError, match=r"model 'B_tuned'.*--model FILE"):
+        model_documents([own])
+    assert model_documents([own], {"B_tuned": doc}) == {"B_tuned": doc}

@@ -19,10 +19,10 @@ once (the same samples and reports as feeding the messages one by one, which is 
 with anything irregular). A one-hour 10 Hz bag replays for two models in about 0.3 s, most of
 it the validation of the windows (``bench/bench_replay.py``).
 
-The package: :mod:`.config` (ReplayConfig, ReplayResult), :mod:`.feed` (a bag or a table
-through the validator), :mod:`.timing` (the periods of a recording), :mod:`.summary` (the JSON
-summary, the reasons no window was judged), :mod:`.windows` (windows for diagnose and
-calibrate).
+The package: :mod:`.config` (ReplayConfig, ReplayResult), :mod:`.recording` (a recording
+opened once), :mod:`.feed` (a bag or a table through the validator), :mod:`.timing` (the
+periods of a recording), :mod:`.summary` (the JSON summary, the reasons no window was
+judged), :mod:`.windows` (windows for diagnose and calibrate).
 """
 
 from twotank_validation.replay.config import (
@@ -32,12 +32,8 @@ from twotank_validation.replay.config import (
     WindowSnapshot,
     model_documents,
 )
-from twotank_validation.replay.feed import (
-    is_table_input,
-    replay_bag,
-    replay_recording,
-    replay_table,
-)
+from twotank_validation.replay.feed import replay_bag, replay_recording, replay_table
+from twotank_validation.replay.recording import Recording, is_table_input, open_recording
 from twotank_validation.replay.summary import (
     reason_category,
     summary_json,
@@ -53,6 +49,7 @@ from twotank_validation.replay.windows import (
 )
 
 __all__ = [
+    "Recording",
     "ReplayConfig",
     "ReplayConfigError",
     "ReplayResult",
@@ -60,6 +57,7 @@ __all__ = [
     "WindowSnapshot",
     "is_table_input",
     "model_documents",
+    "open_recording",
     "range_time_s",
     "reason_category",
     "replay_bag",

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -14,7 +13,7 @@ import numpy as np
 from twotank_validation.core.model import LFTModel, load_model_document
 from twotank_validation.defaults import JITTER_FRACTION
 from twotank_validation.diagnose.live import catalogue_diagnosis
-from twotank_validation.errors import TwotankError
+from twotank_validation.errors import ModelError, TwotankError
 from twotank_validation.online import MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online.interface import (
     InterfaceMap,
@@ -44,7 +43,8 @@ class ReplayConfig:
             once a model's alarm rises, each report carries the most likely effect in force
             (``WindowReport.diagnosis``), computed synchronously, as the node's answers.
         documents: model name -> model document for the diagnosis; a model not named is
-            loaded by its name (the built-in models); a model with neither is not diagnosed.
+            loaded by its name (the built-in models); a model with neither is an error
+            (:func:`model_documents`).
         diagnosis_config: the live diagnosis's settings.
     """
 
@@ -86,14 +86,26 @@ class ReplayConfig:
 def model_documents(
     models: Sequence[LFTModel], given: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
-    """Model name -> document: the given ones, else the built-in model of that name."""
+    """Model name -> document: the given ones, else the built-in model of that name.
+
+    Raises:
+        ModelError: a model whose document was not given and that is no built-in model (the
+            message names it and how to give its file).
+    """
     out: dict[str, Any] = {}
     for m in models:
         if given and m.name in given:
             out[m.name] = given[m.name]
             continue
-        with contextlib.suppress(TwotankError, OSError):
+        try:
             out[m.name] = load_model_document(m.name)[0]
+        except (TwotankError, OSError) as err:
+            raise ModelError(
+                f"model {m.name!r}: the live diagnosis needs the model's document, which was "
+                "not given, and it is no built-in model; give its YAML file (--model FILE, the "
+                "node's models parameter) or its document (ReplayConfig.documents, "
+                "ValidatorNode(documents=...)), or turn the diagnosis off (--no-diagnosis)"
+            ) from err
     return out
 
 

@@ -5,10 +5,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +39,7 @@ from twotank_validation.replay.config import (
     ReplayResult,
     WindowSnapshot,
 )
+from twotank_validation.replay.recording import Recording, is_table_input, table_map
 
 BATCH = 4096  # messages decoded and validated at a time
 
@@ -49,7 +51,7 @@ _BULK = True  # False: message by message, the generic decoder's reference path 
 
 
 def replay_bag(
-    path: str | Path,
+    path: str | Path | Recording,
     models: Sequence[LFTModel],
     config: ReplayConfig | None = None,
     *,
@@ -59,7 +61,8 @@ def replay_bag(
     """Run a bag through the validator.
 
     Args:
-        path: rosbag2 directory (MCAP or SQLite3) or a plain MCAP file.
+        path: rosbag2 directory (MCAP or SQLite3) or a plain MCAP file, or the bag opened
+            once (:func:`~twotank_validation.replay.recording.open_recording`).
         models: models to validate.
         config: topics, units and validator settings.
         progress: called with (messages read, messages expected) now and then.
@@ -71,16 +74,17 @@ def replay_bag(
         ReplayConfigError: the interface map reads a table's columns.
     """
     cfg = config or ReplayConfig()
+    where = path.given if isinstance(path, Recording) else path
     if cfg.interface.is_table:
         raise ReplayConfigError(
-            f"{path}: the interface map reads the columns of a table, but this is read as a "
+            f"{where}: the interface map reads the columns of a table, but this is read as a "
             f"bag; give a CSV or Parquet file ({', '.join(tables.TABLE_SUFFIXES)}), or a map "
             "of topics for a bag"
         )
     core = cfg.validator(models)
-    result = ReplayResult(Path(path))
+    result = ReplayResult(Path(where))
     on_report = _reporter(result, core, on_window)
-    with bag_reader.open_bag(path) as bag:
+    with _bag_of(path) as bag:
         result.bag_start_ns = bag.info.start_ns or 0
         result.end_ns = bag.info.end_ns or 0
         _feed_bag(bag, core, cfg.interface, result, on_report, progress=progress)
@@ -89,6 +93,18 @@ def replay_bag(
     if progress is not None:
         progress(result.messages, max(result.messages, 1))
     return result
+
+
+@contextlib.contextmanager
+def _bag_of(path: str | Path | Recording) -> Iterator[bag_reader.BagReader]:
+    """The recording's open reader (left open), or the bag at ``path`` opened and closed."""
+    if not isinstance(path, Recording):
+        with bag_reader.open_bag(path) as bag:
+            yield bag
+        return
+    if path.bag is None:
+        raise ReplayConfigError(f"{path.path} was opened as a table: replay it as a table")
+    yield path.bag
 
 
 def _reporter(
@@ -109,7 +125,7 @@ def _reporter(
 
 
 def replay_table(
-    path: str | Path,
+    path: str | Path | Recording,
     models: Sequence[LFTModel],
     config: ReplayConfig,
     *,
@@ -125,7 +141,8 @@ def replay_table(
     :attr:`ReplayResult.problems`).
 
     Args:
-        path: ``.csv`` or ``.parquet`` file (:func:`twotank_validation.tables.read_table`).
+        path: ``.csv`` or ``.parquet`` file (:func:`twotank_validation.tables.read_table`), or
+            the table read once (:func:`~twotank_validation.replay.recording.open_recording`).
         models: models to validate.
         config: validator settings; ``config.interface`` a map of columns (with the time
             column).
@@ -137,17 +154,23 @@ def replay_table(
         ReplayConfigError: no map, or a map of topics.
         TableError: the file, a column or a time cell cannot be read (nothing to report).
     """
-    imap = table_map(config, path)
+    rec = path if isinstance(path, Recording) else None
+    where = path.given if isinstance(path, Recording) else path
+    imap = table_map(config, where)
     t_start = time.perf_counter()
-    table = tables.read_table(path, imap)
+    if rec is not None and rec.table is not None:
+        table, read_s = rec.table, rec.read_s
+    else:
+        table = tables.read_table(where, imap)
+        read_s = time.perf_counter() - t_start
     core = config.validator(models)
     result = ReplayResult(
-        Path(path),
+        Path(where),
         source="table",
         bag_start_ns=int(table.stamps_ns[0]),
         end_ns=int(table.stamps_ns[-1]),
     )
-    result.decode_s = time.perf_counter() - t_start
+    result.decode_s = read_s
     t_start = time.perf_counter()
     on_report = _reporter(result, core, on_window)
     stamps = table.stamps_ns.tolist()
@@ -164,7 +187,7 @@ def replay_table(
     result.messages = len(stamps)
     for column, (count, row) in table.bad_cells.items():
         result.problems.append(
-            f"column {column!r} of {path}: {count} cell(s) empty or not a number (the first in "
+            f"column {column!r} of {where}: {count} cell(s) empty or not a number (the first in "
             f"row {row} after the header); their samples count as non-finite and the windows "
             "holding them are not judged"
         )
@@ -175,22 +198,8 @@ def replay_table(
     return result
 
 
-def table_map(config: ReplayConfig | None, path: str | Path) -> InterfaceMap:
-    """The map of columns a table is read through; else a ReplayConfigError with the fix."""
-    imap = config.interface if config is not None else None
-    if imap is None or not imap.is_table:
-        given = "no interface map was given" if imap is None else f"{imap.label} reads topics"
-        raise ReplayConfigError(
-            f"{path} is a table (CSV/Parquet) but {given}; a table is read through a "
-            "map of its columns: --map FILE with a 'column' per source and the time column "
-            "(e.g. inputs: [{name: hot, column: valve_hot_pct, scale: 100}, ...], time: "
-            "{column: t, unit: s}; docs/interface.md, Tables)"
-        )
-    return imap
-
-
 def replay_recording(
-    path: str | Path,
+    path: str | Path | Recording,
     models: Sequence[LFTModel],
     config: ReplayConfig | None = None,
     *,
@@ -208,11 +217,6 @@ def replay_recording(
             path, models, config or ReplayConfig(), progress=progress, on_window=on_window
         )
     return replay_bag(path, models, config, progress=progress, on_window=on_window)
-
-
-def is_table_input(path: str | Path, config: ReplayConfig | None = None) -> bool:
-    """The recording is read as a table: a table's suffix, or a map of columns."""
-    return tables.is_table(path) or (config is not None and config.interface.is_table)
 
 
 def _feed_bag(

@@ -32,7 +32,8 @@ from twotank_validation.online.interface import (
     source_stamp_ns,
 )
 from twotank_validation.replay.config import ReplayConfig
-from twotank_validation.replay.feed import BATCH, converted, is_table_input, table_map
+from twotank_validation.replay.feed import BATCH, converted
+from twotank_validation.replay.recording import Recording, is_table_input, table_map
 
 
 @dataclass(frozen=True)
@@ -180,7 +181,7 @@ def fmt_s(x: float) -> str:
 
 
 def resolve_timing(
-    path: str | Path,
+    path: str | Path | Recording,
     config: ReplayConfig | None = None,
     *,
     ts_s: float | None = None,
@@ -198,7 +199,9 @@ def resolve_timing(
     metadata: its time column and its first input column are the data.
 
     Args:
-        path: the bag or the table.
+        path: the bag or the table, or the recording opened once
+            (:func:`~twotank_validation.replay.recording.open_recording`: the replay reads it
+            next).
         config: topics (the command topic is read) or the map, and the window gate's
             tolerance.
         ts_s: sample period given by the user (s), or None.
@@ -214,8 +217,13 @@ def resolve_timing(
     meta_ts: float | None
     meta_period: int | None
     record: tuple[np.ndarray, np.ndarray] | None
+    rec = path if isinstance(path, Recording) else None
+    where = path.given if isinstance(path, Recording) else path
     if is_table_input(path, cfg):
-        table = tables.read_table(path, table_map(cfg, path))
+        if rec is not None and rec.table is not None:
+            table = rec.table
+        else:
+            table = tables.read_table(where, table_map(cfg, where))
         meta_ts = meta_period = None
         record = (table.stamps_ns, table.inputs)
         command = imap.inputs[0].name
@@ -225,7 +233,10 @@ def resolve_timing(
         }
     else:
         command = imap.inputs[0].topic
-        with bag_reader.open_bag(path) as bag:
+        with contextlib.ExitStack() as stack:
+            bag = rec.bag if rec is not None else None
+            if bag is None:
+                bag = stack.enter_context(bag_reader.open_bag(where))
             meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
             record = _command_record(bag, imap)
             out_stamps = _output_stamps(bag, imap)

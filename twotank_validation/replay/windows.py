@@ -19,6 +19,7 @@ from twotank_validation.replay.config import (
     WindowSnapshot,
 )
 from twotank_validation.replay.feed import replay_bag, replay_recording
+from twotank_validation.replay.recording import Recording
 
 
 def windows_from_bag(
@@ -43,7 +44,7 @@ def windows_from_bag(
 
 
 def windows_from_recording(
-    path: str | Path, model: LFTModel, config: ReplayConfig | None = None
+    path: str | Path | Recording, model: LFTModel, config: ReplayConfig | None = None
 ) -> tuple[list[Window], ReplayResult]:
     """The judged, non-overlapping windows of a bag or a table (:func:`replay_recording`).
 
@@ -57,7 +58,7 @@ def windows_from_recording(
 
 
 def windows_with_findings(
-    path: str | Path,
+    path: str | Path | Recording,
     model: LFTModel,
     config: ReplayConfig | None = None,
     *,
@@ -155,7 +156,7 @@ def range_time_s(value: float | str, start_ns: int) -> float:
 
 def _windows(
     replay: Callable[..., ReplayResult],
-    path: str | Path,
+    path: str | Path | Recording,
     model: LFTModel,
     config: ReplayConfig | None,
 ) -> tuple[list[Window], list[WindowReport], ReplayResult]:

@@ -28,6 +28,7 @@ from twotank_validation.usecases.reading import (
     ReadSettings,
     load,
     model_names,
+    open_recording,
     timed_config,
 )
 from twotank_validation.usecases.validate import ValidateJob, diagnosis_text, windows_text
@@ -50,6 +51,7 @@ __all__ = [
     "exit_status",
     "load",
     "model_names",
+    "open_recording",
     "stretches_text",
     "timed_config",
     "windows_text",

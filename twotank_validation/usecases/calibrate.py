@@ -22,7 +22,7 @@ from twotank_validation.usecases.outcome import (
     Teller,
     exit_status,
 )
-from twotank_validation.usecases.reading import ReadSettings, load, timed_config
+from twotank_validation.usecases.reading import ReadSettings, load, open_recording, timed_config
 
 
 @dataclass(frozen=True)
@@ -75,8 +75,9 @@ class CalibrateJob:
         blocks = list(self.blocks) if self.blocks is not None else None
         cb.choose_blocks(loaded.model, blocks)  # an unknown block is an error before the replay
         config = cb.CalibrationConfig(margin=self.margin, max_order=self.max_order)
-        cfg, timing = timed_config(self.read, self.recording, tell)
-        windows, replayed = replay.windows_from_recording(self.recording, loaded.model, cfg)
+        with open_recording(self.read, self.recording) as recording:
+            cfg, timing = timed_config(self.read, recording, tell)
+            windows, replayed = replay.windows_from_recording(recording, loaded.model, cfg)
         for problem in replayed.problems:
             tell(Level.WARNING, problem)
         summary = replay.summary_json(replayed, [loaded.model.name])

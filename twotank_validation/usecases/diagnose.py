@@ -26,7 +26,13 @@ from twotank_validation.usecases.outcome import (
     Teller,
     exit_status,
 )
-from twotank_validation.usecases.reading import ReadSettings, load, model_names, timed_config
+from twotank_validation.usecases.reading import (
+    ReadSettings,
+    load,
+    model_names,
+    open_recording,
+    timed_config,
+)
 
 
 @dataclass(frozen=True)
@@ -80,10 +86,11 @@ class DiagnoseJob:
         tell = Teller(say)
         try:
             loaded = load(self.model)
-            cfg, timing = timed_config(self.read, self.recording, tell)
-            windows, findings, replayed = replay.windows_with_findings(
-                self.recording, loaded.model, cfg, start=self.start, end=self.end
-            )
+            with open_recording(self.read, self.recording) as opened:
+                cfg, timing = timed_config(self.read, opened, tell)
+                windows, findings, replayed = replay.windows_with_findings(
+                    opened, loaded.model, cfg, start=self.start, end=self.end
+                )
         except TwotankError as err:
             return Outcome(
                 ExitCode.ERROR,

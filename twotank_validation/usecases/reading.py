@@ -2,7 +2,8 @@
 
 :class:`ReadSettings` is what the command line's bag options (and a fleet's task) give; the
 sample and excitation periods are resolved per recording (:func:`timed_config`: the option,
-else the bag's metadata, else what the data show).
+else the bag's metadata, else what the data show) from the recording opened once
+(:func:`open_recording`), which the replay then reads.
 """
 
 from __future__ import annotations
@@ -12,12 +13,19 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from twotank_validation import replay
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online.channels import match_channels
 from twotank_validation.online.interface import InterfaceMap
 from twotank_validation.online.streams import two_tank_map
-from twotank_validation.replay import ReplayConfig, Timing, is_table_input, resolve_timing
+from twotank_validation.replay import (
+    Recording,
+    ReplayConfig,
+    Timing,
+    is_table_input,
+    resolve_timing,
+)
 from twotank_validation.usecases.outcome import Level, Teller, UsageError
 
 
@@ -55,14 +63,12 @@ class ReadSettings:
             raise UsageError(str(err)) from err
 
 
-def timed_config(read: ReadSettings, path: str, tell: Teller) -> tuple[ReplayConfig, Timing]:
-    """The replay settings with the sample and excitation periods resolved, and the timing.
-
-    The options win; else the bag's metadata, else what the data show
-    (``replay.resolve_timing``). What was taken is told as notes, contradictions as warnings.
+def open_recording(read: ReadSettings, path: str) -> Recording:
+    """The recording opened once (a bag's reader, a table read), for timing and replay.
 
     Raises:
         UsageError: a table without a map of its columns, or settings that do not hold.
+        BagError subclasses, TableError: the recording cannot be read.
     """
     base = read.replay_config(read.monitor.ts_s, read.monitor.period_samples)
     if is_table_input(path, base) and not base.interface.is_table:
@@ -71,7 +77,22 @@ def timed_config(read: ReadSettings, path: str, tell: Teller) -> tuple[ReplayCon
             "(a 'column' per input and output, and the time column: docs/interface.md, "
             "Tables), or --input/--output NAME=column:COLUMN[,scale=S][,offset=O]"
         )
-    timing = resolve_timing(path, base, ts_s=read.ts_s, period_samples=read.period_samples)
+    return replay.open_recording(path, base)
+
+
+def timed_config(
+    read: ReadSettings, recording: Recording, tell: Teller
+) -> tuple[ReplayConfig, Timing]:
+    """The replay settings with the sample and excitation periods resolved, and the timing.
+
+    The options win; else the bag's metadata, else what the data show
+    (``replay.resolve_timing``). What was taken is told as notes, contradictions as warnings.
+
+    Raises:
+        UsageError: settings that do not hold with the periods resolved.
+    """
+    base = read.replay_config(read.monitor.ts_s, read.monitor.period_samples)
+    timing = resolve_timing(recording, base, ts_s=read.ts_s, period_samples=read.period_samples)
     for note in timing.notes:
         tell(Level.NOTE, note)
     for conflict in timing.conflicts:

@@ -21,7 +21,13 @@ from twotank_validation.usecases.outcome import (
     Teller,
     exit_status,
 )
-from twotank_validation.usecases.reading import ReadSettings, load, model_names, timed_config
+from twotank_validation.usecases.reading import (
+    ReadSettings,
+    load,
+    model_names,
+    open_recording,
+    timed_config,
+)
 
 Progress = Callable[[int, int], None]
 """Told (messages read, messages expected) now and then."""
@@ -71,11 +77,12 @@ class ValidateJob:
         try:
             loaded = [load(m) for m in self.models]
             models = [lm.model for lm in loaded]
-            cfg, timing = timed_config(self.read, self.recording, tell)
-            if self.diagnosis:
-                documents = {lm.model.name: lm.document for lm in loaded}
-                cfg = dataclasses.replace(cfg, diagnosis=True, documents=documents)
-            result = replay.replay_recording(self.recording, models, cfg, progress=progress)
+            with open_recording(self.read, self.recording) as recording:
+                cfg, timing = timed_config(self.read, recording, tell)
+                if self.diagnosis:
+                    documents = {lm.model.name: lm.document for lm in loaded}
+                    cfg = dataclasses.replace(cfg, diagnosis=True, documents=documents)
+                result = replay.replay_recording(recording, models, cfg, progress=progress)
         except TwotankError as err:
             return Outcome(
                 ExitCode.ERROR,
