@@ -152,3 +152,15 @@ def test_a_model_without_its_document_is_an_error_not_left_out() -> None:
     with pytest.raises(ModelError, match=r"model 'B_tuned'.*--model FILE"):
         model_documents([own])
     assert model_documents([own], {"B_tuned": doc}) == {"B_tuned": doc}
+
+
+def test_timing_conflicts_are_typed_with_the_value_the_data_suggest(bag) -> None:
+    from twotank_validation import replay  # noqa: PLC0415
+
+    cfg = replay.ReplayConfig(monitor=MonitorConfig(ts_s=0.8, period_samples=256))
+    timing = replay.resolve_timing(bag, cfg, ts_s=0.5, period_samples=256)
+    (ts,) = [c for c in timing.findings if c.setting is replay.TimingSetting.TS]
+    assert (ts.given_by, ts.value, ts.suggested) == (replay.GivenBy.OPTION, 0.5, 0.8)
+    assert "pass --ts 0.8" in ts.text
+    assert timing.conflicts == tuple(c.text for c in timing.findings)
+    assert "findings" not in timing.to_json()

@@ -40,7 +40,13 @@ from twotank_validation.replay.summary import (
     unjudged_models,
     warning_kind,
 )
-from twotank_validation.replay.timing import Timing, resolve_timing
+from twotank_validation.replay.timing import (
+    GivenBy,
+    Timing,
+    TimingConflict,
+    TimingSetting,
+    resolve_timing,
+)
 from twotank_validation.replay.windows import (
     range_time_s,
     windows_from_bag,
@@ -49,11 +55,14 @@ from twotank_validation.replay.windows import (
 )
 
 __all__ = [
+    "GivenBy",
     "Recording",
     "ReplayConfig",
     "ReplayConfigError",
     "ReplayResult",
     "Timing",
+    "TimingConflict",
+    "TimingSetting",
     "WindowSnapshot",
     "is_table_input",
     "model_documents",

@@ -8,6 +8,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,44 @@ from twotank_validation.replay.feed import BATCH, converted
 from twotank_validation.replay.recording import Recording, is_table_input, table_map
 
 
+class TimingSetting(StrEnum):
+    """A timing setting that the data can contradict."""
+
+    TS = "ts_s"
+    """The sample period (s)."""
+    PERIOD = "period_samples"
+    """The excitation period (samples)."""
+
+
+class GivenBy(StrEnum):
+    """Who gave a timing value the data contradict."""
+
+    OPTION = "option"
+    METADATA = "bag metadata"
+
+
+@dataclass(frozen=True)
+class TimingConflict:
+    """A timing value given (option or metadata) that the data contradict.
+
+    Attributes:
+        setting: which setting.
+        given_by: who gave it.
+        value: the value given (s for ``TS``, samples for ``PERIOD``).
+        suggested: the value the data suggest (same unit).
+        suggested_ts_s: for a period that is no whole number of samples of ``ts``: the sample
+            period (s) at which ``suggested`` holds; None otherwise.
+        text: the conflict in words (``"... pass --ts 0.5"``).
+    """
+
+    setting: TimingSetting
+    given_by: GivenBy
+    value: float
+    suggested: float
+    suggested_ts_s: float | None
+    text: str
+
+
 @dataclass(frozen=True)
 class Timing:
     """The sample and excitation periods a replay uses, where they came from, and doubts.
@@ -54,6 +93,8 @@ class Timing:
         stream_ts_s: each stream's period found in its stamps (s), where it has a grid.
         oversampling: messages per sample of the streams published faster than ``ts_s``
             (stream -> whole number > 1): they are decimated to the sample grid.
+        findings: the conflicts, typed (:class:`TimingConflict`: the setting, who gave it,
+            its value and the value the data suggest); ``conflicts`` holds their words.
     """
 
     ts_s: float
@@ -66,13 +107,16 @@ class Timing:
     conflicts: tuple[str, ...] = ()
     stream_ts_s: dict[str, float] = field(default_factory=dict)
     oversampling: dict[str, int] = field(default_factory=dict)
+    findings: tuple[TimingConflict, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON form (``timing`` in the validate and diagnose JSON)."""
-        return dataclasses.asdict(self) | {
+        """The JSON form (``timing`` in the validate and diagnose JSON; conflicts in words)."""
+        out = dataclasses.asdict(self) | {
             "notes": list(self.notes),
             "conflicts": list(self.conflicts),
         }
+        del out["findings"]
+        return out
 
 
 def _metadata_timing(custom: Mapping[str, str]) -> tuple[float | None, int | None]:
@@ -241,7 +285,7 @@ def resolve_timing(
             record = _command_record(bag, imap)
             out_stamps = _output_stamps(bag, imap)
     notes: list[str] = []
-    conflicts: list[str] = []
+    conflicts: list[TimingConflict] = []
     grid = infer_sample_period(record[0]) if record is not None else None
     data_ts = grid.ts_s if grid is not None and grid.on_grid >= 0.5 else None
     stream_ts = {command: data_ts} if data_ts is not None else {}
@@ -277,16 +321,19 @@ def resolve_timing(
         if data_ts is not None and supported is not None and not multiple(ts_s, supported):
             fix = f"pass --ts {fmt_s(supported)}"
             if slow:
-                conflicts.append(
+                text = (
                     f"--ts {fmt_s(ts_s)} does not fit the data: {slow_streams()}, the commands "
                     f"every {fmt_s(data_ts)} s: not every sample would have a value of each; "
                     f"{fix} (the rate the data support)"
                 )
             else:
-                conflicts.append(
+                text = (
                     f"--ts {fmt_s(ts_s)} does not fit the data: the command stamps lie on a "
                     f"{fmt_s(data_ts)} s grid: {fix}"
                 )
+            conflicts.append(
+                TimingConflict(TimingSetting.TS, GivenBy.OPTION, ts_s, supported, None, text)
+            )
     elif (
         slow
         and supported is not None
@@ -303,9 +350,12 @@ def resolve_timing(
         ts, ts_from = meta_ts, "bag metadata"
         notes.append(f"sample period {fmt_s(ts)} s from the bag's metadata")
         if data_ts is not None and differs(meta_ts, data_ts):
-            conflicts.append(
+            text = (
                 f"the bag's metadata say ts {fmt_s(meta_ts)} s but the command stamps lie on "
                 f"a {fmt_s(data_ts)} s grid: pass --ts {fmt_s(data_ts)} if the stamps are right"
+            )
+            conflicts.append(
+                TimingConflict(TimingSetting.TS, GivenBy.METADATA, meta_ts, data_ts, None, text)
             )
     elif data_ts is not None and grid is not None:
         ts, ts_from = data_ts, "command stamps"
@@ -332,22 +382,26 @@ def resolve_timing(
         m = n * step_s / ts
         return round(m) if abs(m - round(m)) <= 1e-6 * max(m, 1.0) and round(m) >= 1 else None
 
-    def period_doubt(given: int, what: str) -> str | None:
+    def period_doubt(given: int, by: GivenBy) -> TimingConflict | None:
         if data_period is None or abs(given * ts - data_period * grid_ts) <= 0.5 * grid_ts:
             return None
         seen = f"the commands repeat every {fmt_s(data_period * grid_ts)} s"
         here = in_steps(data_period, grid_ts)
         if grid_ts != ts:
             seen += f" ({data_period} samples of {fmt_s(grid_ts)} s)"
-        return (
+        what = "--period" if by is GivenBy.OPTION else "the bag's metadata period"
+        text = (
             f"{what} {given} ({fmt_s(given * ts)} s at ts {fmt_s(ts)} s) does not fit the "
             f"data: {seen}: pass --period "
             + (f"{here}" if here is not None else f"{data_period} with --ts {fmt_s(grid_ts)}")
         )
+        if here is not None:
+            return TimingConflict(TimingSetting.PERIOD, by, given, here, None, text)
+        return TimingConflict(TimingSetting.PERIOD, by, given, data_period, grid_ts, text)
 
     if period_samples is not None:
         period, period_from = period_samples, "option"
-        if doubt := period_doubt(period_samples, "--period"):
+        if doubt := period_doubt(period_samples, GivenBy.OPTION):
             conflicts.append(doubt)
     elif meta_period is not None and (
         meta_ts is None or (meta_here := in_steps(meta_period, meta_ts)) is not None
@@ -362,7 +416,7 @@ def resolve_timing(
             )
         else:
             notes.append(f"excitation period {period} samples from the bag's metadata")
-        if doubt := period_doubt(period, "the bag's metadata period"):
+        if doubt := period_doubt(period, GivenBy.METADATA):
             conflicts.append(doubt)
     elif data_period is not None and (data_here := in_steps(data_period, grid_ts)) is not None:
         period, period_from = data_here, "commands"
@@ -395,7 +449,8 @@ def resolve_timing(
         data_ts_s=data_ts,
         data_period_samples=data_period,
         notes=tuple(notes),
-        conflicts=tuple(conflicts),
+        conflicts=tuple(c.text for c in conflicts),
         stream_ts_s=stream_ts,
         oversampling=over,
+        findings=tuple(conflicts),
     )
