@@ -7,7 +7,7 @@ Writes --bags nominal 10 Hz bags of --hours each (noise seed k for bag k; every 
 leak from half-way, so that the summary has alarms) and prints how long writing took. Then
 validates the directory as `twotank-validation validate DIR --out OUT` does (models A and B;
 the live diagnosis only with --diagnosis), through the same task per recording
-(``cli._validate_job``) and ``fleet.run_fleet``:
+(``usecases.ValidateJob``, built from the arguments as the CLI does) and ``fleet.run_fleet``:
 
 * serially in one process (``--serial``, the reference): a child process of its own with
   the workers' environment (single-threaded BLAS), so that the clusters' scheduler threads
@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import functools
 import multiprocessing
 import os
 import resource
@@ -75,7 +74,7 @@ def peak_rss_mb() -> float:
 
 def warm_up(job: Any, bag: str) -> float:
     """One task on a short bag (imports, models, compiled kernels, as a first task); RSS."""
-    job(bag)
+    fleet.run_task(job, bag)
     return peak_rss_mb()
 
 
@@ -124,8 +123,7 @@ def main() -> int:
         print(f"writing them: {write_s:.1f} s (0 s: reused)")
 
         argv = ["validate", str(root), "--quiet"] + ([] if args.diagnosis else ["--no-diagnosis"])
-        one = cli._fleet_args(cli.build_parser().parse_args(argv))
-        job = functools.partial(cli._validate_job, one)
+        job = cli._validate_job(cli.build_parser().parse_args(argv), fleet=True)
         expansion = fleet.expand_paths([str(root)])
         assert len(expansion.recordings) == args.bags
         outs = Path(tmp) / "out"

@@ -33,6 +33,7 @@ from twotank_validation import bags, replay
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.online import STREAMS, OnlineValidator, WindowReport
 from twotank_validation.online import streams as itf
+from twotank_validation.replay import feed as replay_feed
 from twotank_validation.sim import scenario as sc
 
 GOAL = 30_000.0  # times real time (issue 19)
@@ -52,11 +53,11 @@ def per_message(path: Path, models: list[LFTModel]) -> list[WindowReport]:
 
 def rows_path(path: Path, models: list[LFTModel]) -> replay.ReplayResult:
     """replay_bag through the reader's row-by-row path (field_batches(columnar=False))."""
-    replay._COLUMNAR = False
+    replay_feed._COLUMNAR = False
     try:
         return replay.replay_bag(path, models)
     finally:
-        replay._COLUMNAR = True
+        replay_feed._COLUMNAR = True
 
 
 def read_and_decode(path: Path) -> tuple[float, float]:
@@ -64,7 +65,7 @@ def read_and_decode(path: Path) -> tuple[float, float]:
     topics = list(STREAMS)
     with bags.open_bag(path) as bag:
         t0 = time.perf_counter()
-        for _ in bag._column_batches(bag._wanted(topics), replay._BATCH):
+        for _ in bag._column_batches(bag._wanted(topics), replay_feed.BATCH):
             pass
         read = time.perf_counter() - t0
     with bags.open_bag(path) as bag:
@@ -73,7 +74,7 @@ def read_and_decode(path: Path) -> tuple[float, float]:
             t: tuple(b.source.field for b in ts.bindings)
             for t, ts in itf.two_tank_map().topics().items()
         }
-        for _ in bag.field_batches(topics, fields, size=replay._BATCH):
+        for _ in bag.field_batches(topics, fields, size=replay_feed.BATCH):
             pass
         both = time.perf_counter() - t0
     return read, both

@@ -24,7 +24,9 @@ import pytest
 from twotank_validation import cli, fleet
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.bags.writer import BagWriter, fluid_pressure
+from twotank_validation.errors import ExitCode
 from twotank_validation.sim import scenario as sc
+from twotank_validation.usecases import Outcome, Status
 
 ROOT = Path(__file__).resolve().parent.parent
 FAST_ARGS = ["--ts", "0.8", "--period", "256", "--quiet"]
@@ -303,13 +305,23 @@ def test_paths_directories_and_globs_expand_to_recordings(tmp_path):
     assert not fleet.is_single([str(a), str(b)])
 
 
-def test_a_failing_task_is_one_failed_row(tmp_path):
-    def job(path: str) -> fleet.RecordingOutcome:
-        if path.endswith("b"):
-            raise RuntimeError("boom")
-        return fleet.RecordingOutcome(path, fleet.STATUS_COMPLETE, 0)
+@dataclasses.dataclass(frozen=True)
+class _Job:
+    """A job of the use cases' shape that fails on the recording "b"."""
 
-    got = list(fleet.run_serial(job, ["a", "b", "c"]))
+    path: str = ""
+
+    def at(self, path: str) -> _Job:
+        return _Job(path)
+
+    def run(self) -> Outcome:
+        if self.path.endswith("b"):
+            raise RuntimeError("boom")
+        return Outcome(ExitCode.OK, Status.COMPLETE)
+
+
+def test_a_failing_task_is_one_failed_row(tmp_path):
+    got = list(fleet.run_serial(_Job(), ["a", "b", "c"]))
     assert [o.status for o in got] == ["complete", "failed", "complete"]
     assert "RuntimeError: boom" in got[1].problem
     assert fleet.fleet_exit_code(got) == fleet.EXIT_UNREADABLE

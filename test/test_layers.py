@@ -3,7 +3,7 @@
 The layers, lowest first (a module may import its own layer and the layers below it):
 
     errors, defaults, settings -> core -> online -> sim -> bags -> tables -> diagnose -> replay
-    -> experiment -> calibrate -> report -> fleet -> ros -> cli
+    -> experiment -> calibrate -> report -> usecases -> fleet -> ros -> cli
 
 The package root (``twotank_validation/__init__.py``) is the public surface above them all; it
 loads its names on first use and imports nothing at import time. Every ``import`` statement
@@ -33,9 +33,10 @@ LAYERS = (
     ("experiment",),
     ("calibrate",),
     ("report",),
+    ("usecases",),
     ("fleet",),
     ("ros",),
-    ("cli",),
+    ("cli", "cli_options", "cli_common", "cli_models"),
 )
 ROS_ONLY = ("rclpy", "rosidl_runtime_py", "rosgraph_msgs", "diagnostic_msgs", "std_srvs")
 

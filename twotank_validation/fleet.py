@@ -11,8 +11,9 @@ recording as it arrives, then the summary table (``summary.csv``) and the figure
 (``fleet.png``: every recording's beta and alarm timeline per model, recordings with an
 alarm first).
 
-What a task does is given by the caller (the command line's ``validate`` or ``diagnose``) as
-a picklable callable ``job(path) -> RecordingOutcome``; this module only runs, collects and
+What a task does is a use case's typed job (:class:`~twotank_validation.usecases.ValidateJob`,
+:class:`~twotank_validation.usecases.DiagnoseJob`: a picklable frozen dataclass): each task
+runs ``job.at(path).run()`` and keeps its outcome; this module only runs, collects and
 summarises.
 """
 
@@ -26,10 +27,11 @@ import re
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from twotank_validation import tables
-from twotank_validation.errors import TwotankError
+from twotank_validation.errors import ExitCode, TwotankError
+from twotank_validation.usecases import Outcome, Status
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -39,13 +41,13 @@ BAG_SUFFIXES = (".mcap", ".db3")
 RECORDING_SUFFIXES = BAG_SUFFIXES + tuple(tables.TABLE_SUFFIXES)
 """File suffixes taken as recordings when a directory is searched."""
 
-STATUS_COMPLETE = "complete"
+STATUS_COMPLETE = Status.COMPLETE.value
 """Read completely and every model judged (a diagnosis: diagnosed)."""
-STATUS_NOT_JUDGED = "not judged"
+STATUS_NOT_JUDGED = Status.NOT_JUDGED.value
 """Read completely, but a model had no judged window (a diagnosis: nothing diagnosed)."""
-STATUS_INCOMPLETE = "incomplete"
+STATUS_INCOMPLETE = Status.INCOMPLETE.value
 """Not read completely (damage, a topic missing); windows before the damage are judged."""
-STATUS_UNREADABLE = "unreadable"
+STATUS_UNREADABLE = Status.UNREADABLE.value
 """Nothing could be read (not a recording, empty, unusable settings): the error says why."""
 STATUS_FAILED = "failed"
 """The task itself failed (an unexpected error or a lost worker): the error says which."""
@@ -111,9 +113,29 @@ class RecordingOutcome:
             if e["first_alarm"] is not None
         }
 
+    @classmethod
+    def of(cls, path: str, outcome: Outcome) -> RecordingOutcome:
+        """The outcome of a job on the recording ``path``, in a fleet's plain terms."""
+        return cls(
+            path,
+            outcome.status.value,
+            int(outcome.code),
+            outcome.document,
+            outcome.summary,
+            outcome.said(),
+        )
 
-Job = Callable[[str], RecordingOutcome]
-"""A picklable ``path -> RecordingOutcome`` (a module-level function or a partial of one)."""
+
+class Job(Protocol):
+    """A use case's job (picklable): the same job on another recording, and its run."""
+
+    def at(self, path: str) -> Job:
+        """The job on the recording ``path``, writing nothing of its own."""
+        ...
+
+    def run(self) -> Outcome:
+        """Its outcome."""
+        ...
 
 
 # --------------------------------------------------------------------------- finding recordings
@@ -264,9 +286,9 @@ def output_names(paths: Sequence[str]) -> dict[str, str]:
 
 
 def run_task(job: Job, path: str) -> RecordingOutcome:
-    """``job(path)``; an unexpected error becomes a failed outcome (the others go on)."""
+    """``job.at(path).run()``; an unexpected error becomes a failed outcome (the others go on)."""
     try:
-        return job(path)
+        return RecordingOutcome.of(path, job.at(path).run())
     except Exception as err:  # one recording's bug must not stop the fleet
         return failed(path, f"{type(err).__name__}: {err}")
 
@@ -408,6 +430,31 @@ class FleetResult:
     code: int
     written: tuple[Path, ...]
 
+    def said(self) -> list[str]:
+        """The lines for stderr: each recording's warnings and errors, the files skipped."""
+        lines = []
+        for o in self.outcomes:
+            for line in o.messages:
+                kind, sep, text = line.partition(": ")
+                if kind in ("WARNING", "ERROR") and sep:
+                    lines.append(f"{kind}: {o.path}: {text}")
+        lines += [f"note: skipped {path}: {why}" for path, why in self.skipped]
+        return lines
+
+    def text(self, out_dir: Path) -> list[str]:
+        """The lines for stdout: the summary table and the counts."""
+        shown = self.table.drop(columns=["json"], errors="ignore")
+        counts: dict[str, int] = {}
+        for o in self.outcomes:
+            counts[o.status] = counts.get(o.status, 0) + 1
+        told = ", ".join(f"{n} {status}" for status, n in counts.items())
+        alarmed = sum(1 for o in self.outcomes if o.alarms())
+        return [
+            shown.to_string(index=False, max_colwidth=48, float_format=lambda x: f"{x:.3f}"),
+            f"{len(self.outcomes)} recording(s): {told}; {alarmed} with an alarm; "
+            f"written to {out_dir.resolve()} (summary.csv, fleet.png, one JSON each)",
+        ]
+
 
 def run_fleet(
     job: Job,
@@ -425,7 +472,7 @@ def run_fleet(
     ``summary.csv`` (:func:`summary_table`) and ``fleet.png`` (:func:`plot_fleet`).
 
     Args:
-        job: ``path -> RecordingOutcome``, picklable for Dask.
+        job: the use case's job (picklable for Dask); each task runs ``job.at(path)``.
         expansion: the recordings (:func:`expand_paths`).
         out_dir: folder to write into (made if missing).
         model_names: the models, in the table's and the figure's order.
@@ -474,7 +521,7 @@ def order_outcomes(outcomes: Iterable[RecordingOutcome]) -> list[RecordingOutcom
 
 EXIT_CODE_ORDER = (0, 4, 3, 5)
 """Fleet exit codes, least to most severe (the fleet's is its most severe recording's)."""
-EXIT_UNREADABLE = 5
+EXIT_UNREADABLE = int(ExitCode.UNREADABLE)
 """Some recording could not be read at all (or its task failed); the others were judged."""
 
 

@@ -36,6 +36,7 @@ from twotank_validation.online import MonitorConfig
 from twotank_validation.online import streams as itf
 from twotank_validation.online.interface_map import InterfaceMap
 from twotank_validation.online.interface_text import interface_map_from_text
+from twotank_validation.replay import feed as replay_feed
 from twotank_validation.sim import scenario as sc
 from twotank_validation.sim.faults import parse_fault
 
@@ -464,11 +465,11 @@ def replay_both(path: Path, imap: InterfaceMap) -> tuple[replay.ReplayResult, re
     cfg = replay.ReplayConfig(monitor=FAST, interface=imap)
     models = [load_model("A"), load_model("B")]
     bulk = replay.replay_bag(path, models, cfg)
-    replay._BULK = False
+    replay_feed._BULK = False
     try:
         per_message = replay.replay_bag(path, models, cfg)
     finally:
-        replay._BULK = True
+        replay_feed._BULK = True
     return bulk, per_message
 
 
@@ -537,7 +538,7 @@ def test_replay_through_a_map_in_bulk_equals_the_per_message_mapped_replay(
         assert bag.float_fields("height") == ("fluid_pressure", "variance")
         assert bag.float_fields("flow_cmd") == ("hot", "cold")
         topics = imap.topics()
-        assert replay._bulk_fields(bag, list(topics), topics) is not None  # bulk taken
+        assert replay_feed._bulk_fields(bag, list(topics), topics) is not None  # bulk taken
     bulk, per_message = replay_both(path, imap)
     assert_same_result(bulk, per_message)
     assert sum(r.judged for r in bulk.reports) >= (2 if cut else 4)
@@ -554,9 +555,9 @@ def test_a_map_reading_a_header_field_goes_message_by_message(tmp_path) -> None:
     path = mapped_bag(tmp_path / "bag")
     with bags.open_bag(path) as bag:
         topics = interface_map_from_text(*odd).topics()
-        assert replay._bulk_fields(bag, list(topics), topics) is None
+        assert replay_feed._bulk_fields(bag, list(topics), topics) is None
         topics = interface_map_from_text(*texts).topics()
-        assert replay._bulk_fields(bag, list(topics), topics) == {
+        assert replay_feed._bulk_fields(bag, list(topics), topics) == {
             "flow_cmd": ("hot", "cold"),
             "height": ("fluid_pressure",),
             "temperature": ("temperature",),

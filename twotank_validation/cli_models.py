@@ -1,0 +1,228 @@
+"""``simulate --model`` and ``live --plant-model``: any model's plant, from the command line.
+
+The two-tank rig's ``simulate --scenario`` and ``live`` stay in :mod:`twotank_validation.cli`,
+which hands them in as the fallbacks of these commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import sys
+from collections.abc import Callable
+
+from twotank_validation.cli_common import loopback_only, out, report_dict
+from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
+from twotank_validation.errors import UsageError
+from twotank_validation.online import WindowReport
+from twotank_validation.online.window import verdict_text
+
+__all__ = [
+    "SIM_NOISE_SCALE",
+    "add_live_model_options",
+    "add_simulate_model_options",
+    "cmd_live_model",
+    "cmd_simulate_model",
+]
+
+SIM_NOISE_SCALE = 0.5
+"""Default noise of a simulated model (``simulate --model``, ``live --plant-model``), as a
+fraction of what its noise weights admit: at 1 the noise alone uses the whole unit budget of
+``w`` (the realised ``||w||`` scatters around 1), so the nominal's beta would sit at the
+limit and a run of nominal data would raise alarms by chance."""
+
+
+# --------------------------------------------------------------------------- live --plant-model
+
+
+def add_live_model_options(
+    live: argparse.ArgumentParser, two_tank: Callable[[argparse.Namespace], int]
+) -> None:
+    """``live --plant-model FILE``'s options; the command then runs :func:`cmd_live_model`.
+
+    Without ``--plant-model`` that runs ``two_tank`` (the rig's composition).
+    """
+    group = live.add_argument_group("any model's plant (--plant-model; docs/simulate.md)")
+    group.add_argument(
+        "--plant-model",
+        help="run the plant of this model (YAML file or built-in name) instead of the "
+        "two-tank rig; --model then names the validated models (default: this one), "
+        "--fault takes KIND:CHANNEL[=MAGNITUDE]@ONSET_S[-END_S] on its channels",
+    )
+    group.add_argument(
+        "--member",
+        default="nominal",
+        help="--plant-model: the member of its set: nominal, gains=G[,G...] or "
+        "random[,seed=S][,scale=R]",
+    )
+    group.add_argument(
+        "--noise-scale",
+        type=float,
+        default=SIM_NOISE_SCALE,
+        help="--plant-model: noise as a fraction of what the model's noise weights admit "
+        f"(default {SIM_NOISE_SCALE}: at 1 the noise alone uses the whole unit budget of w, so "
+        "beta of the nominal sits at 1)",
+    )
+    live.set_defaults(func=functools.partial(cmd_live_model, two_tank=two_tank))
+
+
+def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namespace], int]) -> int:
+    """``live``: the two-tank rig, or any model's plant with ``--plant-model``."""
+    if args.plant_model is None:
+        if args.member != "nominal" or args.noise_scale != SIM_NOISE_SCALE:
+            raise UsageError("--member and --noise-scale are for --plant-model")
+        return two_tank(args)
+    if args.closed_loop or args.supervisor is not None:
+        raise UsageError(
+            "--closed-loop and --supervisor run the two-tank rig's controller; a "
+            "--plant-model runs open loop"
+        )
+    if not (args.ts > 0 and args.duration >= args.ts):
+        raise UsageError(
+            f"--ts {args.ts:g} and --duration {args.duration:g}: give a sample period > 0 and "
+            "a duration of at least one sample"
+        )
+    loopback_only()
+    from twotank_validation.ros.live_model import (  # noqa: PLC0415 (needs rclpy)
+        ModelLiveConfig,
+        run_model_live,
+    )
+
+    cfg = ModelLiveConfig(
+        plant_model=args.plant_model,
+        models=tuple(args.model or ()),
+        n_steps=round(args.duration / args.ts),
+        ts_s=args.ts,
+        period_samples=args.period,
+        faults=tuple(args.fault or ()),
+        member=args.member,
+        noise_scale=args.noise_scale,
+        noise_seed=args.seed,
+        record_samples=False,
+    )
+
+    def show(rep: WindowReport) -> None:
+        if args.json:
+            out(json.dumps(report_dict(rep)))
+            return
+        verdict = verdict_text(rep) if rep.judged else f"not judged: {rep.data_quality}"
+        warned = "".join(f"  warning: {w}" for w in rep.warnings)
+        out(
+            f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
+            f"{verdict}  alarm {rep.alarm.name}{warned}"
+        )
+
+    result = run_model_live(cfg, on_report=show)
+    simulated = cfg.n_steps * cfg.ts_s
+    print(
+        f"simulated {simulated:.0f} s in {result.wall_s:.1f} s wall "
+        f"({simulated / max(result.wall_s, 1e-9):.0f}x real time); "
+        f"{len(result.reports)} reports; aligner: {result.counters}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+# --------------------------------------------------------------------------- simulate --model
+
+
+def add_simulate_model_options(
+    sim: argparse.ArgumentParser, scenario: Callable[[argparse.Namespace], int]
+) -> None:
+    """``simulate --model FILE``'s options; the command then runs :func:`cmd_simulate_model`.
+
+    With ``--scenario`` that runs ``scenario`` (the rig's scenario bag).
+    """
+    group = sim.add_argument_group("any model (--model; docs/simulate.md)")
+    group.add_argument(
+        "--model",
+        help="simulate this model (YAML file or built-in name) instead of a scenario: its "
+        "nominal or a member of its set, its noise, faults on its named channels",
+    )
+    group.add_argument(
+        "--format",
+        choices=["mcap", "sqlite3", "csv"],
+        default=None,
+        help="--model: a rosbag2 bag (one std_msgs/Float64 topic per channel) or a CSV table "
+        "(--out ends in .csv); the interface map is written beside it (<out>.map.yaml, "
+        "<stem>.map.yaml for a table); None: mcap",
+    )
+    group.add_argument("--ts", type=float, default=TS_S, help="--model: sample period (s)")
+    group.add_argument(
+        "--period", type=int, default=PERIOD_SAMPLES, help="--model: excitation period (samples)"
+    )
+    group.add_argument(
+        "--periods", type=int, default=2, help="--model: periods recorded after settling"
+    )
+    group.add_argument(
+        "--settle-periods",
+        type=int,
+        default=None,
+        help="--model: periods to let the transient die out first; None: as many as the "
+        "plant needs",
+    )
+    group.add_argument(
+        "--member",
+        default="nominal",
+        help="--model: the member of the perturbation set: nominal, gains=G[,G...] or "
+        "random[,seed=S][,scale=R]",
+    )
+    group.add_argument(
+        "--fault",
+        action="append",
+        help="--model: KIND:CHANNEL[=MAGNITUDE]@ONSET_S[-END_S], KIND one of input_gain, "
+        "stuck_input, sensor_bias, output_delay (repeat)",
+    )
+    group.add_argument("--rms", type=float, default=0.1, help="--model: RMS of every input")
+    group.add_argument(
+        "--offset", type=float, default=0.0, help="--model: operating point of every input"
+    )
+    group.add_argument("--seed", type=int, default=0, help="--model: excitation seed")
+    group.add_argument(
+        "--noise-scale",
+        type=float,
+        default=SIM_NOISE_SCALE,
+        help="--model: noise as a fraction of what the model's noise weights admit "
+        f"(default {SIM_NOISE_SCALE}: at 1 the noise alone uses the whole unit budget of w)",
+    )
+    group.add_argument("--noise-seed", type=int, default=0, help="--model: noise seed")
+    sim.set_defaults(func=functools.partial(cmd_simulate_model, scenario=scenario))
+
+
+def cmd_simulate_model(
+    args: argparse.Namespace, scenario: Callable[[argparse.Namespace], int]
+) -> int:
+    """``simulate``: a scenario (``--scenario``) or any model (``--model``), exactly one."""
+    if (args.scenario is None) == (args.model is None):
+        raise UsageError(
+            "simulate needs exactly one of --scenario NAME (the two-tank rig) and --model FILE "
+            "(any model), found " + ("both" if args.scenario is not None else "neither")
+        )
+    if args.scenario is not None:
+        if args.format is not None:
+            raise UsageError("--format is for --model; a scenario's bag takes --storage")
+        return scenario(args)
+    if args.storage != "mcap":
+        raise UsageError("--storage is for --scenario; with --model give --format")
+    from twotank_validation.bags.model_bag import simulate_model_command  # noqa: PLC0415
+    from twotank_validation.sim.model_record import interface_map_path  # noqa: PLC0415
+
+    path = simulate_model_command(
+        args.model,
+        args.out,
+        args.format or "mcap",
+        ts_s=args.ts,
+        period_samples=args.period,
+        periods=args.periods,
+        settle_periods=args.settle_periods,
+        rms=args.rms,
+        offset=args.offset,
+        seed=args.seed,
+        member=args.member,
+        noise_scale=args.noise_scale,
+        noise_seed=args.noise_seed,
+        faults=tuple(args.fault or ()),
+    )
+    print(f"wrote {path} and its interface map {interface_map_path(path)}")
+    return 0

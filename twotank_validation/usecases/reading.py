@@ -1,0 +1,132 @@
+"""How a job reads a recording: the interface map, the window settings, the timing options.
+
+:class:`ReadSettings` is what the command line's bag options (and a fleet's task) give; the
+sample and excitation periods are resolved per recording (:func:`timed_config`: the option,
+else the bag's metadata, else what the data show) from the recording opened once
+(:func:`open_recording`), which the replay then reads.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from twotank_validation import replay
+from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
+from twotank_validation.online import MonitorConfig
+from twotank_validation.online.channels import match_channels
+from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.streams import two_tank_map
+from twotank_validation.replay import (
+    Recording,
+    ReplayConfig,
+    Timing,
+    is_table_input,
+    resolve_timing,
+)
+from twotank_validation.usecases.outcome import Level, Teller, UsageError
+
+
+@dataclass(frozen=True)
+class ReadSettings:
+    """How to read a recording (picklable: a fleet ships it to its workers).
+
+    Attributes:
+        interface: the interface map of the recording's topics or columns.
+        monitor: the window and alarm settings (``online/validator_settings.py``); its
+            ``ts_s`` and ``period_samples`` are replaced by the resolved timing.
+        ts_s: the sample period given by the user (s), None: resolved from the recording.
+        period_samples: the excitation period given by the user (samples), None: resolved.
+    """
+
+    interface: InterfaceMap = field(default_factory=two_tank_map)
+    monitor: MonitorConfig = field(default_factory=MonitorConfig)
+    ts_s: float | None = None
+    period_samples: int | None = None
+
+    def replay_config(
+        self, ts_s: float, period_samples: int, oversampling: Mapping[str, int] | None = None
+    ) -> ReplayConfig:
+        """The replay settings with these periods.
+
+        Raises:
+            UsageError: the settings do not hold with these periods (the message says which).
+        """
+        try:
+            monitor = dataclasses.replace(self.monitor, ts_s=ts_s, period_samples=period_samples)
+            return ReplayConfig(
+                monitor=monitor, interface=self.interface, oversampling=dict(oversampling or {})
+            )
+        except ValueError as err:
+            raise UsageError(str(err)) from err
+
+
+def open_recording(read: ReadSettings, path: str) -> Recording:
+    """The recording opened once (a bag's reader, a table read), for timing and replay.
+
+    Raises:
+        UsageError: a table without a map of its columns, or settings that do not hold.
+        BagError subclasses, TableError: the recording cannot be read.
+    """
+    base = read.replay_config(read.monitor.ts_s, read.monitor.period_samples)
+    if is_table_input(path, base) and not base.interface.is_table:
+        raise UsageError(
+            f"{path} is a table (CSV/Parquet): give the map of its columns with --map FILE "
+            "(a 'column' per input and output, and the time column: docs/interface.md, "
+            "Tables), or --input/--output NAME=column:COLUMN[,scale=S][,offset=O]"
+        )
+    return replay.open_recording(path, base)
+
+
+def timed_config(
+    read: ReadSettings, recording: Recording, tell: Teller
+) -> tuple[ReplayConfig, Timing]:
+    """The replay settings with the sample and excitation periods resolved, and the timing.
+
+    The options win; else the bag's metadata, else what the data show
+    (``replay.resolve_timing``). What was taken is told as notes, contradictions as warnings.
+
+    Raises:
+        UsageError: settings that do not hold with the periods resolved.
+    """
+    base = read.replay_config(read.monitor.ts_s, read.monitor.period_samples)
+    timing = resolve_timing(recording, base, ts_s=read.ts_s, period_samples=read.period_samples)
+    for note in timing.notes:
+        tell(Level.NOTE, note)
+    for conflict in timing.conflicts:
+        tell(Level.WARNING, conflict)
+    return read.replay_config(timing.ts_s, timing.period_samples, timing.oversampling), timing
+
+
+@dataclass(frozen=True)
+class LoadedModel:
+    """A model as every layer uses it: the model, its document and where it came from."""
+
+    model: LFTModel
+    document: Mapping[str, object]
+    source: str
+
+
+def load(source: str | Path) -> LoadedModel:
+    """A model file or built-in model, with its document.
+
+    Raises:
+        ModelFileError, ModelError: the file cannot be read or is not a model.
+    """
+    doc, label = load_model_document(source)
+    return LoadedModel(model_from_dict(doc, label), doc, label)
+
+
+def model_names(sources: Sequence[str], read: ReadSettings | None = None) -> list[str]:
+    """The names of the models (loading them: bad ones fail here).
+
+    ``read``: also match their channels to the interface map's by name
+    (:class:`~twotank_validation.online.channels.ChannelError` where they do not match).
+    """
+    models = [load(s).model for s in sources]
+    if read is not None:
+        imap = read.interface
+        match_channels(imap.input_names, imap.output_names, models, source=imap.label)
+    return [m.name for m in models]
