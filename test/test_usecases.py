@@ -164,3 +164,23 @@ def test_timing_conflicts_are_typed_with_the_value_the_data_suggest(bag) -> None
     assert "pass --ts 0.8" in ts.text
     assert timing.conflicts == tuple(c.text for c in timing.findings)
     assert "findings" not in timing.to_json()
+
+
+def test_a_model_without_a_judged_window_has_a_typed_reason(tmp_path) -> None:
+    from twotank_validation import replay  # noqa: PLC0415
+    from twotank_validation.core.model import load_model  # noqa: PLC0415
+    from twotank_validation.online.states import WindowQuality  # noqa: PLC0415
+
+    base = sc.load_scenario("nominal")
+    short = dataclasses.replace(base, ts_s=0.8, period_samples=256, duration_s=2.5 * 0.8 * 256)
+    path = tmp_path / "short"
+    write_scenario_bag(short, path, progress=False)
+    outcome = ValidateJob(str(path), _read(), models=("A",), diagnosis=False).run()
+    assert outcome.code is ExitCode.NOT_JUDGED
+    cfg = _read().replay_config(0.8, 256)
+    result = replay.replay_recording(path, [load_model("A")], cfg)
+    (why,) = replay.unjudged(result, ["A"], None, cfg)
+    assert why.model == "A"
+    assert isinstance(why.reason, WindowQuality) or why.no_window is not None
+    errors = [str(m) for m in outcome.closing if m.level is Level.ERROR]
+    assert errors[0] == f"ERROR: {why.text()}"

@@ -17,19 +17,19 @@ from typing import TYPE_CHECKING, Any
 
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
+from twotank_validation.online import MonitorConfig, interface
+from twotank_validation.online.interface import InterfaceMap
+from twotank_validation.online.streams import STREAMS, RigUnits, two_tank_map
+from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS
+from twotank_validation.settings import FlatSetting, from_flat
 
 if TYPE_CHECKING:
-    from twotank_validation.online import MonitorConfig
-    from twotank_validation.online.interface import InterfaceMap
     from twotank_validation.replay import ReplayConfig
-    from twotank_validation.settings import FlatSetting
     from twotank_validation.usecases import ReadSettings
 
 
 def topic_map(pairs: Sequence[str] | None) -> dict[str, str]:
     """Stream -> topic of the two-tank interface with the ``--topic STREAM=TOPIC`` remaps."""
-    from twotank_validation.online.streams import STREAMS  # noqa: PLC0415
-
     topics = {s: s for s in STREAMS}
     for pair in pairs or ():
         stream, sep, topic = pair.partition("=")
@@ -47,9 +47,6 @@ def _interface_map(args: argparse.Namespace, *, fleet: bool = False) -> Interfac
     The preset takes ``--topic`` remaps and the unit options. ``--time`` gives a table's time
     column (it replaces the map file's ``time``).
     """
-    from twotank_validation.online import interface  # noqa: PLC0415
-    from twotank_validation.online.streams import RigUnits, two_tank_map  # noqa: PLC0415
-
     texts = bool(args.input or args.output)
     if not (args.map or texts):
         if args.time is not None:
@@ -78,8 +75,6 @@ def _interface_map(args: argparse.Namespace, *, fleet: bool = False) -> Interfac
 
 def _monitor(args: argparse.Namespace) -> MonitorConfig:
     """The window and alarm settings of the options (``--ts``/``--period`` or the defaults)."""
-    from twotank_validation.online import MonitorConfig  # noqa: PLC0415
-    from twotank_validation.settings import from_flat  # noqa: PLC0415
     from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL  # noqa: PLC0415
 
     # the input periodicity gate: closed-loop data's with --closed-loop (theory.md §10)
@@ -145,8 +140,6 @@ def check_fleet_options(args: argparse.Namespace) -> None:
 
 def _option_settings() -> tuple[FlatSetting, ...]:
     """The settings that are options of the bag commands (the window and alarm options)."""
-    from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS  # noqa: PLC0415
-
     return tuple(s for s in VALIDATOR_SETTINGS if s.meta.option)
 
 
@@ -161,8 +154,6 @@ def _add_setting_options(parser: argparse.ArgumentParser) -> None:
     One option per setting with an ``option`` name: default, choices, type and help are the
     setting's (``online/validator_settings.py``).
     """
-    from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS  # noqa: PLC0415
-
     defaults = {s.name: s.param_default for s in VALIDATOR_SETTINGS}
     for s in _option_settings():
         kwargs: dict[str, Any] = {"default": s.param_default}
@@ -177,8 +168,6 @@ def _add_setting_options(parser: argparse.ArgumentParser) -> None:
 
 def add_recording_options(val: argparse.ArgumentParser) -> None:
     """Topic, unit and window options shared by ``validate`` and ``diagnose``."""
-    from twotank_validation.online.streams import RigUnits  # noqa: PLC0415
-
     units = RigUnits()
     val.add_argument(
         "--topic", action="append", help="remap: STREAM=TOPIC (flow_cmd, height, temperature)"

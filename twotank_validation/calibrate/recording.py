@@ -28,8 +28,7 @@ from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.replay import (
     ReplayConfig,
     ReplayResult,
-    summary_json,
-    unjudged_models,
+    unjudged,
     windows_from_recording,
 )
 
@@ -63,7 +62,7 @@ def calibrate_recording(
     model = model_from_dict(doc, source)
     windows, replayed = windows_from_recording(path, model, cfg)
     if not windows:
-        why = unjudged_models(summary_json(replayed, [model.name]), None, cfg)
+        why = [u.text() for u in unjudged(replayed, [model.name], None, cfg)]
         raise CalibrationError(
             "; ".join(why) or f"no window of model {model.name} could be judged in {path}"
         )

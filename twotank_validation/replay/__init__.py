@@ -35,9 +35,11 @@ from twotank_validation.replay.config import (
 from twotank_validation.replay.feed import replay_bag, replay_recording, replay_table
 from twotank_validation.replay.recording import Recording, is_table_input, open_recording
 from twotank_validation.replay.summary import (
+    NoWindow,
+    Unjudged,
     reason_category,
     summary_json,
-    unjudged_models,
+    unjudged,
     warning_kind,
 )
 from twotank_validation.replay.timing import (
@@ -56,6 +58,7 @@ from twotank_validation.replay.windows import (
 
 __all__ = [
     "GivenBy",
+    "NoWindow",
     "Recording",
     "ReplayConfig",
     "ReplayConfigError",
@@ -63,6 +66,7 @@ __all__ = [
     "Timing",
     "TimingConflict",
     "TimingSetting",
+    "Unjudged",
     "WindowSnapshot",
     "is_table_input",
     "model_documents",
@@ -74,7 +78,7 @@ __all__ = [
     "replay_table",
     "resolve_timing",
     "summary_json",
-    "unjudged_models",
+    "unjudged",
     "warning_kind",
     "windows_from_bag",
     "windows_from_recording",

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online import Alarm
-from twotank_validation.online.states import WindowQuality
+from twotank_validation.online.states import SampleFlag, WindowQuality, WindowState
 from twotank_validation.replay.config import ReplayConfig, ReplayResult
 from twotank_validation.replay.timing import Timing, fmt_s
 
@@ -110,58 +112,116 @@ def reason_category(quality: WindowQuality) -> str:
     return quality.category
 
 
-_FIXES: dict[str, str] = {
-    "settling": (
+_FIXES: dict[tuple[WindowState, SampleFlag | None], str] = {
+    (WindowState.SETTLING, None): (
         "the recording holds too few whole periods for the settling and window periods: "
         "record longer, or check --period"
     ),
-    "input not periodic": (
+    (WindowState.INPUT_NOT_PERIODIC, None): (
         "the commands do not repeat every --period samples: pass the excitation period "
         "(--period), or --closed-loop if a controller computed them"
     ),
-    "too little excitation": (
+    (WindowState.TOO_LITTLE_EXCITATION, None): (
         "the inputs hardly move: check the command topic (--topic flow_cmd=...) and that the "
         "excitation was on"
     ),
-    "unusable samples (gap)": (
+    (WindowState.UNUSABLE_SAMPLES, SampleFlag.GAP): (
         "samples are missing on the sample grid: check --ts and that every topic was recorded"
     ),
-    "unusable samples (non-finite)": (
+    (WindowState.UNUSABLE_SAMPLES, SampleFlag.NON_FINITE): (
         "the data hold non-finite or implausible values: check the topics and their units"
     ),
-    "unusable samples (off grid)": (
+    (WindowState.UNUSABLE_SAMPLES, SampleFlag.OFF_GRID): (
         "stamps fall between the samples of the grid: check --ts (the command stamps' grid)"
     ),
-    "unusable samples (no command)": "no valid valve command: check the command topic",
+    (WindowState.UNUSABLE_SAMPLES, SampleFlag.NO_COMMAND): (
+        "no valid valve command: check the command topic"
+    ),
 }
+"""The likely fix of the main reason no window of a model was judged, by its typed state."""
 
 
-def unjudged_models(
-    summary: Mapping[str, Any],
+class NoWindow(StrEnum):
+    """Why a model has no window at all (not even an unjudged one)."""
+
+    NOT_FORMED = "no window was formed"
+    """The recording could not be read far enough (its first problem is the fix)."""
+    TOO_SHORT = "the recording holds no whole window"
+
+
+@dataclass(frozen=True)
+class Unjudged:
+    """A model of which no window could be judged: the main reason, typed, and the fix.
+
+    Attributes:
+        model: the model's name.
+        reason: the most frequent reason its windows were not judged (the first of equals);
+            None where it has no window (``no_window`` says why).
+        windows: the windows of that reason.
+        of: the model's windows.
+        no_window: why it has no window at all; None where it has some.
+        fix: the likely fix, in words.
+        hints: what the data suggest of the timing (the timing's conflicts, in words).
+    """
+
+    model: str
+    reason: WindowQuality | None
+    windows: int
+    of: int
+    no_window: NoWindow | None
+    fix: str
+    hints: tuple[str, ...] = ()
+
+    def text(self) -> str:
+        """``"no window of model B could be judged: settling (5 of 5 window(s)); <fix>"``."""
+        if self.reason is not None:
+            why = f"{self.reason.category} ({self.windows} of {self.of} window(s))"
+        else:
+            why = str(self.no_window)
+        return f"no window of model {self.model} could be judged: {why}; " + "; ".join(
+            [self.fix, *self.hints]
+        )
+
+
+def unjudged(
+    result: ReplayResult,
+    model_names: Sequence[str] = (),
     timing: Timing | None = None,
     config: ReplayConfig | None = None,
-) -> list[str]:
-    """One line per model of which no window could be judged: the main reason and the fix.
+) -> list[Unjudged]:
+    """The models of which no window could be judged, from the replay's typed window states.
 
     Args:
-        summary: :func:`summary_json` of the replay (models without any window listed too).
+        result: the replay.
+        model_names: the models asked for (listed even without any window), in order; then
+            any other model of the reports, in report order (as :func:`summary_json`).
         timing: the timing used (adds what the data suggest to the fix), or None.
         config: the replay settings (to say how long a recording one window needs).
     """
+    hints = tuple(timing.conflicts) if timing is not None else ()
+    counts: dict[str, dict[str, list[Any]]] = {name: {} for name in model_names}
+    judged: dict[str, int] = dict.fromkeys(model_names, 0)
+    totals: dict[str, int] = dict.fromkeys(model_names, 0)
+    for rep in result.reports:
+        counts.setdefault(rep.model, {})
+        judged[rep.model] = judged.get(rep.model, 0) + int(rep.judged)
+        if not rep.judged:
+            totals[rep.model] = totals.get(rep.model, 0) + 1
+            seen = counts[rep.model].setdefault(rep.quality.category, [rep.quality, 0])
+            seen[1] += 1
     out = []
-    hints = list(timing.conflicts) if timing is not None else []
-    for name, entry in summary["models"].items():
-        if entry["judged"]:
+    for name, reasons in counts.items():
+        if judged.get(name, 0):
             continue
-        reasons = entry["not_judged_reasons"]
         if reasons:
-            main = max(reasons, key=reasons.get)
-            why = f"{main} ({reasons[main]} of {entry['not_judged']} window(s))"
-            fix = _FIXES.get(main, "see each window's reason in the JSON")
-        elif summary["problems"]:
-            why, fix = "no window was formed", summary["problems"][0]
+            quality, n = max(reasons.values(), key=lambda seen: seen[1])
+            unusable = quality.state is WindowState.UNUSABLE_SAMPLES
+            key = (quality.state, quality.flag if unusable else None)
+            fix = _FIXES.get(key, "see each window's reason in the JSON")
+            out.append(Unjudged(name, quality, n, totals[name], None, fix, hints))
+        elif result.problems:
+            out.append(Unjudged(name, None, 0, 0, NoWindow.NOT_FORMED, result.problems[0], hints))
         else:
-            why = "the recording holds no whole window"
             fix = "record longer"
             if config is not None:
                 mon = config.monitor
@@ -171,5 +231,5 @@ def unjudged_models(
                     f"{mon.settle_periods} settling + {mon.periods_per_window} window periods "
                     f"of {mon.period_samples}): record longer or check --period"
                 )
-        out.append(f"no window of model {name} could be judged: {why}; " + "; ".join([fix, *hints]))
+            out.append(Unjudged(name, None, 0, 0, NoWindow.TOO_SHORT, fix, hints))
     return out

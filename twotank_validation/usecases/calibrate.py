@@ -81,7 +81,7 @@ class CalibrateJob:
         for problem in replayed.problems:
             tell(Level.WARNING, problem)
         summary = replay.summary_json(replayed, [loaded.model.name])
-        if unjudged := replay.unjudged_models(summary, timing, cfg):
+        if unjudged := replay.unjudged(replayed, [loaded.model.name], timing, cfg):
             code, errors = exit_status(replayed.complete, unjudged, timing)
             messages = tuple(tell.messages)
             return Outcome(code, STATUS_OF_CODE[code], None, summary, messages, (), tuple(errors))

@@ -101,7 +101,7 @@ class DiagnoseJob:
         for problem in replayed.problems:
             tell(Level.WARNING, problem)
         summary = replay.summary_json(replayed, [loaded.model.name])
-        if unjudged := replay.unjudged_models(summary, timing, cfg):
+        if unjudged := replay.unjudged(replayed, [loaded.model.name], timing, cfg):
             code, errors = exit_status(replayed.complete, unjudged, timing)
             return Outcome(
                 code, STATUS_OF_CODE[code], None, summary, tuple(tell.messages), (), tuple(errors)

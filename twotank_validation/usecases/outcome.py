@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 from twotank_validation.errors import ExitCode, UsageError
 
 if TYPE_CHECKING:
-    from twotank_validation.replay import Timing
+    from twotank_validation.replay import Timing, Unjudged
 
 __all__ = ["ExitCode", "Level", "Message", "Outcome", "Say", "Status", "UsageError", "exit_status"]
 
@@ -111,7 +111,7 @@ class Teller:
 
 
 def exit_status(
-    complete: bool, unjudged: Sequence[str], timing: Timing
+    complete: bool, unjudged: Sequence[Unjudged], timing: Timing
 ) -> tuple[ExitCode, list[Message]]:
     """The exit code of a replay, with the reasons of models without a judged window.
 
@@ -120,10 +120,10 @@ def exit_status(
 
     Args:
         complete: the whole recording was read.
-        unjudged: one line per model without a judged window (``replay.unjudged_models``).
+        unjudged: the models without a judged window (``replay.unjudged``).
         timing: the timing used.
     """
-    lines = [Message(Level.ERROR, line) for line in unjudged]
+    lines = [Message(Level.ERROR, u.text()) for u in unjudged]
     if unjudged:
         lines.append(
             Message(

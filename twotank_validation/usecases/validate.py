@@ -100,7 +100,7 @@ class ValidateJob:
             by_name = {m.name: m for m in models}
             report.write_replay_report(result, by_name, summary, Path(self.report_dir))
         code, errors = exit_status(
-            result.complete, replay.unjudged_models(summary, timing, cfg), timing
+            result.complete, replay.unjudged(result, [m.name for m in models], timing, cfg), timing
         )
         counts = (
             f"{result.messages} {'rows' if result.source == 'table' else 'messages'}; "
