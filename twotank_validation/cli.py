@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
+from twotank_validation.cli_common import live_line, report_dict
 from twotank_validation.cli_common import loopback_only as _loopback_only
 from twotank_validation.cli_common import out as _out
-from twotank_validation.cli_common import report_dict
 from twotank_validation.cli_models import add_live_model_options, add_simulate_model_options
 from twotank_validation.cli_options import (
     absolute,
@@ -33,7 +33,6 @@ from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import ExitCode, TwotankError, UsageError
 from twotank_validation.online import WindowReport
-from twotank_validation.online.window import verdict_text
 
 if TYPE_CHECKING:
     from twotank_validation.usecases import (
@@ -130,16 +129,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
         return 2
 
     def show(rep: WindowReport) -> None:
-        if args.json:
-            print(json.dumps(report_dict(rep)), flush=True)
-            return
-        verdict = verdict_text(rep) if rep.judged else f"not judged: {rep.data_quality}"
-        warned = "".join(f"  warning: {w}" for w in rep.warnings)
-        print(
-            f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
-            f"{verdict}  alarm {rep.alarm.name}{warned}",
-            flush=True,
-        )
+        print(live_line(rep, args.json), flush=True)
 
     result = run_live(cfg, on_report=show)
     for tr in result.transitions:

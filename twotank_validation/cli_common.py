@@ -6,13 +6,15 @@ below both, so that neither imports the other).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
 
 from twotank_validation.online import WindowReport
+from twotank_validation.online.window import verdict_text
 
-__all__ = ["finite", "loopback_only", "out", "report_dict"]
+__all__ = ["finite", "live_line", "loopback_only", "out", "report_dict"]
 
 
 def out(*parts: object) -> None:
@@ -58,3 +60,18 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
         "raised_by": rep.raised_by,
         "operating_point": rep.operating_point,
     }
+
+
+def live_line(rep: WindowReport, as_json: bool) -> str:
+    """The line ``live`` prints for a report.
+
+    Its JSON (``--json``), or the window's span, verdict, alarm and warnings.
+    """
+    if as_json:
+        return json.dumps(report_dict(rep))
+    verdict = verdict_text(rep) if rep.judged else f"not judged: {rep.data_quality}"
+    warned = "".join(f"  warning: {w}" for w in rep.warnings)
+    return (
+        f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
+        f"{verdict}  alarm {rep.alarm.name}{warned}"
+    )

@@ -8,15 +8,13 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import sys
 from collections.abc import Callable
 
-from twotank_validation.cli_common import loopback_only, out, report_dict
+from twotank_validation.cli_common import live_line, loopback_only, out
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
 from twotank_validation.online import WindowReport
-from twotank_validation.online.window import verdict_text
 
 __all__ = [
     "SIM_NOISE_SCALE",
@@ -103,15 +101,7 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
     )
 
     def show(rep: WindowReport) -> None:
-        if args.json:
-            out(json.dumps(report_dict(rep)))
-            return
-        verdict = verdict_text(rep) if rep.judged else f"not judged: {rep.data_quality}"
-        warned = "".join(f"  warning: {w}" for w in rep.warnings)
-        out(
-            f"[{rep.start_ns / 1e9:8.1f}, {rep.end_ns / 1e9:8.1f}] s  model {rep.model}: "
-            f"{verdict}  alarm {rep.alarm.name}{warned}"
-        )
+        out(live_line(rep, args.json))
 
     result = run_model_live(cfg, on_report=show)
     simulated = cfg.n_steps * cfg.ts_s
