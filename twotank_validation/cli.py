@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import os
 import sys
@@ -13,7 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
-from twotank_validation.cli_common import live_line, report_dict
+import twotank_validation
+from twotank_validation.cli_common import live_line, progress_wanted, report_dict
 from twotank_validation.cli_common import loopback_only as _loopback_only
 from twotank_validation.cli_common import out as _out
 from twotank_validation.cli_models import add_live_model_options, add_simulate_model_options
@@ -50,11 +52,57 @@ EXIT_ERROR = ExitCode.ERROR
 EXIT_INCOMPLETE = ExitCode.INCOMPLETE
 EXIT_NOT_JUDGED = ExitCode.NOT_JUDGED
 
-EXIT_CODES = f"""exit codes: {EXIT_OK} done; {EXIT_ERROR} bad arguments or unusable input \
-(ERROR: says what to change); {EXIT_INCOMPLETE} the recording was not read completely \
-(WARNING: says what was missing; windows judged before it are kept); {EXIT_NOT_JUDGED} \
-read completely, but no window of a model could be judged (ERROR: says why and the likely \
-fix)."""
+EXIT_MEANINGS = {
+    ExitCode.OK: "done",
+    ExitCode.ERROR: "bad arguments or unusable input, e.g. an empty or unreadable file "
+    "(ERROR: says what to change)",
+    ExitCode.INCOMPLETE: "the recording was not read completely (WARNING: says what was "
+    "missing; windows judged before it are kept)",
+    ExitCode.NOT_JUDGED: "read completely, but no window of a model could be judged (ERROR: "
+    "says why and the likely fix)",
+    ExitCode.UNREADABLE: "several recordings: some could not be read at all or their task "
+    "failed (the others were judged)",
+    ExitCode.BROKEN_PIPE: "the reader of the output went away (| head): stopped quietly",
+}
+"""What each exit code means, as ``--help`` and docs/cli.md list them."""
+EXIT_CODES = "exit codes: " + "; ".join(f"{int(c)} {t}" for c, t in EXIT_MEANINGS.items()) + "."
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Each option's default said once: appended unless its help says it or it has none."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if "default" in text or default is None or default is False:
+            return text
+        return super()._get_help_string(action)
+
+
+class _CommandParser(argparse.ArgumentParser):
+    """A sub-command's parser: an unknown option is its error, with the option it resembles.
+
+    argparse hands a sub-command's unknown arguments back to the top-level parser, whose
+    error shows the top-level usage; here the sub-command's usage is shown instead, with the
+    closest of its options (Python 3.14's ``suggest_on_error`` does this for choices only).
+    """
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        """Parse; unknown arguments are this parser's usage error."""
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            hints = []
+            for arg in extras:
+                if arg.startswith("-"):
+                    close = difflib.get_close_matches(
+                        arg.partition("=")[0], list(self._option_string_actions), n=1
+                    )
+                    hints += [f"did you mean {close[0]}?"] if close else []
+            hint = f" ({'; '.join(hints)})" if hints else ""
+            self.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+        return parsed, extras
 
 
 def _progress_factory(enabled: bool) -> Callable[[str, int], Callable[[int], None]] | None:
@@ -80,10 +128,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     cfg = experiment.ExperimentConfig(convention=NormConvention(args.norm))
     if args.seed is not None:
         cfg = replace(cfg, excitation=replace(cfg.excitation, seed=args.seed), seed=args.seed)
-    steps = tqdm(total=4, desc="demo", unit="step", disable=args.quiet)
+    steps = tqdm(total=4, desc="demo", unit="step", disable=not progress_wanted(args.quiet))
     steps.set_postfix_str("simulating rig and validating")
     res = experiment.run_experiment(
-        cfg, sdp_check=not args.no_sdp, progress=_progress_factory(not args.quiet)
+        cfg, sdp_check=not args.no_sdp, progress=_progress_factory(progress_wanted(args.quiet))
     )
     steps.update(1)
     steps.set_postfix_str("diagnosing Model B")
@@ -159,7 +207,10 @@ def _cmd_live(args: argparse.Namespace) -> int:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from twotank_validation.bags.scenario_bag import simulate_command  # noqa: PLC0415
 
-    path = simulate_command(args.scenario, args.out, args.storage)
+    wanted = progress_wanted(args.quiet)
+    path = simulate_command(
+        args.scenario, args.out, args.storage, progress=None if wanted else False
+    )
     print(f"wrote {path}")
     return 0
 
@@ -199,8 +250,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
     def progress(done: int, total: int) -> None:
         nonlocal bar
-        if bar is None and not args.quiet:
-            bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5, disable=None)
+        if bar is None and progress_wanted(args.quiet):
+            bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5)
         if bar is not None:
             bar.total = max(total, done)
             bar.n = done
@@ -290,7 +341,12 @@ def _cmd_fleet(args: argparse.Namespace, job: ValidateJob | DiagnoseJob) -> int:
         else f"on a local cluster of {settings.workers or os.cpu_count()} worker(s)"
     )
     print(f"{len(paths)} recording(s) {where}", file=sys.stderr)
-    bar = tqdm(total=len(paths), desc=args.command, unit="recording", disable=args.quiet or None)
+    bar = tqdm(
+        total=len(paths),
+        desc=args.command,
+        unit="recording",
+        disable=not progress_wanted(args.quiet),
+    )
 
     def arrived(outcome: fleet.RecordingOutcome) -> None:
         bar.update(1)
@@ -331,16 +387,22 @@ def build_parser() -> argparse.ArgumentParser:
         prog="twotank-validation",
         description="Frequency-domain validation of robust-control models (Smith 1995).",
         epilog=EXIT_CODES,
+        allow_abbrev=False,
     )
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser.add_argument(
+        "--version", action="version", version=f"%(prog)s {twotank_validation.__version__}"
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_CommandParser)
 
     def command(name: str, help_: str) -> argparse.ArgumentParser:
-        # every option's help shows its default; every command's help ends with the exit codes
+        # every option's help shows its default once; every command's help ends with the
+        # exit codes; an option is never matched by a prefix of its name
         return sub.add_parser(
             name,
             help=help_,
-            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            formatter_class=_HelpFormatter,
             epilog=EXIT_CODES,
+            allow_abbrev=False,
         )
 
     demo = command("demo", "reproduce the paper's Model A / Model B experiment in simulation")
@@ -397,12 +459,13 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--scenario", help="scenario YAML file or shipped name (e.g. nominal, leak)")
     sim.add_argument("--out", required=True, help="bag to write (must not exist)")
     sim.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage")
+    sim.add_argument("--quiet", action="store_true", help="no progress bar")
     add_simulate_model_options(sim, _cmd_simulate)
 
     rec = command("record", "record the interface topics of a live system into a bag")
     rec.add_argument("--out", required=True, help="bag to write (must not exist)")
     rec.add_argument(
-        "--duration", type=float, default=None, help="seconds (ROS time); None: until Ctrl-C"
+        "--duration", type=float, default=None, help="seconds (ROS time); default: until Ctrl-C"
     )
     rec.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage")
     rec.add_argument(
@@ -440,6 +503,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TwotankError as err:
         print(f"ERROR: {err}", file=sys.stderr)
         return EXIT_ERROR
+    except BrokenPipeError:
+        # the reader of stdout went away (`live | head -3`): stop quietly, with stdout on
+        # /dev/null so that the exit's flush does not fail again (the Python docs' recipe,
+        # "Note on SIGPIPE")
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return ExitCode.BROKEN_PIPE
 
 
 if __name__ == "__main__":

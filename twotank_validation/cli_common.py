@@ -14,7 +14,7 @@ import sys
 from twotank_validation.online import WindowReport
 from twotank_validation.online.window import verdict_text
 
-__all__ = ["finite", "live_line", "loopback_only", "out", "report_dict"]
+__all__ = ["finite", "live_line", "loopback_only", "out", "progress_wanted", "report_dict"]
 
 
 def out(*parts: object) -> None:
@@ -29,6 +29,14 @@ def out(*parts: object) -> None:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # later prints and the exit flush go nowhere
         os.close(devnull)
+
+
+def progress_wanted(quiet: bool = False) -> bool:
+    """Show a progress bar: not ``--quiet`` and stderr (where bars go) is a terminal.
+
+    Piped or redirected, a command prints no bar.
+    """
+    return not quiet and sys.stderr.isatty()
 
 
 def loopback_only() -> None:

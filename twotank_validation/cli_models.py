@@ -136,7 +136,7 @@ def add_simulate_model_options(
         default=None,
         help="--model: a rosbag2 bag (one std_msgs/Float64 topic per channel) or a CSV table "
         "(--out ends in .csv); the interface map is written beside it (<out>.map.yaml, "
-        "<stem>.map.yaml for a table); None: mcap",
+        "<stem>.map.yaml for a table); default: mcap",
     )
     group.add_argument("--ts", type=float, default=TS_S, help="--model: sample period (s)")
     group.add_argument(
@@ -149,7 +149,7 @@ def add_simulate_model_options(
         "--settle-periods",
         type=int,
         default=None,
-        help="--model: periods to let the transient die out first; None: as many as the "
+        help="--model: periods to let the transient die out first; default: as many as the "
         "plant needs",
     )
     group.add_argument(

@@ -176,7 +176,7 @@ def add_recording_options(val: argparse.ArgumentParser) -> None:
         "--map",
         help="interface map (YAML): each model input and output from its own topic, message "
         "type, field, stamp and unit conversion, or from a table's column (docs/interface.md); "
-        "None: the two-tank topics",
+        "default: the two-tank topics",
     )
     val.add_argument(
         "--input",
@@ -193,20 +193,20 @@ def add_recording_options(val: argparse.ArgumentParser) -> None:
     val.add_argument(
         "--time",
         help="a table's time column: COLUMN[,unit=auto|s|ms|us|ns|iso] (replaces the map's "
-        "'time'); None: the map's, else the column named time, t or timestamp",
+        "'time'); default: the map's, else the column named time, t or timestamp",
     )
     val.add_argument(
         "--ts",
         type=float,
         default=None,
-        help="sample period of the recording (s); None: from the bag's metadata, else "
+        help="sample period of the recording (s); default: from the bag's metadata, else "
         "inferred from the command stamps (a table's time column) (said on stderr)",
     )
     val.add_argument(
         "--period",
         type=int,
         default=None,
-        help="excitation period (samples); None: from the bag's metadata, else inferred "
+        help="excitation period (samples); default: from the bag's metadata, else inferred "
         "from the commands' repetition (said on stderr)",
     )
     _add_setting_options(val)
@@ -244,7 +244,7 @@ def add_recording_options(val: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="processes of the local Dask cluster (one thread each); 0: in this process; "
-        "None: one per core",
+        "default: one per core",
     )
     fleet.add_argument(
         "--serial", action="store_true", help="run in this process, without Dask (--workers 0)"
@@ -297,10 +297,10 @@ def add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--start",
         help="diagnose only the windows from this time: seconds from the recording start, or "
-        "an ISO 8601 time (UTC unless it has a zone); None: from the start",
+        "an ISO 8601 time (UTC unless it has a zone); default: from the start",
     )
     parser.add_argument(
-        "--end", help="diagnose only the windows up to this time, as --start; None: to the end"
+        "--end", help="diagnose only the windows up to this time, as --start; default: to the end"
     )
     parser.add_argument(
         "--segment",
@@ -322,7 +322,7 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
         "--block",
         action="append",
         help="a perturbation or noise block to calibrate, by its name (repeat, in order); "
-        "None: every block",
+        "default: every block",
     )
     parser.add_argument("--json", help="write the calibration as JSON to this file")
     parser.add_argument("--report", help="write the figures (beta, weights) to this folder")

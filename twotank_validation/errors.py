@@ -51,3 +51,6 @@ class ExitCode(IntEnum):
     """Read completely, but no window of a model could be judged (the message says why)."""
     UNREADABLE = 5
     """A fleet: some recording could not be read at all (or its task failed)."""
+    BROKEN_PIPE = 141
+    """The reader of stdout went away (``| head``) while printing: 128 + SIGPIPE, as a shell
+    reports a program ended by it."""

@@ -40,7 +40,7 @@ TOPICS: Final = dict(STREAM_TYPES)
 """Topics of a scenario bag and their message types (the validator's subscriptions)."""
 
 PROGRESS_MIN_SAMPLES: Final = 20_000
-"""``write_scenario_bag`` shows a progress bar above this many samples (stdout a TTY)."""
+"""``write_scenario_bag`` shows a progress bar above this many samples (stderr a TTY)."""
 
 CUSTOM_DATA_KEY: Final = "twotank_validation.scenario"
 """Key of the scenario (JSON of ``Scenario.to_dict()``) in a scenario bag's custom_data."""
@@ -67,7 +67,7 @@ def write_scenario_bag(
         out: Bag directory to create; must not exist.
         storage: ``"mcap"`` or ``"sqlite3"``.
         progress: Show a progress bar; default: above PROGRESS_MIN_SAMPLES samples when
-            stdout is a terminal.
+            stderr (where the bar goes) is a terminal.
 
     Returns:
         The bag directory.
@@ -81,7 +81,7 @@ def write_scenario_bag(
         raise ScenarioError(f"scenario must be a Scenario, got {type(scenario).__name__}")
     n = scenario.n_samples
     if progress is None:
-        progress = n > PROGRESS_MIN_SAMPLES and sys.stdout.isatty()
+        progress = n > PROGRESS_MIN_SAMPLES and sys.stderr.isatty()
     units = scenario.units
     bag = BagWriter(out, storage)  # raises before anything is created
     try:
@@ -111,10 +111,13 @@ def write_scenario_bag(
     return bag.path
 
 
-def simulate_command(scenario: str, out: str, storage: str = "mcap") -> Path:
+def simulate_command(
+    scenario: str, out: str, storage: str = "mcap", *, progress: bool | None = None
+) -> Path:
     """``twotank-validation simulate --scenario FILE|NAME --out BAG [--storage ...]``.
 
-    Loads the scenario (file or shipped name) and writes its bag.
+    Loads the scenario (file or shipped name) and writes its bag (``progress`` as
+    :func:`write_scenario_bag`'s).
 
     Returns:
         The bag directory.
@@ -129,4 +132,4 @@ def simulate_command(scenario: str, out: str, storage: str = "mcap") -> Path:
         raise BagExistsError(
             f"{out} exists already; bags are never overwritten: choose another --out"
         )
-    return write_scenario_bag(load_scenario(scenario), out, storage)
+    return write_scenario_bag(load_scenario(scenario), out, storage, progress=progress)

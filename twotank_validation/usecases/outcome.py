@@ -124,12 +124,13 @@ def exit_status(
         timing: the timing used.
     """
     lines = [Message(Level.ERROR, u.text()) for u in unjudged]
-    if unjudged:
+    if unjudged:  # the timing the windows were cut with, which the errors' fixes refer to
         lines.append(
             Message(
-                Level.ERROR,
-                f"judged with ts {timing.ts_s:.9g} s ({timing.ts_from}) and period "
-                f"{timing.period_samples} samples ({timing.period_from})",
+                Level.NOTE,
+                f"the windows were formed with sample period {timing.ts_s:.9g} s "
+                f"({timing.ts_from}) and excitation period {timing.period_samples} samples "
+                f"({timing.period_from})",
             )
         )
     if not complete:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from twotank_validation import replay
+from twotank_validation.bags import BagEmptyError
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online.channels import match_channels
@@ -68,9 +69,15 @@ def open_recording(read: ReadSettings, path: str) -> Recording:
 
     Raises:
         UsageError: a table without a map of its columns, or settings that do not hold.
+        BagEmptyError: the file (a bag's every storage file) is empty.
         BagError subclasses, TableError: the recording cannot be read.
     """
     base = read.replay_config(read.monitor.ts_s, read.monitor.period_samples)
+    if empty := empty_files(path):
+        raise BagEmptyError(
+            f"{empty[0]} is empty (0 bytes): there is nothing to read in it (a recorder stopped "
+            "before writing anything?); give a recording that holds data"
+        )
     if is_table_input(path, base) and not base.interface.is_table:
         raise UsageError(
             f"{path} is a table (CSV/Parquet): give the map of its columns with --map FILE "
@@ -78,6 +85,22 @@ def open_recording(read: ReadSettings, path: str) -> Recording:
             "Tables), or --input/--output NAME=column:COLUMN[,scale=S][,offset=O]"
         )
     return replay.open_recording(path, base)
+
+
+def empty_files(path: str) -> list[Path]:
+    """The recording's storage files if every one is empty (0 bytes), else ``[]``.
+
+    A file given directly, or the ``.mcap``/``.db3`` files of a bag directory; an empty file
+    holds nothing to read, whatever its suffix says.
+    """
+    p = Path(path)
+    if p.is_file():
+        files = [p]
+    elif p.is_dir():
+        files = sorted(f for f in p.iterdir() if f.suffix in (".mcap", ".db3") and f.is_file())
+    else:
+        return []
+    return files if files and all(f.stat().st_size == 0 for f in files) else []
 
 
 def timed_config(
