@@ -365,3 +365,32 @@ def test_an_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):
     assert code == cli.EXIT_ERROR
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.json"))
+
+
+def test_the_fleet_figure_plots_what_the_alarm_uses(tmp_path) -> None:
+    """Windows raised by the operating point (a leak: β small, β_op large) sit above 1."""
+    from twotank_validation.usecases import ReadSettings, ValidateJob  # noqa: PLC0415
+
+    # the leak after the operating point is commissioned (about 4 periods in)
+    leaky = fast_scenario("leak", periods=10, faults=("leak=0.04@900",))
+    write_scenario_bag(leaky, tmp_path / "leaky", progress=False)
+    read = ReadSettings(ts_s=0.8, period_samples=256)
+    job = ValidateJob(str(tmp_path / "leaky"), read, ("B",), diagnosis=False)
+    outcome = fleet.RecordingOutcome.of(job.recording, job.run())
+    windows = outcome.timeline["models"]["B"]["windows"]
+    raised = [w for w in windows if w["alarm"] == "ERROR" and w["raised_by"] == "operating point"]
+    assert raised, "the leak should raise the alarm through the operating point"
+    assert all(w["beta"] < 1.0 for w in raised)  # the dynamic β alone is below the limit
+    fig = fleet.fleet_figure([outcome], ["B"])
+    ax = fig.axes[0]
+    (bars,) = [c for c in ax.collections if c.get_gid() == "beta_total"]
+    judged = [w for w in windows if w["beta"] is not None]
+    plotted = dict(zip([w["end"] for w in judged], bars.get_array(), strict=True))
+    for w in raised:  # the reference: sqrt(β² + β_op²), computed here from the parts
+        total = (w["beta"] ** 2 + w["beta_op"] ** 2) ** 0.5
+        assert plotted[w["end"]] == pytest.approx(total, rel=1e-9)
+        assert plotted[w["end"]] > 1.0
+    assert "(s)" in ax.get_xlabel()
+    assert ax.get_ylabel()
+    assert "β_total" in fig.axes[-1].get_ylabel()  # the colour bar: the quantity and its unit
+    assert "dimensionless" in fig.axes[-1].get_ylabel()

@@ -8,8 +8,8 @@ command writes. The tasks run in this process (:func:`run_serial`, the reference
 ``dask.distributed`` (:func:`run_dask`: an embedded ``LocalCluster`` on 127.0.0.1, or an
 existing scheduler); they come back as they finish. :func:`run_fleet` writes one JSON per
 recording as it arrives, then the summary table (``summary.csv``) and the figure
-(``fleet.png``: every recording's beta and alarm timeline per model, recordings with an
-alarm first).
+(``fleet.png``: every recording's β_total and alarm timeline per model, recordings with
+an alarm first).
 
 What a task does is a use case's typed job (:class:`~twotank_validation.usecases.ValidateJob`,
 :class:`~twotank_validation.usecases.DiagnoseJob`: a picklable frozen dataclass): each task
@@ -596,14 +596,42 @@ def plot_fleet(
     out: Path,
     names: Mapping[str, str] | None = None,
 ) -> Path:
-    """Every recording's beta and alarm timeline, one panel per model, a row per recording.
+    """Write :func:`fleet_figure` to ``out`` (PNG)."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig = fleet_figure(outcomes, model_names, names)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def window_beta_total(w: Mapping[str, Any]) -> float | None:
+    """A window's β_total: what the verdict and the alarm use (as a report's alarm timeline).
+
+    ``beta_total`` (the dynamics and the operating point, ``sqrt(beta² + beta_op²)``), else
+    ``beta`` where the operating point was not checked; None where the window was not judged.
+    """
+    total = w.get("beta_total")
+    return float(total) if total is not None and w["beta"] is not None else w["beta"]
+
+
+def fleet_figure(
+    outcomes: Sequence[RecordingOutcome],
+    model_names: Sequence[str],
+    names: Mapping[str, str] | None = None,
+) -> Any:
+    """Every recording's β_total and alarm timeline, one panel per model, a row per recording.
 
     Each report holds from its time (its window's end) to the next report's: a bar coloured
-    by beta (white at 1, blue below, red above), grey where the
-    window was not judged; a black line under the row where the alarm was at ERROR, a
-    triangle at the first alarm. Recordings with an
-    alarm are at the top (the order given); a recording that could not be read shows its
-    status.
+    by β_total (:func:`window_beta_total`, what the verdict and the alarm use: white at 1,
+    blue below, red above; the bars' collection has the gid ``"beta_total"``), grey where
+    the window was not judged; a black line under the row where the alarm was at ERROR, a
+    triangle at the first alarm. Recordings with an alarm are at the top (the order given); a
+    recording that could not be read shows its status.
+
+    Returns:
+        The matplotlib figure (Agg), not closed.
     """
     import matplotlib as mpl  # noqa: PLC0415
 
@@ -614,12 +642,12 @@ def plot_fleet(
 
     n = max(len(outcomes), 1)
     betas = [
-        w["beta"]
+        b
         for o in outcomes
         if o.timeline is not None
         for e in o.timeline["models"].values()
         for w in e["windows"]
-        if w["beta"] is not None
+        if (b := window_beta_total(w)) is not None
     ]
     top = max([2.0, *(b for b in betas if math.isfinite(b))])
     norm = TwoSlopeNorm(vmin=0.0, vcenter=1.0, vmax=top)
@@ -628,7 +656,7 @@ def plot_fleet(
     fig, axes = plt.subplots(
         1,
         cols,
-        figsize=(5.5 * cols + 1.5, min(0.32 * n + 1.6, 120.0)),  # under 2**16 pixels
+        figsize=(5.5 * cols + 1.5, min(max(0.32 * n + 1.9, 3.6), 120.0)),  # < 2**16 px
         sharey=True,
         squeeze=False,
         layout="constrained",
@@ -646,9 +674,10 @@ def plot_fleet(
                 continue
             for t0, t1, w in _report_spans(e["windows"]):
                 seg = [(t0, row), (t1, row)]
-                if w["beta"] is not None:
+                beta = window_beta_total(w)
+                if beta is not None:
                     judged_segs.append(seg)
-                    judged_b.append(w["beta"])
+                    judged_b.append(beta)
                 else:
                     grey_segs.append(seg)
                 if w["alarm"] == "ERROR":
@@ -656,7 +685,7 @@ def plot_fleet(
             if e["first_alarm"] is not None:
                 firsts.append((e["first_alarm"], row))
         ax.add_collection(LineCollection(grey_segs, colors="0.8", linewidths=7))
-        bars = LineCollection(judged_segs, cmap=cmap, norm=norm, linewidths=7)
+        bars = LineCollection(judged_segs, cmap=cmap, norm=norm, linewidths=7, gid="beta_total")
         bars.set_array(judged_b)
         ax.add_collection(bars)
         ax.add_collection(LineCollection(alarm_segs, colors="k", linewidths=1.5))
@@ -669,20 +698,19 @@ def plot_fleet(
     fig.colorbar(
         plt.cm.ScalarMappable(norm=norm, cmap=cmap),
         ax=axes[0].tolist(),
-        label="beta (1: the limit)",
+        label="β_total (dimensionless; 1: the limit)",
         fraction=0.03,
         pad=0.01,
     )
     axes[0][0].set_yticks(range(len(outcomes)), labels, fontsize=8)
     axes[0][0].set_ylim(len(outcomes) - 0.5, -0.5)
+    axes[0][0].set_ylabel("recording")
     fig.suptitle(
-        f"{len(outcomes)} recording(s): beta as reported, alarm at ERROR (black); "
-        "those with an alarm on top"
+        f"{len(outcomes)} recording(s): β_total = √(β² + β_op²), what the verdict and the "
+        "alarm use\ngrey: not judged; black: alarm at ERROR (▼ the first); alarms on top",
+        fontsize=9,
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def _report_spans(
