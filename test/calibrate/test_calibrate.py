@@ -105,8 +105,8 @@ def test_model_a_scaling_is_the_brute_force_minimum(windows, model_a_calibration
     assert s_bf / 1.005 <= block.scaling <= s_bf  # the issue asks for <= 1.1 s_bf
     for got, want in zip(block.window_scaling, per_window_bf, strict=True):
         assert want / 1.005 <= got <= want
-    assert "demand" in block.used_text()
-    assert f"{block.scaling:.3g} times the stated weight" in block.used_text()
+    assert "alone (the other blocks as stated), every window needs" in block.used_text()
+    assert f"{block.scaling:.3g} × its stated weight" in block.used_text()
 
 
 def test_model_a_calibrated_model_holds_on_held_out_windows(windows, model_a_calibration, tmp_path):
@@ -186,7 +186,7 @@ def test_model_b_uses_less_than_its_stated_weight():
     assert all(validate(d, above).beta <= 1.0 for d in datums)
     assert any(validate(d, below).beta > 1.0 for d in datums)
     text = calibration_text(cal)
-    assert f"the data used {block.scaling:.0%} of the stated weight" in text
+    assert f"{block.scaling:.3g} × its stated weight: the data use {block.scaling:.0%}" in text
     assert f"{1 - block.scaling:.0%} of it is not needed" in text
     assert all(b <= 1.0 for b in cal.judged.beta_after)
 
@@ -244,7 +244,7 @@ def test_calibrate_command_on_a_bag(tmp_path: Path, capsys):
         assert (report / name).stat().st_size > 0
     model = load_model(out_model)
     assert model.name == "A_calibrated"
-    assert "demand" in capsys.readouterr().out
+    assert f"{block['scaling']:.3g} × its stated weight" in capsys.readouterr().out
     # the same through the core API
     doc, source = load_model_document("A")
     cal, _ = calibrate_recording(bag, doc, blocks=[TEMP], source=source)

@@ -1,10 +1,10 @@
 """How much uncertainty the data demand of a model set, handed on to robust-control design.
 
 :func:`calibrate` takes the judged windows of a recording and a model document and says, for
-each chosen perturbation or noise block, the smallest uniform scaling of its weight for which
-no window is invalidated, the smallest weight magnitude each excited bin requires, and a
-fitted low-order weight covering that requirement with a margin, written into a new model
-file judged on held-out windows (docs/calibrate.md).
+each chosen perturbation or noise block, the smallest factor on its stated weight for which
+no window is invalidated (the block alone, the others as stated), the smallest weight
+magnitude each excited bin requires, and a fitted low-order weight covering that requirement
+with a margin, written into a new model file judged on held-out windows (docs/calibrate.md).
 
 Modules (each imports only those above it):
 
@@ -19,6 +19,7 @@ Modules (each imports only those above it):
 from __future__ import annotations
 
 from twotank_validation.calibrate.calibration import (
+    NO_WEIGHT_CHANGED,
     BlockCalibration,
     Calibration,
     CalibrationConfig,
@@ -44,6 +45,7 @@ from twotank_validation.calibrate.scaling import (
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 
 __all__ = [
+    "NO_WEIGHT_CHANGED",
     "BinRequirement",
     "Block",
     "BlockCalibration",

@@ -101,6 +101,13 @@ class BlockCalibration:
         note: how the written weight was made, or why none was written; empty for a fit.
         fit_scaling: for a uniformly scaled block (noise, non-scalar weights), the smallest
             factor on the fit windows with the blocks before it calibrated; else None.
+        margin: the calibration's margin (the written factor is ``fit_scaling`` times it).
+
+    The one quantity is the *factor* on the block's stated weight (the weight in the model
+    file is the stated one times it). ``scaling`` is the factor every window needs with the
+    block *alone* (the other blocks as stated); ``fit_scaling`` the factor the fit windows
+    need *after* the blocks calibrated before it (which may explain part of the error, so it
+    can be smaller); ``written_factor`` what is written, ``fit_scaling`` times the margin.
     """
 
     name: str
@@ -114,22 +121,35 @@ class BlockCalibration:
     fitted: FittedWeight | None
     note: str = ""
     fit_scaling: float | None = None
+    margin: float = 1.0
+
+    @property
+    def written_factor(self) -> float | None:
+        """The factor on the stated weight written for a uniformly scaled block.
+
+        ``fit_scaling`` times the margin; None where the block was fitted or left as stated.
+        """
+        if self.fit_scaling is None or not math.isfinite(self.fit_scaling):
+            return None
+        return self.margin * self.fit_scaling
 
     def used_text(self) -> str:
-        """How much of the stated weight the data used, in words."""
+        """The factor alone (``scaling``), in words: how much of the stated weight is used."""
+        head = f"{self.name}: alone (the other blocks as stated),"
         if math.isinf(self.scaling):
             return (
-                f"{self.name}: no scaling up to 1e6 explains every window with the other "
-                "blocks as stated (this block alone cannot explain the data)"
+                f"{head} no factor up to 1e6 × its stated weight explains every window (the "
+                "error is on another channel)"
             )
         if self.scaling <= 1.0:
             return (
-                f"{self.name}: the data used {self.scaling:.0%} of the stated weight "
-                f"({1.0 - self.scaling:.0%} of it is not needed by any window)"
+                f"{head} every window is explained with {self.scaling:.3g} × its stated "
+                f"weight: the data use {self.scaling:.0%} of it ({1.0 - self.scaling:.0%} of "
+                "it is not needed by any window)"
             )
         return (
-            f"{self.name}: the data demand {self.scaling:.3g} times the stated weight "
-            f"({self.scaling - 1.0:.0%} more)"
+            f"{head} every window needs {self.scaling:.3g} × its stated weight "
+            f"({self.scaling - 1.0:.0%} more than stated)"
         )
 
 
@@ -213,6 +233,7 @@ class Calibration:
                     },
                     "note": b.note,
                     "fit_scaling": None if b.fit_scaling is None else num(b.fit_scaling),
+                    "written_factor": b.written_factor,
                 }
                 for b in self.blocks
             ],
@@ -232,6 +253,7 @@ class Calibration:
                 )
             ],
             "model_file": model_file,
+            "failure": None,
         }
 
 
@@ -324,10 +346,10 @@ def calibrate(
                 node = _weight_node(current, block)
                 node["weight"] = scaled_node(node["weight"], factor)
                 current_model = model_from_dict(current, f"{source} (calibrated)")
-                after = "the blocks above as calibrated, " if results else ""
+                others = "the blocks above as calibrated" if results else "the others as stated"
                 note = (
-                    f"scaled uniformly by {factor:.4g} ({after}the fit windows need "
-                    f"{fit_scaling:.4g} of it; times the margin {cfg.margin:g})"
+                    f"written: {factor:.4g} × the stated weight = {fit_scaling:.4g} (the factor "
+                    f"the fit windows need, {others}) × the margin {cfg.margin:g}"
                 )
             else:
                 note = "no factor explains the fit windows: the weight is left as it is"
@@ -362,6 +384,7 @@ def calibrate(
                 fitted,
                 note,
                 fit_scaling,
+                cfg.margin,
             )
         )
     fitted_any = current_model is not model
@@ -440,7 +463,7 @@ def _calibrated_document(
 ) -> dict[str, Any]:
     """The model file with the fitted weights (a new name, description and derivation)."""
     new = copy.deepcopy(current)
-    done = [r for r in results if r.fitted is not None or r.fit_scaling is not None]
+    done = [r for r in results if r.fitted is not None or r.written_factor is not None]
     new["name"] = f"{doc.get('name', 'model')}_calibrated"
     what = "; ".join(
         f"{r.name} weight of order {r.fitted.order} (margin {r.fitted.margin:g})"
@@ -458,6 +481,10 @@ def _calibrated_document(
     return new
 
 
+NO_WEIGHT_CHANGED = "no weight could be changed (see each block's note): no model file written"
+"""What a calibration that changed no weight says (an error with ``--out-model``)."""
+
+
 def model_of(calibration: Calibration) -> LFTModel | None:
     """The calibrated model (None when no weight was fitted)."""
     if calibration.document is None:
@@ -466,6 +493,7 @@ def model_of(calibration: Calibration) -> LFTModel | None:
 
 
 __all__ = [
+    "NO_WEIGHT_CHANGED",
     "BlockCalibration",
     "Calibration",
     "CalibrationConfig",

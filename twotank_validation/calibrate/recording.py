@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from twotank_validation.calibrate.calibration import (
+    NO_WEIGHT_CHANGED,
     BlockCalibration,
     Calibration,
     CalibrationConfig,
@@ -85,16 +86,20 @@ def calibration_text(cal: Calibration, model_file: str | None = None) -> str:
         f"{cal.convention.value} norm)",
         f"the data covered {lo:.4g} .. {hi:.4g} Hz (the excited harmonics): weights outside "
         "this band are extrapolated, the data say nothing there",
+        "factor: what a block's stated weight is multiplied by; alone: the smallest for which "
+        "no window is invalidated, the other blocks as stated; written: the factor in the new "
+        "model file, found in order (the blocks above as calibrated, so it may be below the "
+        "factor alone) times the margin",
     ]
     for b in cal.blocks:
         lines.append("  " + b.used_text())
         per = ", ".join(_fmt(s) for s in b.window_scaling)
-        lines.append(f"    smallest factor per window: {per}")
+        lines.append(f"    factor alone, per window: {per}")
         if b.fitted is not None:
             f = b.fitted
             lines.append(
                 f"    fitted weight of order {f.order} ({_node_text(f.to_node())}) covers "
-                f"{f.margin:g} x the per-bin requirement at {b.freqs_hz.size} excited bin(s), "
+                f"{f.margin:g} × the per-bin requirement at {b.freqs_hz.size} excited bin(s), "
                 f"{f.mean_excess_db:.1f} dB above it on average"
             )
             ext = cal.extrapolated.get(b.name, {})
@@ -114,7 +119,7 @@ def calibration_text(cal: Calibration, model_file: str | None = None) -> str:
                 f"{_list(j.beta_after[sel])} after"
             )
     if cal.document is None:
-        lines.append("no weight was changed: no model file written")
+        lines.append(NO_WEIGHT_CHANGED)
     elif model_file:
         lines.append(f"calibrated model written to {model_file}")
     return "\n".join(lines)
@@ -231,7 +236,8 @@ def _weight_axes(
     f = curve["freqs_hz"]
     ax.loglog(f, curve["stated"], color="tab:gray", label="stated")
     if np.all(np.isfinite(curve["scaled"])) and b.scaling > 0:
-        ax.loglog(f, curve["scaled"], color="tab:gray", ls=":", label=f"stated x {b.scaling:.3g}")
+        label = f"stated × {b.scaling:.3g} (the factor alone)"
+        ax.loglog(f, curve["scaled"], color="tab:gray", ls=":", label=label)
     ax.loglog(f, curve["calibrated"], color="tab:blue", label="calibrated")
     req = b.required
     ok = np.isfinite(req) & (req > 0) & (b.freqs_hz > 0)

@@ -56,8 +56,9 @@ class CalibrateJob:
 
         Returns:
             The outcome: ``document`` the calibration JSON, ``text`` the calibration; an
-            unusable model, block, recording or setting (or no weight that could be changed
-            for ``out_model``) is an ``ERROR`` outcome with its message.
+            unusable model, block, recording or setting is an ``ERROR`` outcome with its
+            message. So is ``out_model`` when no weight could be changed, after the text
+            (each block's note), the JSON (its ``failure``) and the report were written.
         """
         tell = Teller(say)
         try:
@@ -94,11 +95,10 @@ class CalibrateJob:
             convention=NormConvention(self.read.monitor.convention),
         )
         model_file = None
-        if self.out_model:
-            if cal.document is None:
-                raise cb.CalibrationError(
-                    "no weight could be changed (see each block's note): no model file written"
-                )
+        # asked for a model file and no weight could be changed: the text (each block's
+        # note), the JSON and the report are still written, then the error
+        failure = cb.NO_WEIGHT_CHANGED if self.out_model and cal.document is None else None
+        if self.out_model and cal.document is not None:
             Path(self.out_model).write_text(
                 "# Written by twotank-validation calibrate; validate with --model this file.\n"
                 + yaml.safe_dump(cal.document, sort_keys=False, width=100)
@@ -106,6 +106,7 @@ class CalibrateJob:
             model_file = str(self.out_model)
         text = [cb.calibration_text(cal, model_file)]
         out = cal.to_json(model_file)
+        out["failure"] = failure
         out["timing"] = timing.to_json()
         if self.json_path:
             Path(self.json_path).write_text(json.dumps(out, indent=2))
@@ -114,5 +115,13 @@ class CalibrateJob:
                 cal, loaded.model, timing.ts_s, Path(self.report_dir), model_file
             )
             text.append(f"figures in {self.report_dir}")
-        code = ExitCode.OK if replayed.complete else ExitCode.INCOMPLETE
-        return Outcome(code, STATUS_OF_CODE[code], out, summary, tuple(tell.messages), tuple(text))
+        read = ExitCode.OK if replayed.complete else ExitCode.INCOMPLETE
+        return Outcome(
+            read if failure is None else ExitCode.ERROR,
+            STATUS_OF_CODE[read],
+            out,
+            summary,
+            tuple(tell.messages),
+            tuple(text),
+            () if failure is None else (Message(Level.ERROR, failure),),
+        )
