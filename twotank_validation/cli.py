@@ -62,6 +62,7 @@ EXIT_MEANINGS = {
     "says why and the likely fix)",
     ExitCode.UNREADABLE: "several recordings: some could not be read at all or their task "
     "failed (the others were judged)",
+    ExitCode.ALARM: "validate --fail-on-alarm: a model's alarm rose (ERROR) on a judged window",
     ExitCode.BROKEN_PIPE: "the reader of the output went away (| head): stopped quietly",
 }
 """What each exit code means, as ``--help`` and docs/cli.md list them."""
@@ -222,10 +223,11 @@ def _validate_job(args: argparse.Namespace, *, fleet: bool = False) -> ValidateJ
     return ValidateJob(
         args.bags[0],
         read_settings(args, fleet=fleet),
-        tuple(absolute(m, fleet) for m in args.model or ValidateJob.models),
+        tuple(absolute(m, fleet) for m in args.model) if args.model else None,
         diagnosis=not args.no_diagnosis,
         json_path=args.json,
         report_dir=args.report,
+        fail_on_alarm=args.fail_on_alarm,
     )
 
 
@@ -323,6 +325,8 @@ def _single_recording(args: argparse.Namespace) -> bool:
 def _cmd_fleet(args: argparse.Namespace, job: ValidateJob | DiagnoseJob) -> int:
     """``validate``/``diagnose`` of several recordings: one task each, then the summary."""
     from twotank_validation import fleet  # noqa: PLC0415
+    from twotank_validation.usecases import ValidateJob  # noqa: PLC0415
+    from twotank_validation.usecases.validate import default_models_note  # noqa: PLC0415
 
     # bad models and maps, and models whose channels the map does not carry, fail here,
     # before any task
@@ -341,6 +345,8 @@ def _cmd_fleet(args: argparse.Namespace, job: ValidateJob | DiagnoseJob) -> int:
         else f"on a local cluster of {settings.workers or os.cpu_count()} worker(s)"
     )
     print(f"{len(paths)} recording(s) {where}", file=sys.stderr)
+    if isinstance(job, ValidateJob) and not job.models_named:  # once, not per recording
+        print(f"note: {default_models_note(job.sources)}", file=sys.stderr)
     bar = tqdm(
         total=len(paths),
         desc=args.command,

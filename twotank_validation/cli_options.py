@@ -266,7 +266,16 @@ def add_validate_arguments(parser: argparse.ArgumentParser) -> None:
         "task each, results in --out (docs/fleet.md)",
     )
     parser.add_argument(
-        "--model", action="append", help="model name or YAML path (repeat; default A and B)"
+        "--model",
+        action="append",
+        help="model name or YAML path (repeat); default: the validator node's models, A and B "
+        "(said on stderr)",
+    )
+    parser.add_argument(
+        "--fail-on-alarm",
+        action="store_true",
+        help="exit 6 when a model's alarm rose (ERROR) on a judged window, for a pipeline; "
+        "needs --model",
     )
     parser.add_argument("--json", help="write the per-window results as JSON to this file")
     parser.add_argument("--report", help="write figures (alarm timeline, windows of interest) here")

@@ -51,6 +51,8 @@ class ExitCode(IntEnum):
     """Read completely, but no window of a model could be judged (the message says why)."""
     UNREADABLE = 5
     """A fleet: some recording could not be read at all (or its task failed)."""
+    ALARM = 6
+    """``validate --fail-on-alarm``: a model's alarm rose (ERROR) on a judged window."""
     BROKEN_PIPE = 141
     """The reader of stdout went away (``| head``) while printing: 128 + SIGPIPE, as a shell
     reports a program ended by it."""

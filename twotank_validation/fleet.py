@@ -429,6 +429,7 @@ class FleetResult:
     table: pd.DataFrame
     code: int
     written: tuple[Path, ...]
+    model_names: tuple[str, ...] = ()
 
     def said(self) -> list[str]:
         """The lines for stderr: each recording's warnings and errors, the files skipped."""
@@ -448,10 +449,15 @@ class FleetResult:
         for o in self.outcomes:
             counts[o.status] = counts.get(o.status, 0) + 1
         told = ", ".join(f"{n} {status}" for status, n in counts.items())
-        alarmed = sum(1 for o in self.outcomes if o.alarms())
+        names = self.model_names or tuple(
+            dict.fromkeys(m for o in self.outcomes for m in o.alarms())
+        )
+        per_model = ", ".join(
+            f"model {m} on {sum(1 for o in self.outcomes if m in o.alarms())}" for m in names
+        )
         return [
             shown.to_string(index=False, max_colwidth=48, float_format=lambda x: f"{x:.3f}"),
-            f"{len(self.outcomes)} recording(s): {told}; {alarmed} with an alarm; "
+            f"{len(self.outcomes)} recording(s): {told}; alarms: {per_model or 'none'}; "
             f"written to {out_dir.resolve()} (summary.csv, fleet.png, one JSON each)",
         ]
 
@@ -506,7 +512,12 @@ def run_fleet(
         plot_fleet(ordered, model_names, png, names)
         written.append(png)
     return FleetResult(
-        tuple(ordered), expansion.skipped, table, fleet_exit_code(ordered), tuple(written)
+        tuple(ordered),
+        expansion.skipped,
+        table,
+        fleet_exit_code(ordered),
+        tuple(written),
+        tuple(model_names),
     )
 
 
@@ -519,22 +530,26 @@ def order_outcomes(outcomes: Iterable[RecordingOutcome]) -> list[RecordingOutcom
     return sorted(outcomes, key=key)
 
 
-EXIT_CODE_ORDER = (0, 4, 3, 5)
-"""Fleet exit codes, least to most severe (the fleet's is its most severe recording's)."""
+EXIT_CODE_ORDER = (0, 4, 3, 5, 6)
+"""Fleet exit codes, least to most severe (the fleet's is its most severe recording's; 6,
+an alarm with ``--fail-on-alarm``, is the answer a pipeline asked for)."""
 EXIT_UNREADABLE = int(ExitCode.UNREADABLE)
 """Some recording could not be read at all (or its task failed); the others were judged."""
 
 
 def fleet_exit_code(outcomes: Iterable[RecordingOutcome]) -> int:
-    """The most severe code: 5 unreadable or failed > 3 incomplete > 4 not judged > 0.
+    """The most severe code: 6 alarm > 5 unreadable or failed > 3 incomplete > 4 not judged > 0.
 
     0 only when every recording was read completely and judged; a fleet of which nothing was
-    judged never gets 0 (each such recording is 3, 4 or 5).
+    judged never gets 0 (each such recording is 3, 4 or 5). 6 only with ``--fail-on-alarm``
+    (a recording's own code is then 6 where an alarm rose).
     """
     codes = [0]
     for o in outcomes:
         if o.status == STATUS_SKIPPED:
             continue
+        if o.code == ExitCode.ALARM:
+            codes.append(int(ExitCode.ALARM))
         if o.status in (STATUS_UNREADABLE, STATUS_FAILED):
             codes.append(EXIT_UNREADABLE)
         elif o.status == STATUS_INCOMPLETE:
