@@ -54,6 +54,7 @@ NOT_SETTINGS_OPTIONS = {
     "--out-model": "output file",
     "--quiet": "progress display",
     "--no-diagnosis": "turns the live diagnosis of a replay off (replay's own switch)",
+    "--fail-on-alarm": "validate: the exit code when an alarm rose (not a validator setting)",
     "--topic": "interface: a two-tank topic remapped",
     "--map": "interface: the interface map",
     "--input": "interface: the map as text",
