@@ -6,7 +6,9 @@ import argparse
 import difflib
 import json
 import os
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -33,7 +35,14 @@ from twotank_validation.cli_options import (
 )
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
-from twotank_validation.errors import ExitCode, TwotankError, UsageError
+from twotank_validation.errors import (
+    ExitCode,
+    TwotankError,
+    UsageError,
+    held_interrupts,
+    interruption,
+    raise_interrupted,
+)
 from twotank_validation.online import WindowReport
 
 if TYPE_CHECKING:
@@ -63,6 +72,9 @@ EXIT_MEANINGS = {
     ExitCode.UNREADABLE: "several recordings: some could not be read at all or their task "
     "failed (the others were judged)",
     ExitCode.ALARM: "validate --fail-on-alarm: a model's alarm rose (ERROR) on a judged window",
+    ExitCode.INTERRUPTED: "SIGINT (Ctrl-C): stopped; what was judged is printed and kept "
+    '(JSON with "interrupted": true, figures, a fleet\'s summary.csv)',
+    ExitCode.TERMINATED: "SIGTERM: stopped as on SIGINT",
     ExitCode.BROKEN_PIPE: "the reader of the output went away (| head): stopped quietly",
 }
 """What each exit code means, as ``--help`` and docs/cli.md list them."""
@@ -235,34 +247,69 @@ def _say(message: Message) -> None:
     print(message, file=sys.stderr)
 
 
-def _show(outcome: Outcome) -> int:
-    """Print an outcome's text (stdout) and closing lines (stderr); its exit code."""
-    for line in outcome.text:
+def _show(outcome: Outcome, shown: int = 0) -> int:
+    """Print an outcome's text and closing lines; its exit code.
+
+    The text on stdout from line ``shown`` on (those before were streamed), the closing
+    lines on stderr.
+    """
+    for line in outcome.text[shown:]:
         _out(line)
     for message in outcome.closing:
         print(message, file=sys.stderr)
     return int(outcome.code)
 
 
+class _ReplayBar:
+    """A replay's progress bar on a terminal, and lines printed on stdout above it.
+
+    The bar is made on the first report of progress; the lines are printed as they come.
+    """
+
+    def __init__(self, quiet: bool) -> None:
+        self._wanted = progress_wanted(quiet)
+        self._bar: tqdm[Any] | None = None
+        self.shown = 0
+
+    def progress(self, done: int, total: int) -> None:
+        """Told (messages read, messages expected)."""
+        if self._bar is None and self._wanted:
+            self._bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5)
+        if self._bar is not None:
+            self._bar.total = max(total, done)
+            self._bar.n = done
+            self._bar.refresh()
+
+    def show(self, line: str) -> None:
+        """Print a line of the text as it arises (the bar, if any, redrawn below it).
+
+        A signal waits until the line is printed and counted, so that the lines left to
+        print after an interrupt (``shown`` on) are exactly those not printed.
+        """
+        with held_interrupts():
+            if self._bar is not None:
+                self._bar.clear()
+            _out(line)
+            self.shown += 1
+            if self._bar is not None:
+                self._bar.refresh()
+
+    def close(self) -> None:
+        """Remove the bar."""
+        if self._bar is not None:
+            self._bar.close()
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
-    bar: tqdm[Any] | None = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar
-        if bar is None and progress_wanted(args.quiet):
-            bar = tqdm(total=0, desc="replay", unit="msg", mininterval=0.5)
-        if bar is not None:
-            bar.total = max(total, done)
-            bar.n = done
-            bar.refresh()
-
-    outcome = _validate_job(args).run(say=_say, progress=progress)
-    if bar is not None:
+    bar = _ReplayBar(args.quiet)
+    try:
+        outcome = _validate_job(args).run(say=_say, progress=bar.progress, show=bar.show)
+    finally:
         bar.close()
-    return _show(outcome)
+    return _show(outcome, bar.shown)
 
 
 def _diagnose_job(args: argparse.Namespace, *, fleet: bool = False) -> DiagnoseJob:
@@ -287,7 +334,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if not _single_recording(args):
         check_fleet_options(args)
         return _cmd_fleet(args, _diagnose_job(args, fleet=True))
-    return _show(_diagnose_job(args).run(say=_say))
+    bar = _ReplayBar(args.quiet)
+    try:
+        outcome = _diagnose_job(args).run(say=_say, progress=bar.progress, show=bar.show)
+    finally:
+        bar.close()
+    return _show(outcome, bar.shown)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -305,7 +357,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         report_dir=args.report,
         out_model=args.out_model,
     )
-    return _show(job.run(say=_say))
+    bar = _ReplayBar(args.quiet)
+    try:
+        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
+    finally:
+        bar.close()
+    return _show(outcome, bar.shown)
 
 
 # --------------------------------------------------------------------------- many recordings
@@ -368,6 +425,13 @@ def _cmd_fleet(args: argparse.Namespace, job: ValidateJob | DiagnoseJob) -> int:
         print(line, file=sys.stderr)
     for line in res.text(Path(args.out)):
         _out(line)
+    if res.interrupted is not None:
+        done = sum(o.status != fleet.STATUS_INTERRUPTED for o in res.outcomes)
+        print(
+            f"interrupted by {res.interrupted.name}: {done} of {len(res.outcomes)} "
+            f"recording(s) finished; summary.csv and fleet.png of them in {args.out}",
+            file=sys.stderr,
+        )
     return res.code
 
 
@@ -504,11 +568,19 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``twotank-validation`` console script."""
     args = build_parser().parse_args(argv)
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():  # signals reach it only
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            handlers[sig] = signal.signal(sig, raise_interrupted)
     try:
         return int(args.func(args))
     except TwotankError as err:
         print(f"ERROR: {err}", file=sys.stderr)
         return EXIT_ERROR
+    except KeyboardInterrupt as stop:  # before anything was judged, or a second signal
+        interrupted = interruption(stop)
+        print(f"interrupted by {interrupted.name}", file=sys.stderr)
+        return interrupted.exit_code
     except BrokenPipeError:
         # the reader of stdout went away (`live | head -3`): stop quietly, with stdout on
         # /dev/null so that the exit's flush does not fail again (the Python docs' recipe,
@@ -517,6 +589,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)
         return ExitCode.BROKEN_PIPE
+    finally:
+        for sig, previous in handlers.items():
+            if previous is not None:  # None: not set from Python
+                signal.signal(sig, previous)
 
 
 if __name__ == "__main__":

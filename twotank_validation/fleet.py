@@ -19,19 +19,34 @@ summarises.
 
 from __future__ import annotations
 
+import contextlib
 import glob
-import json
+import logging
 import math
 import os
 import re
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+import signal
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from twotank_validation import tables
-from twotank_validation.errors import ExitCode, TwotankError
+from twotank_validation.errors import (
+    ExitCode,
+    Interrupted,
+    TwotankError,
+    held_interrupts,
+    interruption,
+)
 from twotank_validation.usecases import Outcome, Status
+from twotank_validation.usecases.outcome import write_json
+
+_SIGNAL_OF_CODE: dict[int, int] = {
+    ExitCode.INTERRUPTED: signal.SIGINT,
+    ExitCode.TERMINATED: signal.SIGTERM,
+}
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -51,6 +66,9 @@ STATUS_UNREADABLE = Status.UNREADABLE.value
 """Nothing could be read (not a recording, empty, unusable settings): the error says why."""
 STATUS_FAILED = "failed"
 """The task itself failed (an unexpected error or a lost worker): the error says which."""
+STATUS_INTERRUPTED = Status.INTERRUPTED.value
+"""Not finished: the run was stopped by SIGINT or SIGTERM (what a task had judged in this
+process is kept in its JSON)."""
 STATUS_SKIPPED = "skipped"
 """A file in a searched directory that is not a recording (listed, not judged)."""
 
@@ -60,6 +78,7 @@ _ORDER = {
     STATUS_INCOMPLETE: 2,
     STATUS_UNREADABLE: 3,
     STATUS_FAILED: 3,
+    STATUS_INTERRUPTED: 3,
     STATUS_SKIPPED: 4,
 }
 
@@ -96,11 +115,16 @@ class RecordingOutcome:
 
     @property
     def problem(self) -> str:
-        """The first error, else the first warning, without its prefix ("" if none)."""
+        """The first error, else the first warning, without its prefix ("" if none).
+
+        A recording the run did not finish: that it was not finished.
+        """
         for prefix in ("ERROR: ", "WARNING: "):
             for m in self.messages:
                 if m.startswith(prefix):
                     return m[len(prefix) :]
+        if self.status == STATUS_INTERRUPTED:
+            return "not finished: the run was interrupted"
         return ""
 
     def alarms(self) -> dict[str, float]:
@@ -303,7 +327,7 @@ def failed(path: str, why: str) -> RecordingOutcome:
     )
 
 
-def run_serial(job: Job, paths: Sequence[str]) -> Iterator[RecordingOutcome]:
+def run_serial(job: Job, paths: Sequence[str]) -> Generator[RecordingOutcome, None, None]:
     """The tasks one after the other in this process (the reference of every other way)."""
     for path in paths:
         yield run_task(job, path)
@@ -362,21 +386,51 @@ def local_cluster(workers: int = 0, env: Mapping[str, str] | None = None) -> Any
         "distributed.scheduler.work-stealing": False,
         "distributed.scheduler.active-memory-manager.start": False,
     }
-    with dask.config.set(quiet):
-        return LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            # no dashboard; the scheduler's health and metrics routes on loopback, any port
-            scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
-            silence_logs=40,
-            env=worker_env(env),
-        )
+    cluster = None
+    try:
+        with dask.config.set(quiet), _workers_without_sigint():
+            cluster = LocalCluster(
+                n_workers=workers or os.cpu_count() or 1,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=None,
+                # no dashboard; the scheduler's health and metrics routes on loopback, any port
+                scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+                silence_logs=40,
+                env=worker_env(env),
+            )
+    except KeyboardInterrupt:  # a signal held while it started: stop it again
+        if cluster is not None:
+            cluster.close()
+        raise
+    return cluster
 
 
-def run_dask(job: Job, paths: Sequence[str], settings: DaskSettings) -> Iterator[RecordingOutcome]:
+@contextlib.contextmanager
+def _workers_without_sigint() -> Iterator[None]:
+    """The worker processes started inside never act on SIGINT.
+
+    Ctrl-C reaches the terminal's whole process group: the workers would each stop with a
+    traceback. SIGINT is blocked in this thread while they start (the threads that start
+    them, and they, inherit the blocked signal), and a SIGINT or SIGTERM to this process is
+    held until the cluster has started (:func:`held_interrupts`); this process then stops the
+    run and closes the cluster, which ends the workers.
+    """
+    # started first: starting it unblocks SIGINT in the thread that does (which would be the
+    # one that starts the workers)
+    resource_tracker.ensure_running()
+    with held_interrupts():
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def run_dask(
+    job: Job, paths: Sequence[str], settings: DaskSettings
+) -> Generator[RecordingOutcome, None, None]:
     """The tasks on Dask, one per recording (it opens its own file), as they finish.
 
     A task that raises or whose worker is lost gives a failed outcome for its recording.
@@ -411,10 +465,36 @@ def run_dask(job: Job, paths: Sequence[str], settings: DaskSettings) -> Iterator
                     why = lost
                 yield failed(futures[fut], f"{type(why).__name__}: {why}")
             fut.release()
-    finally:
+    except BaseException:  # interrupted (or closed early): the tasks in flight are dropped
+        with _quiet_shutdown():
+            _close(client, cluster)
+        raise
+    _close(client, cluster)
+
+
+def _close(client: Any, cluster: Any) -> None:
+    """Close the client, then the embedded cluster (if any), which ends its workers."""
+    try:
         client.close()
+    finally:
         if cluster is not None:
             cluster.close()
+
+
+@contextlib.contextmanager
+def _quiet_shutdown() -> Iterator[None]:
+    """Distributed's own log quiet while a run stopped early shuts down.
+
+    Tasks and workers cut off mid-way make its nannies log the cancellations of their
+    shutdown as errors; the run says itself that it was interrupted.
+    """
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
 
 
 # --------------------------------------------------------------------------- the fleet
@@ -430,6 +510,7 @@ class FleetResult:
     code: int
     written: tuple[Path, ...]
     model_names: tuple[str, ...] = ()
+    interrupted: Interrupted | None = None
 
     def said(self) -> list[str]:
         """The lines for stderr: each recording's warnings and errors, the files skipped."""
@@ -492,15 +573,25 @@ def run_fleet(
     runs = run_serial(job, paths) if dask is None else run_dask(job, paths, dask)
     got: dict[str, RecordingOutcome] = {}
     written: list[Path] = []
-    for outcome in runs:
-        got[outcome.path] = outcome
-        if outcome.document is not None:
-            target = out_dir / f"{names[outcome.path]}.json"
-            target.write_text(json.dumps(outcome.document, indent=2))
-            written.append(target)
-        if progress is not None:
-            progress(outcome)
+    stop: Interrupted | None = None
+    try:
+        with contextlib.closing(runs):  # closed on an interrupt: Dask's workers shut down
+            for outcome in runs:
+                got[outcome.path] = outcome
+                if outcome.document is not None:
+                    target = out_dir / f"{names[outcome.path]}.json"
+                    write_json(target, outcome.document)
+                    written.append(target)
+                if progress is not None:
+                    progress(outcome)
+                if outcome.status == STATUS_INTERRUPTED:  # a task in this process saw it
+                    stop = Interrupted(_SIGNAL_OF_CODE.get(outcome.code, signal.SIGINT))
+                    break
+    except KeyboardInterrupt as err:  # SIGINT or SIGTERM: summarise what finished
+        stop = interruption(err)
     for path in paths:  # a result that never came back is not lost silently
+        if stop is not None:
+            got.setdefault(path, RecordingOutcome(path, STATUS_INTERRUPTED, stop.exit_code))
         got.setdefault(path, failed(path, "no result came back"))
     ordered = order_outcomes([got[p] for p in paths])
     table = summary_table(ordered, model_names, names, expansion.skipped)
@@ -515,9 +606,10 @@ def run_fleet(
         tuple(ordered),
         expansion.skipped,
         table,
-        fleet_exit_code(ordered),
+        fleet_exit_code(ordered) if stop is None else int(stop.exit_code),
         tuple(written),
         tuple(model_names),
+        stop,
     )
 
 

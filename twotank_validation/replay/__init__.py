@@ -28,11 +28,12 @@ judged), :mod:`.windows` (windows for diagnose and calibrate).
 from twotank_validation.replay.config import (
     ReplayConfig,
     ReplayConfigError,
+    ReplayInterrupted,
     ReplayResult,
     WindowSnapshot,
     model_documents,
 )
-from twotank_validation.replay.feed import replay_bag, replay_recording, replay_table
+from twotank_validation.replay.feed import OnReport, replay_bag, replay_recording, replay_table
 from twotank_validation.replay.recording import Recording, is_table_input, open_recording
 from twotank_validation.replay.summary import (
     NoWindow,
@@ -41,6 +42,7 @@ from twotank_validation.replay.summary import (
     summary_json,
     unjudged,
     warning_kind,
+    window_entry,
 )
 from twotank_validation.replay.timing import (
     GivenBy,
@@ -59,9 +61,11 @@ from twotank_validation.replay.windows import (
 __all__ = [
     "GivenBy",
     "NoWindow",
+    "OnReport",
     "Recording",
     "ReplayConfig",
     "ReplayConfigError",
+    "ReplayInterrupted",
     "ReplayResult",
     "Timing",
     "TimingConflict",
@@ -80,6 +84,7 @@ __all__ = [
     "summary_json",
     "unjudged",
     "warning_kind",
+    "window_entry",
     "windows_from_bag",
     "windows_from_recording",
     "windows_with_findings",

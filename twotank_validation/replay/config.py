@@ -13,7 +13,7 @@ import numpy as np
 from twotank_validation.core.model import LFTModel, load_model_document
 from twotank_validation.defaults import JITTER_FRACTION
 from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
-from twotank_validation.errors import ModelError, TwotankError
+from twotank_validation.errors import Interrupted, ModelError, TwotankError
 from twotank_validation.online import MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online.interface_map import InterfaceMap
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser
@@ -140,6 +140,8 @@ class ReplayResult:
         snapshots: windows of interest per model.
         source: ``"bag"`` or ``"table"``.
         end_ns: last log time in the bag, or a table's last time (0: not known).
+        interrupted: the replay was stopped by a signal (:class:`ReplayInterrupted`); the
+            reports are those judged before it (``complete`` is then False).
     """
 
     path: Path
@@ -154,3 +156,19 @@ class ReplayResult:
     snapshots: dict[str, dict[str, WindowSnapshot]] = field(default_factory=dict)
     source: str = "bag"
     end_ns: int = 0
+    interrupted: bool = False
+
+
+class ReplayInterrupted(Interrupted):
+    """A replay stopped by SIGINT or SIGTERM: ``result`` holds what was judged before it.
+
+    A ``KeyboardInterrupt`` (an :class:`~twotank_validation.errors.Interrupted`), so that an
+    interrupt still stops whoever does not look at the partial result.
+
+    Attributes:
+        result: the replay up to the interrupt (``interrupted`` True, ``complete`` False).
+    """
+
+    def __init__(self, result: ReplayResult, signum: int) -> None:
+        super().__init__(signum)
+        self.result = result

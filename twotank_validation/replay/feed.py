@@ -18,6 +18,7 @@ import numpy as np
 import twotank_validation.bags as bag_reader
 from twotank_validation import tables
 from twotank_validation.core.model import LFTModel
+from twotank_validation.errors import interruption
 from twotank_validation.online import Alarm, OnlineValidator, WindowReport
 from twotank_validation.online.aligner import COMMAND
 from twotank_validation.online.extraction import check_message, extract, source_stamp_ns
@@ -31,6 +32,7 @@ from twotank_validation.online.sources import STAMP_HEADER, InterfaceMapError, S
 from twotank_validation.replay.config import (
     ReplayConfig,
     ReplayConfigError,
+    ReplayInterrupted,
     ReplayResult,
     WindowSnapshot,
 )
@@ -52,6 +54,7 @@ def replay_bag(
     *,
     progress: Callable[[int, int], None] | None = None,
     on_window: Callable[[WindowReport, WindowSnapshot], None] | None = None,
+    on_report: OnReport | None = None,
 ) -> ReplayResult:
     """Run a bag through the validator.
 
@@ -63,10 +66,14 @@ def replay_bag(
         progress: called with (messages read, messages expected) now and then.
         on_window: called with each judged window's report and its data (stamps, u, y in
             model units), e.g. to diagnose the windows afterwards (``diagnose``).
+        on_report: called with every report as it comes (judged or not, once it is in the
+            result) and the time its JSON times count from (ns): to stream the results.
 
     Raises:
         BagNotFoundError, BagFormatError: the path is not a readable bag (nothing to report).
         ReplayConfigError: the interface map reads a table's columns.
+        ReplayInterrupted: SIGINT or SIGTERM (a KeyboardInterrupt) stopped the replay; it
+            carries the result up to then.
     """
     cfg = config or ReplayConfig()
     where = path.given if isinstance(path, Recording) else path
@@ -78,11 +85,11 @@ def replay_bag(
         )
     core = cfg.validator(models)
     result = ReplayResult(Path(where))
-    on_report = _reporter(result, core, on_window)
-    with _bag_of(path) as bag:
+    report = _reporter(result, core, on_window, on_report)
+    with _interruptible(result, core), _bag_of(path) as bag:
         result.bag_start_ns = bag.info.start_ns or 0
         result.end_ns = bag.info.end_ns or 0
-        _feed_bag(bag, core, cfg.interface, result, on_report, progress=progress)
+        _feed_bag(bag, core, cfg.interface, result, report, progress=progress)
     result.counters = dataclasses.asdict(core.counters())
     result.problems.extend(core.input_problems())
     if progress is not None:
@@ -102,21 +109,49 @@ def _bag_of(path: str | Path | Recording) -> Iterator[bag_reader.BagReader]:
     yield path.bag
 
 
+OnReport = Callable[[WindowReport, int], None]
+"""Told each report as it comes and the time (ns) its JSON times count from."""
+
+
 def _reporter(
     result: ReplayResult,
     core: OnlineValidator,
     on_window: Callable[[WindowReport, WindowSnapshot], None] | None,
+    on_report: OnReport | None = None,
 ) -> Callable[[WindowReport], None]:
-    """Each report into the result (and the windows of interest), judged ones to ``on_window``."""
+    """What is done with each report as it comes.
 
-    def on_report(rep: WindowReport) -> None:
+    Into the result (and the windows of interest), judged ones to ``on_window``, then every
+    one to ``on_report``.
+    """
+
+    def report(rep: WindowReport) -> None:
         result.reports.append(rep)
         _keep_if_interesting(result, core, rep)
         if on_window is not None and rep.judged:
             stamps, u, y = core.last_window(rep.model)
             on_window(rep, WindowSnapshot(rep, stamps, u, y))
+        if on_report is not None:
+            on_report(rep, result.bag_start_ns)
 
-    return on_report
+    return report
+
+
+@contextlib.contextmanager
+def _interruptible(result: ReplayResult, core: OnlineValidator) -> Iterator[None]:
+    """A KeyboardInterrupt (SIGINT, SIGTERM) inside becomes :class:`ReplayInterrupted`.
+
+    It carries the result up to then (the reports judged, the counters): nothing is lost.
+    """
+    try:
+        yield
+    except KeyboardInterrupt as stop:
+        if isinstance(stop, ReplayInterrupted):
+            raise
+        result.interrupted = True
+        result.complete = False
+        result.counters = dataclasses.asdict(core.counters())
+        raise ReplayInterrupted(result, interruption(stop).signum) from stop
 
 
 def replay_table(
@@ -126,6 +161,7 @@ def replay_table(
     *,
     progress: Callable[[int, int], None] | None = None,
     on_window: Callable[[WindowReport, WindowSnapshot], None] | None = None,
+    on_report: OnReport | None = None,
 ) -> ReplayResult:
     """Run a CSV or Parquet table through the validator, row by row in time order.
 
@@ -144,10 +180,12 @@ def replay_table(
         progress: called with (rows fed, rows) now and then.
         on_window: called with each judged window's report and its data (stamps, u, y in
             model units).
+        on_report: as :func:`replay_bag`'s.
 
     Raises:
         ReplayConfigError: no map, or a map of topics.
         TableError: the file, a column or a time cell cannot be read (nothing to report).
+        ReplayInterrupted: as :func:`replay_bag`.
     """
     rec = path if isinstance(path, Recording) else None
     where = path.given if isinstance(path, Recording) else path
@@ -167,17 +205,19 @@ def replay_table(
     )
     result.decode_s = read_s
     t_start = time.perf_counter()
-    on_report = _reporter(result, core, on_window)
+    report = _reporter(result, core, on_window, on_report)
     stamps = table.stamps_ns.tolist()
     rows = np.concatenate([table.inputs, table.outputs], axis=1).tolist()
-    for k, stamp in enumerate(stamps):
-        # a row is one message of the map's one pseudo-topic: every input and output
-        for rep in core.feed("", stamp, tuple(rows[k])):
-            on_report(rep)
-        if progress is not None and k % 5000 == 4999:
-            progress(k + 1, len(stamps))
-    for rep in core.flush():
-        on_report(rep)
+    with _interruptible(result, core):
+        for k, stamp in enumerate(stamps):
+            # a row is one message of the map's one pseudo-topic: every input and output
+            for rep in core.feed("", stamp, tuple(rows[k])):
+                report(rep)
+            result.messages = k + 1
+            if progress is not None and k % 5000 == 4999:
+                progress(k + 1, len(stamps))
+        for rep in core.flush():
+            report(rep)
     result.validate_s = time.perf_counter() - t_start
     result.messages = len(stamps)
     for column, (count, row) in table.bad_cells.items():
@@ -200,6 +240,7 @@ def replay_recording(
     *,
     progress: Callable[[int, int], None] | None = None,
     on_window: Callable[[WindowReport, WindowSnapshot], None] | None = None,
+    on_report: OnReport | None = None,
 ) -> ReplayResult:
     """Replay a bag or a table: :func:`replay_table` or :func:`replay_bag`.
 
@@ -209,9 +250,16 @@ def replay_recording(
     """
     if is_table_input(path, config):
         return replay_table(
-            path, models, config or ReplayConfig(), progress=progress, on_window=on_window
+            path,
+            models,
+            config or ReplayConfig(),
+            progress=progress,
+            on_window=on_window,
+            on_report=on_report,
         )
-    return replay_bag(path, models, config, progress=progress, on_window=on_window)
+    return replay_bag(
+        path, models, config, progress=progress, on_window=on_window, on_report=on_report
+    )
 
 
 def _feed_bag(

@@ -10,7 +10,7 @@ from enum import StrEnum
 from typing import Any
 
 from twotank_validation.defaults import NS_PER_S
-from twotank_validation.online import Alarm
+from twotank_validation.online import Alarm, WindowReport
 from twotank_validation.online.states import SampleFlag, WindowQuality, WindowState
 from twotank_validation.replay.config import ReplayConfig, ReplayResult
 from twotank_validation.replay.timing import Timing, fmt_s
@@ -65,24 +65,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
             for text in rep.warnings:
                 kind = warning_kind(text)
                 entry["warnings"][kind] = entry["warnings"].get(kind, 0) + 1
-        entry["windows"].append(
-            {
-                "start": sec(rep.start_ns),
-                "end": sec(rep.end_ns),
-                "beta": rep.beta if rep.judged and math.isfinite(rep.beta) else None,
-                "invalidated": bool(rep.invalidated),
-                "alarm": rep.alarm.name,
-                "reason": None if rep.judged else rep.data_quality,
-                "data_quality": rep.data_quality,
-                "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
-                "warnings": list(rep.warnings),
-                "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
-                "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
-                "raised_by": str(rep.raised_by),
-                "operating_point": rep.operating_point,
-                "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
-            }
-        )
+        entry["windows"].append(window_entry(rep, t0))
         if (
             rep.judged
             and math.isfinite(rep.beta)
@@ -95,10 +78,31 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
         "bag": str(result.path),
         "source": result.source,
         "complete": result.complete,
+        "interrupted": result.interrupted,
         "problems": list(result.problems),
         "messages": result.messages,
         "counters": dict(result.counters),
         "models": models,
+    }
+
+
+def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
+    """A report's entry in the JSON's ``windows`` (times in s from ``start_ns``)."""
+    return {
+        "start": (rep.start_ns - start_ns) / NS_PER_S,
+        "end": (rep.end_ns - start_ns) / NS_PER_S,
+        "beta": rep.beta if rep.judged and math.isfinite(rep.beta) else None,
+        "invalidated": bool(rep.invalidated),
+        "alarm": rep.alarm.name,
+        "reason": None if rep.judged else rep.data_quality,
+        "data_quality": rep.data_quality,
+        "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
+        "warnings": list(rep.warnings),
+        "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
+        "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
+        "raised_by": str(rep.raised_by),
+        "operating_point": rep.operating_point,
+        "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
     }
 
 

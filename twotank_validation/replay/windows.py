@@ -44,16 +44,22 @@ def windows_from_bag(
 
 
 def windows_from_recording(
-    path: str | Path | Recording, model: LFTModel, config: ReplayConfig | None = None
+    path: str | Path | Recording,
+    model: LFTModel,
+    config: ReplayConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[Window], ReplayResult]:
     """The judged, non-overlapping windows of a bag or a table (:func:`replay_recording`).
 
-    As :func:`windows_from_bag`; a table's times are in s from its first row.
+    As :func:`windows_from_bag`; a table's times are in s from its first row. ``progress``
+    as :func:`replay_recording`'s.
 
     Raises:
-        BagError subclasses, TableError, ReplayConfigError: as :func:`replay_recording`.
+        BagError subclasses, TableError, ReplayConfigError, ReplayInterrupted: as
+            :func:`replay_recording`.
     """
-    windows, _, result = _windows(replay_recording, path, model, config)
+    windows, _, result = _windows(replay_recording, path, model, config, progress)
     return windows, result
 
 
@@ -64,6 +70,7 @@ def windows_with_findings(
     *,
     start: float | str | None = None,
     end: float | str | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[Window], list[WindowFindings], ReplayResult]:
     """As :func:`windows_from_recording`, with what the validator found in each window.
 
@@ -75,6 +82,7 @@ def windows_with_findings(
             recording start, or an ISO 8601 time (:func:`range_time_s`); None: from the
             first window.
         end: the end of the range, as ``start``; None: to the last window.
+        progress: as :func:`replay_recording`'s.
 
     Returns:
         ``(windows, findings, replay_result)``: one
@@ -85,7 +93,7 @@ def windows_with_findings(
         ReplayConfigError: a range that ends before it starts, lies outside the recording,
             or holds no whole window; and as :func:`windows_from_recording`.
     """
-    windows, reports, result = _windows(replay_recording, path, model, config)
+    windows, reports, result = _windows(replay_recording, path, model, config, progress)
     start_s = None if start is None else range_time_s(start, result.bag_start_ns)
     end_s = None if end is None else range_time_s(end, result.bag_start_ns)
     if start_s is not None and end_s is not None and end_s <= start_s:
@@ -159,6 +167,7 @@ def _windows(
     path: str | Path | Recording,
     model: LFTModel,
     config: ReplayConfig | None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[Window], list[WindowReport], ReplayResult]:
     cfg = config or ReplayConfig()
     kept: list[tuple[int, WindowSnapshot]] = []
@@ -168,7 +177,7 @@ def _windows(
             return  # overlaps the last kept window
         kept.append((int(snap.stamps_ns[0]), snap))
 
-    result = replay(path, [model], cfg, on_window=collect)
+    result = replay(path, [model], cfg, on_window=collect, progress=progress)
     t0 = result.bag_start_ns
     mon = cfg.monitor
     windows = [

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,18 +10,32 @@ import yaml
 from twotank_validation import calibrate as cb
 from twotank_validation import replay
 from twotank_validation.core.datum import NormConvention
-from twotank_validation.errors import ExitCode, TwotankError
+from twotank_validation.diagnose.inputs import Window
+from twotank_validation.errors import ExitCode, TwotankError, interruption
+from twotank_validation.replay import Timing
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
     Message,
     Outcome,
+    Progress,
     Say,
+    Show,
     Status,
     Teller,
     exit_status,
+    interrupted_document,
+    interrupted_outcome,
+    nothing_judged,
+    write_json,
 )
-from twotank_validation.usecases.reading import ReadSettings, load, open_recording, timed_config
+from twotank_validation.usecases.reading import (
+    LoadedModel,
+    ReadSettings,
+    load,
+    open_recording,
+    timed_config,
+)
 
 
 @dataclass(frozen=True)
@@ -51,18 +64,32 @@ class CalibrateJob:
     report_dir: str | None = None
     out_model: str | None = None
 
-    def run(self, *, say: Say | None = None) -> Outcome:
+    def run(
+        self,
+        *,
+        say: Say | None = None,
+        progress: Progress | None = None,
+        show: Show | None = None,
+    ) -> Outcome:
         """Replay the recording, calibrate the blocks, write what was asked.
+
+        Args:
+            say: told each note (timing) and warning as it arises.
+            progress: told (messages read, messages expected) now and then, while replaying.
+            show: told the text's first line (the windows judged) once the replay is done,
+                before the long part (the lines ``text`` begins with).
 
         Returns:
             The outcome: ``document`` the calibration JSON, ``text`` the calibration; an
             unusable model, block, recording or setting is an ``ERROR`` outcome with its
             message. So is ``out_model`` when no weight could be changed, after the text
             (each block's note), the JSON (its ``failure``) and the report were written.
+            SIGINT or SIGTERM (a KeyboardInterrupt) is ``INTERRUPTED`` (code 130 or 143):
+            the windows judged up to then are kept in the JSON, nothing is calibrated.
         """
         tell = Teller(say)
         try:
-            return self._run(tell)
+            return self._run(tell, progress, show)
         except TwotankError as err:
             return Outcome(
                 ExitCode.ERROR,
@@ -71,14 +98,70 @@ class CalibrateJob:
                 closing=(Message(Level.ERROR, str(err)),),
             )
 
-    def _run(self, tell: Teller) -> Outcome:
+    def _run(self, tell: Teller, progress: Progress | None, show: Show | None) -> Outcome:
         loaded = load(self.model)
+        name = loaded.model.name
         blocks = list(self.blocks) if self.blocks is not None else None
         cb.choose_blocks(loaded.model, blocks)  # an unknown block is an error before the replay
         config = cb.CalibrationConfig(margin=self.margin, max_order=self.max_order)
-        with open_recording(self.read, self.recording) as recording:
-            cfg, timing = timed_config(self.read, recording, tell)
-            windows, replayed = replay.windows_from_recording(recording, loaded.model, cfg)
+        try:
+            with open_recording(self.read, self.recording) as recording:
+                cfg, timing = timed_config(self.read, recording, tell)
+                windows, replayed = replay.windows_from_recording(
+                    recording, loaded.model, cfg, progress=progress
+                )
+        except replay.ReplayInterrupted as stop:
+            summary = replay.summary_json(stop.result, [name])
+            return interrupted_outcome(
+                stop,
+                name,
+                summary,
+                timing=timing,
+                json_path=self.json_path,
+                tell=tell,
+                task="calibrated",
+            )
+        except KeyboardInterrupt as stop:
+            document = interrupted_document(self.model)
+            return nothing_judged(interruption(stop), tell, self.json_path, document)
+        try:
+            return self._calibrate(
+                loaded,
+                blocks=blocks,
+                config=config,
+                windows=windows,
+                replayed=replayed,
+                timing=timing,
+                cfg=cfg,
+                tell=tell,
+                show=show,
+            )
+        except KeyboardInterrupt as stop:  # while calibrating: the windows judged are kept
+            summary = replay.summary_json(replayed, [name])
+            return interrupted_outcome(
+                interruption(stop),
+                name,
+                summary,
+                timing=timing,
+                json_path=self.json_path,
+                tell=tell,
+                task="calibrated",
+            )
+
+    def _calibrate(
+        self,
+        loaded: LoadedModel,
+        *,
+        blocks: list[str] | None,
+        config: cb.CalibrationConfig,
+        windows: list[Window],
+        replayed: replay.ReplayResult,
+        timing: Timing,
+        cfg: replay.ReplayConfig,
+        tell: Teller,
+        show: Show | None,
+    ) -> Outcome:
+        """The blocks calibrated on the judged windows; the outcome (as :meth:`run`)."""
         for problem in replayed.problems:
             tell(Level.WARNING, problem)
         summary = replay.summary_json(replayed, [loaded.model.name])
@@ -86,6 +169,12 @@ class CalibrateJob:
             code, errors = exit_status(replayed.complete, unjudged, timing)
             messages = tuple(tell.messages)
             return Outcome(code, STATUS_OF_CODE[code], None, summary, messages, (), tuple(errors))
+        text = [
+            f"{len(windows)} non-overlapping judged window(s) of model {loaded.model.name} in "
+            f"{self.recording}"
+        ]
+        if show is not None:
+            show(text[0])
         cal = cb.calibrate(
             windows,
             loaded.document,
@@ -104,12 +193,12 @@ class CalibrateJob:
                 + yaml.safe_dump(cal.document, sort_keys=False, width=100)
             )
             model_file = str(self.out_model)
-        text = [cb.calibration_text(cal, model_file)]
+        text.append(cb.calibration_text(cal, model_file))
         out = cal.to_json(model_file)
         out["failure"] = failure
         out["timing"] = timing.to_json()
         if self.json_path:
-            Path(self.json_path).write_text(json.dumps(out, indent=2))
+            write_json(self.json_path, out)
         if self.report_dir:
             cb.write_calibration_report(
                 cal, loaded.model, timing.ts_s, Path(self.report_dir), model_file

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -13,20 +12,32 @@ import yaml
 from twotank_validation import replay
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.diagnose import Diagnosis, DiagnosisConfig, DiagnosisError
-from twotank_validation.diagnose.stretches import RecordingDiagnosis, diagnose_stretches
-from twotank_validation.errors import ExitCode, TwotankError
+from twotank_validation.diagnose.inputs import Window
+from twotank_validation.diagnose.stretches import (
+    RecordingDiagnosis,
+    WindowFindings,
+    diagnose_stretches,
+)
+from twotank_validation.errors import ExitCode, TwotankError, interruption
 from twotank_validation.replay import Timing
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
     Message,
     Outcome,
+    Progress,
     Say,
+    Show,
     Status,
     Teller,
     exit_status,
+    interrupted_document,
+    interrupted_outcome,
+    nothing_judged,
+    write_json,
 )
 from twotank_validation.usecases.reading import (
+    LoadedModel,
     ReadSettings,
     load,
     model_names,
@@ -74,14 +85,28 @@ class DiagnoseJob:
         """The model's name (loading it; ``check_channels``: matched to the map's too)."""
         return model_names([self.model], self.read if check_channels else None)
 
-    def run(self, *, say: Say | None = None) -> Outcome:
+    def run(
+        self,
+        *,
+        say: Say | None = None,
+        progress: Progress | None = None,
+        show: Show | None = None,
+    ) -> Outcome:
         """Replay the recording, diagnose its stretches, write what was asked.
+
+        Args:
+            say: told each note (timing) and warning as it arises.
+            progress: told (messages read, messages expected) now and then, while replaying.
+            show: told the text's first line (the windows judged) once the replay is done,
+                before the long part (the lines ``text`` begins with).
 
         Returns:
             The outcome: ``document`` the diagnosis JSON (None where none: no window judged,
             nothing diagnosed), ``summary`` the replay's, ``text`` the windows, stretches and
             diagnosis; an error reading the recording is ``UNREADABLE``, nothing diagnosed
-            ``NOT_JUDGED`` with the exit code 2.
+            ``NOT_JUDGED`` with the exit code 2. SIGINT or SIGTERM (a KeyboardInterrupt) is
+            ``INTERRUPTED`` (code 130 or 143): the windows judged up to then are kept in the
+            JSON (:func:`interrupted_outcome`), nothing is diagnosed.
         """
         tell = Teller(say)
         try:
@@ -89,7 +114,7 @@ class DiagnoseJob:
             with open_recording(self.read, self.recording) as opened:
                 cfg, timing = timed_config(self.read, opened, tell)
                 windows, findings, replayed = replay.windows_with_findings(
-                    opened, loaded.model, cfg, start=self.start, end=self.end
+                    opened, loaded.model, cfg, start=self.start, end=self.end, progress=progress
                 )
         except TwotankError as err:
             return Outcome(
@@ -98,6 +123,49 @@ class DiagnoseJob:
                 messages=tuple(tell.messages),
                 closing=(Message(Level.ERROR, str(err)),),
             )
+        except replay.ReplayInterrupted as stop:
+            summary = replay.summary_json(stop.result, [loaded.model.name])
+            return interrupted_outcome(
+                stop, loaded.model.name, summary, timing=timing, json_path=self.json_path, tell=tell
+            )
+        except KeyboardInterrupt as stop:
+            document = interrupted_document(self.model)
+            return nothing_judged(interruption(stop), tell, self.json_path, document)
+        try:
+            return self._diagnose(
+                loaded,
+                windows=windows,
+                findings=findings,
+                replayed=replayed,
+                timing=timing,
+                cfg=cfg,
+                tell=tell,
+                show=show,
+            )
+        except KeyboardInterrupt as stop:  # while diagnosing: the windows judged are kept
+            summary = replay.summary_json(replayed, [loaded.model.name])
+            return interrupted_outcome(
+                interruption(stop),
+                loaded.model.name,
+                summary,
+                timing=timing,
+                json_path=self.json_path,
+                tell=tell,
+            )
+
+    def _diagnose(
+        self,
+        loaded: LoadedModel,
+        *,
+        windows: list[Window],
+        findings: list[WindowFindings],
+        replayed: replay.ReplayResult,
+        timing: Timing,
+        cfg: replay.ReplayConfig,
+        tell: Teller,
+        show: Show | None,
+    ) -> Outcome:
+        """The stretches of the judged windows diagnosed; the outcome (as :meth:`run`)."""
         for problem in replayed.problems:
             tell(Level.WARNING, problem)
         summary = replay.summary_json(replayed, [loaded.model.name])
@@ -112,6 +180,8 @@ class DiagnoseJob:
             f"{self.recording}"
             + (f" ({windows[0].start_s:.1f} .. {windows[-1].start_s:.1f} s)" if ranged else "")
         ]
+        if show is not None:
+            show(text[0])
         try:
             recording = diagnose_stretches(
                 windows,
@@ -167,7 +237,7 @@ class DiagnoseJob:
         text.append(stretches_text(recording))
         text.append(report.diagnosis_text(diag, model_file))
         if self.json_path:
-            Path(self.json_path).write_text(json.dumps(out, indent=2))
+            write_json(self.json_path, out)
         if self.report_dir:
             report.write_diagnosis_report(diag, Path(self.report_dir))
             text.append(f"figures in {self.report_dir}")

@@ -7,12 +7,15 @@ fleet summarises it) and says its notes and warnings as they arise to a callback
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import json
+import os
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from twotank_validation.errors import ExitCode, UsageError
+from twotank_validation.errors import ExitCode, Interrupted, UsageError
 
 if TYPE_CHECKING:
     from twotank_validation.replay import Timing, Unjudged
@@ -31,6 +34,8 @@ class Status(StrEnum):
     """Not read completely (damage, a topic missing); windows before the damage are judged."""
     UNREADABLE = "unreadable"
     """Nothing could be read (not a recording, empty, unusable settings): the error says why."""
+    INTERRUPTED = "interrupted"
+    """Stopped by SIGINT or SIGTERM: what was judged before is kept (``"interrupted": true``)."""
 
 
 STATUS_OF_CODE = {
@@ -63,6 +68,12 @@ class Message:
 
 Say = Callable[[Message], None]
 """Told each note and warning as it arises (e.g. printed on stderr before a long replay)."""
+
+Progress = Callable[[int, int], None]
+"""Told (messages read, messages expected) now and then."""
+
+Show = Callable[[str], None]
+"""Told a line of a command's text as it arises (streamed to stdout)."""
 
 
 @dataclass(frozen=True)
@@ -136,3 +147,85 @@ def exit_status(
     if not complete:
         return ExitCode.INCOMPLETE, lines
     return (ExitCode.NOT_JUDGED if unjudged else ExitCode.OK), lines
+
+
+def write_json(path: str | Path, document: Mapping[str, Any]) -> None:
+    """Write a JSON document whole or not at all (a temporary file beside it, then renamed).
+
+    An interrupt while writing leaves the file as it was, never half written.
+    """
+    target = Path(path)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps(document, indent=2))
+        os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def nothing_judged(
+    stop: Interrupted,
+    tell: Teller,
+    json_path: str | None = None,
+    document: dict[str, Any] | None = None,
+) -> Outcome:
+    """The outcome of a job interrupted before any window was judged.
+
+    ``document`` (its ``"interrupted": true``, no window) is written to ``json_path`` when
+    both are given: asked for a JSON, a run always leaves one.
+    """
+    if json_path and document is not None:
+        write_json(json_path, document)
+    told = f"interrupted by {stop.name} before any window was judged" + (
+        f"; {json_path} says so" if json_path and document is not None else ""
+    )
+    return Outcome(
+        stop.exit_code,
+        Status.INTERRUPTED,
+        document,
+        messages=tuple(tell.messages),
+        closing=(Message(Level.INFO, told),),
+    )
+
+
+def interrupted_document(model: str) -> dict[str, Any]:
+    """The JSON of a diagnosis or calibration interrupted before any window was judged."""
+    return {"model": model, "interrupted": True, "replay": None, "timing": None}
+
+
+def interrupted_outcome(
+    stop: Interrupted,
+    model: str,
+    summary: dict[str, Any],
+    *,
+    timing: Timing,
+    json_path: str | None,
+    tell: Teller,
+    task: str = "diagnosed",
+) -> Outcome:
+    """A diagnosis or calibration interrupted: the windows judged kept, nothing concluded.
+
+    The JSON (when asked for) is ``{"model", "interrupted": true, "replay": <the replay's
+    summary up to the interrupt>, "timing"}``.
+    """
+    document = {
+        "model": model,
+        "interrupted": True,
+        "replay": summary,
+        "timing": timing.to_json(),
+    }
+    if json_path:
+        write_json(json_path, document)
+    judged = summary["models"].get(model, {}).get("judged", 0)
+    told = (
+        f"interrupted by {stop.name}: {judged} window(s) of model {model} judged, none "
+        f"{task}" + (f"; the windows kept in {json_path}" if json_path else "")
+    )
+    return Outcome(
+        stop.exit_code,
+        Status.INTERRUPTED,
+        document,
+        summary,
+        tuple(tell.messages),
+        closing=(Message(Level.INFO, told),),
+    )

@@ -3,24 +3,29 @@
 from __future__ import annotations
 
 import dataclasses
-import json
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from twotank_validation import replay
-from twotank_validation.errors import ExitCode, TwotankError, UsageError
+from twotank_validation.core.model import LFTModel
+from twotank_validation.errors import ExitCode, Interrupted, TwotankError, UsageError, interruption
+from twotank_validation.online import WindowReport
 from twotank_validation.online.validator_settings import ValidatorSettings
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
     Message,
     Outcome,
+    Progress,
     Say,
+    Show,
     Status,
     Teller,
     exit_status,
+    nothing_judged,
+    write_json,
 )
 from twotank_validation.usecases.reading import (
     ReadSettings,
@@ -29,9 +34,6 @@ from twotank_validation.usecases.reading import (
     open_recording,
     timed_config,
 )
-
-Progress = Callable[[int, int], None]
-"""Told (messages read, messages expected) now and then."""
 
 DEFAULT_MODELS: tuple[str, ...] = ValidatorSettings.models
 """The models judged when none is named: the validator node's ``models`` parameter's."""
@@ -89,21 +91,43 @@ class ValidateJob:
         """The models' names (loading them; ``check_channels``: matched to the map's too)."""
         return model_names(self.sources, self.read if check_channels else None)
 
-    def run(self, *, say: Say | None = None, progress: Progress | None = None) -> Outcome:
+    def run(
+        self,
+        *,
+        say: Say | None = None,
+        progress: Progress | None = None,
+        show: Show | None = None,
+    ) -> Outcome:
         """Replay the recording and judge every model's windows.
 
         Args:
             say: told each note (timing) and warning as it arises.
             progress: told (messages read, messages expected) now and then.
+            show: told each line of the table as it arises: the header, then a row per
+                window as it is judged (the lines ``text`` begins with).
 
         Returns:
             The outcome: the code, the summary (``document``, as ``--json`` writes it),
-            the table of windows (``text``), the counts and errors (``closing``). An error
-            reading the recording is an ``UNREADABLE`` outcome with its ``ERROR`` message.
+            the table of windows (``text``: header, a row per window in the order judged,
+            a line per model), the counts and errors (``closing``). An error reading the
+            recording is an ``UNREADABLE`` outcome with its ``ERROR`` message. SIGINT or
+            SIGTERM (a KeyboardInterrupt) is an ``INTERRUPTED`` outcome (code 130 or 143):
+            what was judged up to then is in its text, its JSON (``"interrupted": true``) and
+            its figures.
         """
         tell = Teller(say)
         if not self.models_named:
             tell(Level.NOTE, default_models_note(self.sources))
+        shown: list[str] = []  # the header, once shown
+
+        def streamed(rep: WindowReport, start_ns: int) -> None:
+            if show is None:
+                return
+            if not shown:
+                shown.append(TABLE_HEADER)
+                show(TABLE_HEADER)
+            show(window_row(rep.model, replay.window_entry(rep, start_ns)))
+
         try:
             loaded = [load(m) for m in self.sources]
             models = [lm.model for lm in loaded]
@@ -112,7 +136,9 @@ class ValidateJob:
                 if self.diagnosis:
                     documents = {lm.model.name: lm.document for lm in loaded}
                     cfg = dataclasses.replace(cfg, diagnosis=True, documents=documents)
-                result = replay.replay_recording(recording, models, cfg, progress=progress)
+                result = replay.replay_recording(
+                    recording, models, cfg, progress=progress, on_report=streamed
+                )
         except TwotankError as err:
             return Outcome(
                 ExitCode.ERROR,
@@ -120,18 +146,62 @@ class ValidateJob:
                 messages=tuple(tell.messages),
                 closing=(Message(Level.ERROR, str(err)),),
             )
-        summary = replay.summary_json(result, [m.name for m in models])
+        except replay.ReplayInterrupted as stop:
+            return self._finish(
+                stop.result, models=models, timing=timing, cfg=cfg, tell=tell, stop=stop
+            )
+        except KeyboardInterrupt as stop:
+            empty = replay.ReplayResult(Path(self.recording), complete=False, interrupted=True)
+            document = replay.summary_json(empty)
+            document |= {"models_from": "named" if self.models_named else "default", "timing": None}
+            return nothing_judged(interruption(stop), tell, self.json_path, document)
+        return self._finish(result, models=models, timing=timing, cfg=cfg, tell=tell)
+
+    def _finish(
+        self,
+        result: replay.ReplayResult,
+        *,
+        models: Sequence[LFTModel],
+        timing: replay.Timing,
+        cfg: replay.ReplayConfig,
+        tell: Teller,
+        stop: Interrupted | None = None,
+    ) -> Outcome:
+        """The summary, its JSON and figures, the text and the code of a replay.
+
+        Interrupted (``stop``): of what was judged before it.
+        """
+        names = [m.name for m in models]
+        summary = replay.summary_json(result, names)
         summary["models_from"] = "named" if self.models_named else "default"
         summary["timing"] = timing.to_json()
         if self.json_path:
-            Path(self.json_path).write_text(json.dumps(summary, indent=2))
+            write_json(self.json_path, summary)
         if self.report_dir:
             from twotank_validation import report  # noqa: PLC0415 (matplotlib)
 
             by_name = {m.name: m for m in models}
             report.write_replay_report(result, by_name, summary, Path(self.report_dir))
+        # every report's row in the order judged (those streamed first: the same lines)
+        start = result.bag_start_ns
+        rows = [window_row(r.model, replay.window_entry(r, start)) for r in result.reports]
+        text = (TABLE_HEADER, *rows, *model_lines(summary))
+        if stop is not None:
+            judged = sum(e["judged"] for e in summary["models"].values())
+            ends = [w["end"] for e in summary["models"].values() for w in e["windows"]]
+            kept = [f for f in (self.json_path, self.report_dir) if f]
+            told = (
+                f"interrupted by {stop.name}: {judged} window(s) judged, up to "
+                f"{max(ends, default=0.0):.1f} s of the recording; printed"
+                + (f", and kept in {' and '.join(kept)}" if kept else "")
+            )
+            status = Status.INTERRUPTED
+            return Outcome(
+                stop.exit_code, status, summary, summary, tuple(tell.messages), text,
+                (Message(Level.INFO, told),),
+            )  # fmt: skip
         code, errors = exit_status(
-            result.complete, replay.unjudged(result, [m.name for m in models], timing, cfg), timing
+            result.complete, replay.unjudged(result, names, timing, cfg), timing
         )
         counts = (
             f"{result.messages} {'rows' if result.source == 'table' else 'messages'}; "
@@ -152,7 +222,7 @@ class ValidateJob:
             summary,
             summary,
             tuple(tell.messages),
-            tuple(windows_text(summary)),
+            text,
             (*warnings, Message(Level.INFO, counts), *errors),
         )
 
@@ -181,28 +251,29 @@ def default_models_note(models: Sequence[str]) -> str:
     )
 
 
-def windows_text(summary: Mapping[str, Any]) -> list[str]:
-    """The table of windows and one line per model of a replay's summary."""
-    lines = [f"{'window (s)':>21}  {'model':<6} {'beta':>7} {'beta_op':>7}  {'verdict':<30} alarm"]
-    for name, entry in summary["models"].items():
-        for w in entry["windows"]:
-            verdict = (
-                ("INVALIDATED" if w["invalidated"] else "valid")
-                if w["beta"] is not None
-                else "not judged"
-            )
-            beta = f"{w['beta']:7.3f}" if w["beta"] is not None else "      -"
-            beta += f" {w['beta_op']:7.3f}" if w["beta_op"] is not None else "       -"
-            if w["raised_by"]:
-                verdict += f" ({w['raised_by']})"
-            extra = f"  ({w['reason']})" if w["reason"] else ""
-            extra += "".join(f"  (warning: {text})" for text in w["warnings"])
-            if w["diagnosis"] is not None:
-                extra += "  (diagnosis: {})".format(diagnosis_text(w["diagnosis"]))
-            lines.append(
-                f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<30} "
-                f"{w['alarm']}{extra}"
-            )
+TABLE_HEADER = f"{'window (s)':>21}  {'model':<6} {'beta':>7} {'beta_op':>7}  {'verdict':<30} alarm"
+"""The header of ``validate``'s table of windows."""
+
+
+def window_row(name: str, w: Mapping[str, Any]) -> str:
+    """The table's row of a window (its JSON entry, :func:`replay.window_entry`)."""
+    verdict = (
+        ("INVALIDATED" if w["invalidated"] else "valid") if w["beta"] is not None else "not judged"
+    )
+    beta = f"{w['beta']:7.3f}" if w["beta"] is not None else "      -"
+    beta += f" {w['beta_op']:7.3f}" if w["beta_op"] is not None else "       -"
+    if w["raised_by"]:
+        verdict += f" ({w['raised_by']})"
+    extra = f"  ({w['reason']})" if w["reason"] else ""
+    extra += "".join(f"  (warning: {text})" for text in w["warnings"])
+    if w["diagnosis"] is not None:
+        extra += "  (diagnosis: {})".format(diagnosis_text(w["diagnosis"]))
+    return f"{w['start']:9.1f}-{w['end']:9.1f}  {name:<6} {beta}  {verdict:<30} {w['alarm']}{extra}"
+
+
+def model_lines(summary: Mapping[str, Any]) -> list[str]:
+    """One line per model: windows judged, the largest beta, the first alarm."""
+    lines = []
     for name, entry in summary["models"].items():
         bmax = "-" if entry["beta_max"] is None else f"{entry['beta_max']:.3f}"
         first = "none" if entry["first_alarm"] is None else f"{entry['first_alarm']:.1f} s"
@@ -211,6 +282,15 @@ def windows_text(summary: Mapping[str, Any]) -> list[str]:
             f"window(s) judged, beta_max {bmax}, first alarm {first}"
         )
     return lines
+
+
+def windows_text(summary: Mapping[str, Any]) -> list[str]:
+    """The table of windows (grouped by model) and one line per model of a replay's summary.
+
+    ``validate`` prints its rows in the order they were judged (:meth:`ValidateJob.run`).
+    """
+    rows = [window_row(name, w) for name, e in summary["models"].items() for w in e["windows"]]
+    return [TABLE_HEADER, *rows, *model_lines(summary)]
 
 
 def diagnosis_text(d: Mapping[str, Any]) -> str:
