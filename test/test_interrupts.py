@@ -169,10 +169,11 @@ def test_calibrate_keeps_what_was_judged(leak_bag, tmp_path) -> None:
 
 def test_a_fleet_keeps_what_finished_and_stops_its_workers(leak_bag, tmp_path) -> None:
     archive = tmp_path / "archive"
-    for k in range(6):
+    for k in range(4):
         shutil.copytree(leak_bag, archive / f"run{k}")
     out = tmp_path / "results"
-    args = ["validate", str(archive), "--out", str(out), "--workers", "2", "--model", "B"]
+    args = ["validate", str(archive), "--out", str(out), "--workers", "1", "--model", "B"]
+    args.append("--no-diagnosis")
     run = Run(args, tmp_path)
     run.wait_for(lambda: any(out.glob("*.json")))  # the first recording finished
     os.killpg(run.proc.pid, signal.SIGINT)  # Ctrl-C: the whole foreground process group
@@ -180,10 +181,10 @@ def test_a_fleet_keeps_what_finished_and_stops_its_workers(leak_bag, tmp_path) -
     _check_one_line_no_traceback(run, signal.SIGINT)
     assert _alive_in_group(run.proc.pid) == []  # no worker left behind
     table = pd.read_csv(out / "summary.csv")
-    assert len(table) == 6
+    assert len(table) == 4
     finished = table[table["status"] == "complete"]
     assert len(finished) >= 1
-    assert len(finished) < 6
+    assert len(finished) < 4
     assert set(table["status"]) <= {"complete", "interrupted", "not run"}
     assert sorted(p.name for p in out.glob("*.json")) == sorted(finished["json"])
     assert (out / "fleet.png").stat().st_size > 0

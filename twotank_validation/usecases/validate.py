@@ -195,11 +195,15 @@ class ValidateJob:
                 f"{max(ends, default=0.0):.1f} s of the recording; printed"
                 + (f", and kept in {' and '.join(kept)}" if kept else "")
             )
-            status = Status.INTERRUPTED
             return Outcome(
-                stop.exit_code, status, summary, summary, tuple(tell.messages), text,
+                stop.exit_code,
+                Status.INTERRUPTED,
+                summary,
+                summary,
+                tuple(tell.messages),
+                text,
                 (Message(Level.INFO, told),),
-            )  # fmt: skip
+            )
         code, errors = exit_status(
             result.complete, replay.unjudged(result, names, timing, cfg), timing
         )
