@@ -74,8 +74,8 @@ EXIT_MEANINGS = {
     ExitCode.ALARM: "validate --fail-on-alarm: a model's alarm rose (ERROR) on a judged window",
     ExitCode.INTERRUPTED: "SIGINT (Ctrl-C): stopped; what was judged is printed and kept "
     '(JSON with "interrupted": true, figures, a fleet\'s summary.csv)',
-    ExitCode.TERMINATED: "SIGTERM: stopped as on SIGINT",
     ExitCode.BROKEN_PIPE: "the reader of the output went away (| head): stopped quietly",
+    ExitCode.TERMINATED: "SIGTERM: stopped as on SIGINT",
 }
 """What each exit code means, as ``--help`` and docs/cli.md list them."""
 EXIT_CODES = "exit codes: " + "; ".join(f"{int(c)} {t}" for c, t in EXIT_MEANINGS.items()) + "."
