@@ -152,11 +152,16 @@ def windows_text(summary: Mapping[str, Any]) -> list[str]:
 
 
 def diagnosis_text(d: Mapping[str, Any]) -> str:
-    """``"leak on height (outflow 0.058), confidence 0.17"`` of a window's diagnosis entry."""
+    """``"leak on height (outflow 0.058), probability 0.97"`` of a diagnosis entry.
+
+    The probability that the answer names the fault (docs/diagnosis.md, "The probability of
+    an answer"); an ``unexplained`` answer names none and has none.
+    """
     params = ", ".join(f"{k} {v:.3g}" for k, v in d["parameters"].items())
     where = f" on {d['channel']}" if d["channel"] else ""
+    p = d["probability"]
     return (
         f"{d['kind']}{where}"
         + (f" ({params})" if params else "")
-        + (f", confidence {d['confidence']:.2f}")
+        + (f", probability {p:.2f}" if p is not None else ": no effect of the catalogue")
     )
