@@ -262,7 +262,7 @@ def calibrate(rows, command: str) -> None:
     records = [a for _, r in rows for a in r["answers"]]
     ANSWERS.parent.mkdir(parents=True, exist_ok=True)
     with open(ANSWERS, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(records[0]))
+        w = csv.DictWriter(f, fieldnames=list(records[0]), lineterminator="\n")
         w.writeheader()
         w.writerows(records)
     fit(command, command)

@@ -11,17 +11,18 @@ records and measures its reliability on held-out cases; the package only loads t
 
 The map (per kind, a non-decreasing step function of the score):
 
-1. the answers of the kind (``unexplained`` names no fault and gets no probability; kinds
-   with fewer than :data:`MIN_ANSWERS` answers are pooled into the fallback ``"*"``, which
-   also holds every kind's answers for kinds the bench never produced);
+1. the answers of the kind (``unexplained`` names no fault and gets no probability; nor does
+   a kind with fewer than :data:`MIN_ANSWERS` answers on the bench, or none: its
+   probability was not measured);
 2. the answers binned by their score: bins of equal counts (score quantiles), at least
    :data:`MIN_BLOCK` answers each and at most :data:`MAX_BINS` bins, fixed before the
    outcomes are looked at (fitting the steps to the outcomes, as plain isotonic regression
    does, overfits the ends: its top step is the best run of right answers);
-3. each bin's frequency ``k/n`` shrunk to ``(k + 1/2) / (n + 1)`` (Jeffreys prior: a bin of
-   30 right answers out of 30 reads 0.98, not a certainty), then made non-decreasing in the
-   score by isotonic regression over the bins weighted by their counts
-   (``scipy.optimize.isotonic_regression``, the pool-adjacent-violators algorithm).
+3. the bins' frequencies made non-decreasing in the score by isotonic regression weighted by
+   their counts (``scipy.optimize.isotonic_regression``, the pool-adjacent-violators
+   algorithm), which pools neighbouring bins into steps; each step's frequency ``k/n``
+   shrunk to ``(k + 1/2) / (n + 1)`` (Jeffreys prior: 36 right answers out of 36 read 0.986,
+   not a certainty), and isotonic again.
 
 Reliability is measured by cross-validation over the bench's seeds: each answer's
 probability comes from a map fitted on the other seeds' answers, then the answers are binned
@@ -45,7 +46,7 @@ import scipy.optimize
 import scipy.stats
 
 MIN_ANSWERS = 15
-"""Kinds with fewer bench answers than this are pooled into the fallback ``"*"``."""
+"""Kinds with fewer bench answers than this get no probability (not measured)."""
 
 MIN_BLOCK = 30
 """Fewest answers in one bin of a kind's scores."""
@@ -55,9 +56,6 @@ MAX_BINS = 8
 
 NO_PROBABILITY = "unexplained"
 """The answer that names no fault (no probability)."""
-
-FALLBACK = "*"
-"""The map's entry for kinds without one of their own."""
 
 BIN_EDGES = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
 """Bins of the reliability table (probability)."""
@@ -108,9 +106,15 @@ def _step(scores: np.ndarray, right: np.ndarray) -> dict[str, Any]:
     start = np.array([0, *cuts])
     b_n = np.diff(np.append(start, n)).astype(float)
     b_k = np.add.reduceat(r, start)
-    shrunk = (b_k + 0.5) / (b_n + 1.0)
-    p = scipy.optimize.isotonic_regression(shrunk, weights=b_n).x
-    lows = s[start].astype(float)
+    # isotonic over the bins, then each pooled step shrunk (Jeffreys), isotonic again (the
+    # shrinking can break the order between steps of different size)
+    fit = scipy.optimize.isotonic_regression(b_k / b_n, weights=b_n).x
+    step = np.concatenate([[0], np.cumsum(np.diff(fit) != 0)])
+    s_n = np.bincount(step, weights=b_n)
+    s_k = np.bincount(step, weights=b_k)
+    p = scipy.optimize.isotonic_regression((s_k + 0.5) / (s_n + 1.0), weights=s_n).x
+    first = np.concatenate([[True], np.diff(step) != 0])
+    lows = s[start[first]].astype(float)
     lows[0] = 0.0
     keep = np.concatenate([[True], np.diff(p) != 0])  # one step per distinct probability
     return {
@@ -123,50 +127,45 @@ def _step(scores: np.ndarray, right: np.ndarray) -> dict[str, Any]:
 
 def fit_map(answers: Sequence[Answer]) -> dict[str, dict[str, Any]]:
     """The probability map of these answers: kind -> step function (module docstring)."""
-    named = [a for a in answers if a.kind != NO_PROBABILITY]
-    if not named:
-        raise ValueError("no answer names a fault: nothing to calibrate on")
     by_kind: dict[str, list[Answer]] = {}
-    for a in named:
-        by_kind.setdefault(a.kind, []).append(a)
-    out: dict[str, dict[str, Any]] = {}
-    pooled: list[Answer] = []
-    for kind in sorted(by_kind):
-        group = by_kind[kind]
-        if len(group) < MIN_ANSWERS:
-            pooled.extend(group)
-            continue
-        out[kind] = _step(
+    for a in answers:
+        if a.kind != NO_PROBABILITY:
+            by_kind.setdefault(a.kind, []).append(a)
+    out = {
+        kind: _step(
             np.array([a.score for a in group]), np.array([a.right for a in group], dtype=bool)
         )
-    rare = pooled or named  # the fallback: the rare kinds, or every answer when none is rare
-    out[FALLBACK] = _step(
-        np.array([a.score for a in rare]), np.array([a.right for a in rare], dtype=bool)
-    )
+        for kind, group in sorted(by_kind.items())
+        if len(group) >= MIN_ANSWERS
+    }
+    if not out:
+        raise ValueError(f"no kind of answer names a fault {MIN_ANSWERS} times: nothing to fit")
     return out
 
 
 def lookup(table: Mapping[str, Mapping[str, Any]], kind: str, score: float) -> float | None:
-    """The probability of an answer under a map (None for ``unexplained``)."""
-    if kind == NO_PROBABILITY:
+    """The probability of an answer under a map (None: ``unexplained``, or not measured)."""
+    step = table.get(kind)
+    if step is None:
         return None
-    step = table.get(kind, table[FALLBACK])
     lows = np.asarray(step["score"], dtype=float)
     i = max(int(np.searchsorted(lows, score, side="right")) - 1, 0)
     return float(step["probability"][i])
 
 
 def held_out(answers: Sequence[Answer]) -> list[tuple[Answer, float]]:
-    """Each named answer with its probability from a map fitted on the other folds."""
-    named = [a for a in answers if a.kind != NO_PROBABILITY]
+    """Each answer with its probability from a map fitted on the other folds.
+
+    Answers whose kind the other folds' map does not hold (no probability) are left out.
+    """
     out: list[tuple[Answer, float]] = []
-    for fold in sorted({a.fold for a in named}):
-        table = fit_map([a for a in named if a.fold != fold])
-        for a in named:
+    for fold in sorted({a.fold for a in answers}):
+        table = fit_map([a for a in answers if a.fold != fold])
+        for a in answers:
             if a.fold == fold:
                 p = lookup(table, a.kind, a.score)
-                assert p is not None
-                out.append((a, p))
+                if p is not None:
+                    out.append((a, p))
     return out
 
 

@@ -104,7 +104,7 @@ def answer_line(d: LiveDiagnosis) -> str:
     """
     head = f"[{d.window_end_ns / 1e9:8.1f} s] model {d.model}:"
     entry = d.to_json()
-    named = "no fault named" if d.probability is None else "fault named"
+    named = "no fault named" if d.unexplained else "fault named"
     return (
         f"{head} {named}: {diagnosis_text(entry)} (answer {d.update} to this alarm, from "
         f"{d.windows} window(s) after {d.onset_ns / 1e9:.1f} s against those before): "
@@ -236,7 +236,7 @@ class LiveOutput:
                     )
                 else:
                     entry = ep.answer.to_json()
-                    what = "fault named" if ep.answer.probability is not None else "no fault named"
+                    what = "no fault named" if ep.answer.unexplained else "fault named"
                     named = f"{what}: {diagnosis_text(entry)}"
                 lines.append(f"    alarm ERROR {span}: {named}")
         if self.as_json:

@@ -4,7 +4,8 @@ The live diagnosis ranks its answer with a *score* in [0, 1] whose meaning diffe
 kind of answer to the next (an explained fraction, a contrast of direction matches, ...). The
 probability is that score mapped, per kind of answer, onto the frequency with which answers
 of the kind and score named the injected fault on the isolation bench: a non-decreasing step
-function of the score per kind (kinds the bench saw too rarely share one, ``"*"``). The map
+function of the score per kind (a kind the bench produced fewer than 15 times has none: its
+probability was not measured). The map
 is data (``answer_probability.json`` beside this module), fitted by
 ``bash scripts/run bench bench_isolation.py --calibrate`` (``tools/answer_calibration.py``),
 which also records how reliable it was on held-out seeds (docs/diagnosis.md, "The probability
@@ -24,8 +25,6 @@ import numpy as np
 __all__ = ["ProbabilityMap", "answer_probability", "probability_map"]
 
 _FILE = "answer_probability.json"
-_NONE = "unexplained"  # the answer that names no fault
-_FALLBACK = "*"
 
 
 @dataclass(frozen=True)
@@ -34,8 +33,7 @@ class ProbabilityMap:
 
     Attributes:
         kinds: kind -> ``(lows, probabilities)``: the step function's score thresholds (m,)
-            (the first is 0) and the probability from each threshold on (m,); ``"*"`` for
-            kinds without an entry.
+            (the first is 0) and the probability from each threshold on (m,).
         command: the command that fitted it.
         date: when.
         document: the whole stored document (its ``brier`` and ``reliability`` entries).
@@ -47,10 +45,14 @@ class ProbabilityMap:
     document: dict[str, Any]
 
     def probability(self, kind: str, score: float) -> float | None:
-        """The probability of an answer of this kind and score (None for ``unexplained``)."""
-        if kind == _NONE:
+        """The probability of an answer of this kind and score.
+
+        None for ``unexplained`` (it names no fault) and for a kind without an entry (not
+        measured: the bench produced it too rarely or never).
+        """
+        if kind not in self.kinds:
             return None
-        lows, probs = self.kinds.get(kind, self.kinds[_FALLBACK])
+        lows, probs = self.kinds[kind]
         i = max(int(np.searchsorted(lows, score, side="right")) - 1, 0)
         return float(probs[i])
 
@@ -70,7 +72,8 @@ def probability_map() -> ProbabilityMap:
 def answer_probability(kind: str, score: float) -> float | None:
     """The probability that an answer of this kind and score names the fault.
 
-    None for ``unexplained``, and where the package ships no map (a checkout in which
+    None for ``unexplained``, for a kind the bench did not measure, and where the package
+    ships no map (a checkout in which
     ``bench_isolation.py --calibrate`` has not run yet; ``test_answer_probability.py`` checks
     the installed package has one).
     """

@@ -71,7 +71,8 @@ class LiveDiagnosis:
         probability: the probability that this answer names the fault behind the alarm:
             the frequency with which answers of this kind and score named the injected
             fault on the isolation bench, cross-validated over its seeds (docs/diagnosis.md,
-            "The probability of an answer"); None for ``unexplained`` (no fault named).
+            "The probability of an answer"); None for ``unexplained`` (no fault named) and
+            for a kind of answer the bench did not measure.
         summary: the answer in one sentence.
         onset_ns: the estimated onset (end of the last valid window before the alarm).
         window_end_ns: end stamp of the window whose report started the job (the answer's

@@ -167,14 +167,14 @@ _BLANK_REPORT = WindowReport(
 
 
 def probability_text(p: float | None) -> str:
-    """``"0.970"``, or ``"none"`` for an answer that names no fault."""
+    """``"0.970"``, or ``"none"`` (``unexplained``, or a kind the bench did not measure)."""
     return "none" if p is None else f"{p:.3f}"
 
 
 def diagnosis_text(d: LiveDiagnosis) -> str:
     """The node's log line of an answer, stamped with the data's time (the window's end)."""
     where = f" on {d.channel}" if d.channel else ""
-    p = "" if d.probability is None else f" (probability {d.probability:.2f})"
+    p = "" if d.probability is None else f" (probability {d.probability:.3f})"
     return (
         f"model {d.model}, window ending {d.window_end_ns / NS_PER_S:.1f} s: most likely "
         f"{d.kind}{where}{p}: {d.summary}"
