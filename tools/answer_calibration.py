@@ -98,7 +98,7 @@ def _step(scores: np.ndarray, right: np.ndarray) -> dict[str, Any]:
     n = len(s)
     # bins of at least MIN_BLOCK answers, cut at score quantiles (never between equal scores)
     m = max(1, min(MAX_BINS, n // MIN_BLOCK))
-    cuts = []
+    cuts: list[int] = []
     for q in range(1, m):
         i = int(np.searchsorted(s, s[q * n // m], side="left"))
         if (not cuts or i - cuts[-1] >= MIN_BLOCK) and n - i >= MIN_BLOCK:
