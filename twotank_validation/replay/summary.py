@@ -27,7 +27,10 @@ def warning_kind(text: str) -> str:
 
 
 def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[str, Any]:
-    """The documented JSON (docs/cli.md, "validate JSON"): times in seconds of bag time.
+    """The documented JSON (docs/cli.md, "validate JSON"): times in s from the first stamp.
+
+    Times count from the recording's first stamp in its time base (``time_base``: the
+    header stamps, the log times or a table's time column; :attr:`ReplayResult.time_base`).
 
     Args:
         result: the replay.
@@ -94,6 +97,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
     return {
         "bag": str(result.path),
         "source": result.source,
+        "time_base": str(result.time_base),
         "complete": result.complete,
         "problems": list(result.problems),
         "messages": result.messages,
