@@ -79,6 +79,8 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
                 "data_quality": rep.data_quality,
                 "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
                 "warnings": list(rep.warnings),
+                "input_leakage": rep.input_leakage if math.isfinite(rep.input_leakage) else None,
+                "input_change": rep.input_change if math.isfinite(rep.input_change) else None,
                 "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
                 "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
                 "raised_by": str(rep.raised_by),
