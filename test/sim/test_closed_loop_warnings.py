@@ -5,7 +5,7 @@ its RMS". The loop answers the noise, so its commands never repeat exactly; what
 whether their leakage can reach the verdict (``core.validate.input_leakage`` against β's
 distance from 1). The reference for "it matters" is a second run: the same loop, seed and
 noise with the level setpoint ramping instead of held. The windows over the ramp must carry
-the warning (typed and in words), the held loop's none; and the ramp's windows' β must
+the warning (typed and in words), the held loop's none; and the warned windows' β must
 differ from the held run's same windows by no more than the leakage stated (the bound the
 warning rests on).
 """
@@ -89,7 +89,3 @@ def test_the_leakage_bounds_what_the_ramp_did_to_beta() -> None:
         assert f"by up to {r.input_leakage:.3g}" in next(
             w for w in r.warnings if w.startswith("input not periodic")
         )
-    # where it did not warn, the leakage stayed below the verdict's distance from 1
-    for r, _ in pairs:
-        if not flagged(r):
-            assert r.input_leakage < abs(1.0 - r.beta)
