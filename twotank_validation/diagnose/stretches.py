@@ -61,6 +61,7 @@ from twotank_validation.diagnose.diagnosis import Diagnosis, diagnose
 from twotank_validation.diagnose.effects import Nominal
 from twotank_validation.diagnose.fit import bin_data, scaled_error
 from twotank_validation.diagnose.inputs import DiagnosisConfig, DiagnosisError, Window
+from twotank_validation.diagnose.level import LEVEL, level_course
 
 TRANSIENT_WORDS = ("transient", "drifts")
 """Words of the validator's findings (``WindowReport.warnings``) that mark a transient."""
@@ -661,16 +662,32 @@ def diagnose_stretches(
         excitation_floor=cfg.excitation_floor,
     )
     stretches = find_stretches(feats, model.output_names, change_config, split=split)
+    nominal = Nominal.from_document(doc, source)
     out: list[StretchDiagnosis] = []
     prev: Diagnosis | None = None
     prev_windows: list[Window] = []
+    prev_index: list[int] = []
     for st in stretches:
         ws = [windows[i] for i in st.windows]
         why = too_few(ws)
         rel_model = rel_prev = None
+        # the level's time course across the change (a sensor steps, a leaking tank settles)
+        course = None
+        if st.change_at_s is not None and prev_index and st.windows and LEVEL in model.output_names:
+            around = windows[prev_index[-2:][0] : st.windows[-1] + 1]
+            course = level_course(around, nominal, model.output_names.index(LEVEL), cfg.alpha)
         if not why:
             try:
-                rel_model = diagnose(ws, doc, cfg, source=source, convention=convention)
+                rel_model = diagnose(
+                    ws,
+                    doc,
+                    cfg,
+                    source=source,
+                    convention=convention,
+                    # relative to the model, the change is the level's whole move only when
+                    # the level matched the model before it
+                    course=course if prev is not None and prev.level is None else None,
+                )
             except DiagnosisError as err:
                 why = str(err)
         if rel_model is not None and prev is not None:
@@ -684,6 +701,7 @@ def diagnose_stretches(
                 source=f"{source} with the previous stretch's effects",
                 convention=convention,
                 reference=steady_means(prev_windows),
+                course=course,
             )
         out.append(
             StretchDiagnosis(
@@ -696,7 +714,7 @@ def diagnose_stretches(
             )
         )
         if rel_model is not None:
-            prev, prev_windows = rel_model, ws
+            prev, prev_windows, prev_index = rel_model, ws, list(st.windows)
     return RecordingDiagnosis(out, feats, split)
 
 
