@@ -288,10 +288,10 @@ ONSET_S = 1305.6  # three non-overlapping windows before it (as test_livediag)
 
 @pytest.fixture(scope="module", params=["leak=0.04", "sensor_bias:height=-0.0536"])
 def fault_bag(request, tmp_path_factory) -> tuple[str, Path]:
-    """The shipped scenarios' rig and excitation with the fault from ONSET_S, five windows after."""
+    """The shipped scenarios' rig and excitation with the fault from ONSET_S, four windows after."""
     spec = request.param
     sc = Scenario(
-        name="level", duration_s=round(ONSET_S + 5 * 409.6, 1), faults=(f"{spec}@{ONSET_S}",)
+        name="level", duration_s=round(ONSET_S + 4 * 409.6, 1), faults=(f"{spec}@{ONSET_S}",)
     )
     bag = tmp_path_factory.mktemp("bags") / spec.split("=")[0].replace(":", "_")
     write_scenario_bag(sc, bag)

@@ -272,20 +272,27 @@ def window_features(
 # --------------------------------------------------------------------------- segmentation
 
 
-def feature_noise(x: np.ndarray, floors: np.ndarray) -> np.ndarray:
+def feature_noise(
+    x: np.ndarray, floors: np.ndarray, adjacent: np.ndarray | None = None
+) -> np.ndarray:
     """(d,) float: each feature's window-to-window noise, never below its floor.
 
     The median absolute deviation of the differences of consecutive windows, over
     ``0.6745 sqrt(2)`` (a Gaussian's standard deviation): a few changes among the
-    differences do not inflate it.
+    differences do not inflate it. Fewer than two differences: the floors.
 
     Args:
         x: (n_windows, d) float, features in time order.
         floors: (d,) float.
+        adjacent: (n_windows - 1,) bool, which consecutive windows follow each other
+            directly; None: all. A difference across a transient window (skipped between
+            two steady ones: the plant moved there) is not noise and is left out.
     """
-    if x.shape[0] < 3:
-        return floors.copy()
     d = np.diff(x, axis=0)
+    if adjacent is not None:
+        d = d[np.asarray(adjacent, dtype=bool)]
+    if d.shape[0] < 2:
+        return floors.copy()
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0) / (0.6745 * math.sqrt(2.0))
     return np.maximum(mad, floors)
 
@@ -403,7 +410,8 @@ def find_stretches(
     ny = len(outputs)
     x = np.array([f.vector() for f in features])
     steady = [i for i, f in enumerate(features) if not f.transient]
-    sigma = feature_noise(x[steady], feature_floors(ny, cfg)) if steady else None
+    adjacent = np.diff(steady) == 1  # no transient window between them
+    sigma = feature_noise(x[steady], feature_floors(ny, cfg), adjacent) if steady else None
     groups: list[list[int]] = [steady] if steady else []
     if split and sigma is not None and len(steady) >= 2:
         cuts = segment(x[steady], sigma, cfg.alpha)
