@@ -568,7 +568,13 @@ def _level_check(
         ),
         None,
     )
-    if off is None or found.nominal_before is None or found.fit_bins is None:
+    # (a leak only lowers the level: a level above what the inputs predict stays an offset)
+    if (
+        off is None
+        or not float(off.parameters["offset"]) < 0.0
+        or found.nominal_before is None
+        or found.fit_bins is None
+    ):
         return found
     model = model_from_dict(doc, source)
     nominal = found.nominal_before

@@ -27,7 +27,9 @@ tell them apart:
    as the live diagnosis does).
 
 When neither decides (the level change is small next to what the dynamics resolve, or the two
-disagree), both are named with what would separate them (:class:`LevelVerdict`).
+disagree), both are named with what would separate them (:class:`LevelVerdict`). A level
+above what the inputs predict is not a leak (a leak only lowers it): the diagnosis tests a
+level that moved down.
 
 Pure functions over numpy arrays; no ROS.
 """
