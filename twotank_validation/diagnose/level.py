@@ -16,11 +16,12 @@ tell them apart:
    ``t0 a_hh - t0 a_EE`` follows; the temperature output ``t = E/h`` reads ``1/h`` and
    ``-t0/h``; a temperature state's whole row scales by ``h0/(h0 + d)``).
    :func:`dynamics_test` fits the level change the responses show (with the dynamic effects
-   both explanations need), with its standard error
+   one explanation chose; the diagnosis runs it for each), with its standard error
    (:func:`~twotank_validation.diagnose.fit.fit_uncertainty`), and compares the two point
    hypotheses: a leak predicts the level's mean deviation ``d``, a sensor offset 0. The
-   statistic is the log-likelihood ratio ``z_leak^2 - z_offset^2``; beyond the chi-square(1)
-   quantile at ``alpha`` it decides.
+   statistic is twice the log-likelihood ratio, ``z_leak^2 - z_offset^2``; beyond the
+   chi-square(1) quantile at ``alpha`` it decides for the hypothesis it favours, unless that
+   one too lies beyond the matching normal quantile.
 2. **The time course at the change** (only when the change is inside the recording): a sensor
    steps, the level of a tank that began to leak settles through the tank's own time constant
    (:func:`level_course`, a step and a first-order settle fitted to the level's period means,
@@ -380,6 +381,8 @@ def shape_fit(
         return (f(x) - f(x - period_s)) / period_s
 
     form = settle if shape == "settle" else ramp
+    # hand-written: a grid over the onset, linear least squares for baseline and size at
+    # each (the residual is not smooth in the onset where it crosses a mean's edges)
     best = (math.inf, math.nan, 0.0)
     for t0 in np.arange(t[0] - period_s, t[-1], period_s / 10.0):
         a = np.column_stack([np.ones_like(t), form(t - t0)])
