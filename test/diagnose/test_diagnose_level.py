@@ -197,6 +197,7 @@ def test_the_dynamics_tell_a_leak_from_a_sensor_offset(leaking):
     kinds = [(e.spec.kind, e.spec.target(d.outputs)) for e in d.effects]
     if leaking:
         assert kinds[0] == ("leak", "height")
+        assert d.outputs[d.effects[0].spec.channel] == "temperature"  # where its evidence shows
         assert d.effects[0].to_dict(d.outputs)["parameters"]["outflow"] == pytest.approx(
             0.04, rel=0.15
         )

@@ -78,6 +78,8 @@ class Tank:
         h0: operating level (model units, > 0).
         t0: operating temperature (model units; 0 where a temperature state needs none).
         output: index of the ``height`` output.
+        shows_on: index of the output that reads the thermal state (the temperature: where
+            a moved level shows in the responses); the level's where none does.
     """
 
     height: int
@@ -86,6 +88,7 @@ class Tank:
     h0: float
     t0: float
     output: int
+    shows_on: int
 
     @classmethod
     def of(
@@ -102,13 +105,17 @@ class Tank:
         t0 = operating_point.get("temperature", 0.0 if thermal == "temperature" else None)
         if h0 is None or not h0 > 0 or t0 is None:
             return f"the model has no operating point ({ModelNeed.OPERATING_POINT})"
+        it = names.index(thermal)
+        reads = np.flatnonzero(nominal.c[:, it] != 0.0)
+        h_out = list(outputs).index(LEVEL)
         return cls(
             names.index(LEVEL),
-            names.index(thermal),
+            it,
             thermal == "energy",
             float(h0),
             float(t0),
-            list(outputs).index(LEVEL),
+            h_out,
+            int(reads[0]) if reads.size else h_out,
         )
 
     def thermal_time_constant(self, nominal: Nominal) -> float:
@@ -155,7 +162,8 @@ def leak_spec(nominal: Nominal, tank: Tank, change: float) -> EffectSpec:
     """The leak as an effect on the nominal: the level moved by ``level_change``.
 
     Its value comes from the means (not fitted to the dynamics); ``outflow`` is the constant
-    extra outflow that moves the level by that much (:func:`inflow_gain`).
+    extra outflow that moves the level by that much (:func:`inflow_gain`). It acts on the
+    level; its evidence is the temperature's response (``channel``, :attr:`Tank.shows_on`).
     """
     gain = inflow_gain(nominal, tank)
     outflow = -change / gain if gain else math.nan
@@ -165,8 +173,9 @@ def leak_spec(nominal: Nominal, tank: Tank, change: float) -> EffectSpec:
         return level_moved(nom, float(p[0]), tank)
 
     return EffectSpec(
-        EffectKind.LEAK, tank.output, None, ("level_change",), (-0.9 * h0,), (h0,),
+        EffectKind.LEAK, tank.shows_on, None, ("level_change",), (-0.9 * h0,), (h0,),
         (change, 0.0, 0.5 * change, -0.1 * h0, 0.1 * h0), (), apply, fixed={"outflow": outflow},
+        acts_on=tank.output,
     )  # fmt: skip
 
 
