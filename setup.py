@@ -32,6 +32,8 @@ SHARE = f"share/{PACKAGE}"
 # twotank_validation/; the YAML files are also installed under share/ below.
 MODELS = "models/*.yaml"
 SCENARIOS = "sim/scenarios/*.yaml"
+# the live diagnosis's answer probabilities (fitted by bench/bench_isolation.py --calibrate)
+ANSWER_PROBABILITY = "diagnose/answer_probability.json"
 
 
 def _files(pattern: str) -> list[str]:
@@ -62,7 +64,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*", "bench", "tools", "tools.*"]),
-    package_data={PACKAGE: [MODELS, SCENARIOS, "py.typed"]},
+    package_data={PACKAGE: [MODELS, SCENARIOS, ANSWER_PROBABILITY, "py.typed"]},
     data_files=_data_files(),
     install_requires=_requirements(),
     zip_safe=True,

@@ -17,7 +17,13 @@ from typing import TYPE_CHECKING, Any
 from tqdm import tqdm
 
 import twotank_validation
-from twotank_validation.cli_common import live_line, progress_wanted, report_dict
+from twotank_validation.cli_common import (
+    Interrupts,
+    LiveOutput,
+    live_end,
+    progress_wanted,
+    report_dict,
+)
 from twotank_validation.cli_common import loopback_only as _loopback_only
 from twotank_validation.cli_common import out as _out
 from twotank_validation.cli_models import add_live_model_options, add_simulate_model_options
@@ -43,7 +49,6 @@ from twotank_validation.errors import (
     interruption,
     raise_interrupted,
 )
-from twotank_validation.online import WindowReport
 
 if TYPE_CHECKING:
     from twotank_validation.usecases import (
@@ -181,6 +186,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
         controller={"excitation_entry": args.excitation_entry} if args.closed_loop else {},
         supervisor=args.supervisor is not None,
         supervisor_params={"models": args.supervisor} if args.supervisor else {},
+        record_samples=False,
+        keep_reports=False,
+        node_info_log=False,  # the answers are printed on stdout, in simulated time
     )
     if cfg.supervisor and not cfg.closed_loop:
         print(
@@ -188,11 +196,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
-
-    def show(rep: WindowReport) -> None:
-        print(live_line(rep, args.json), flush=True)
-
-    result = run_live(cfg, on_report=show)
+    output = LiveOutput(args.json)
+    with Interrupts() as interrupts:
+        result = run_live(cfg, on_report=output.report, stop=interrupts)
     for tr in result.transitions:
         if args.json:
             entry = {
@@ -201,20 +207,13 @@ def _cmd_live(args: argparse.Namespace) -> int:
                 "to": tr.to_mode.value,
                 "reason": tr.reason,
             }
-            print(json.dumps({"transition": entry}), flush=True)
+            _out(json.dumps({"transition": entry}))
         else:
-            print(
+            _out(
                 f"[{tr.time_s:8.1f} s] supervisor: {tr.from_mode.value} -> {tr.to_mode.value}: "
-                f"{tr.reason}",
-                flush=True,
+                f"{tr.reason}"
             )
-    print(
-        f"simulated {cfg.duration_s:.0f} s in {result.wall_s:.1f} s wall "
-        f"({cfg.duration_s / max(result.wall_s, 1e-9):.0f}x real time); "
-        f"{len(result.reports)} reports; aligner: {result.counters}",
-        file=sys.stderr,
-    )
-    return 0
+    return live_end(output, result, result.steps * cfg.ts_s, interrupts)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:

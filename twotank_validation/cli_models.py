@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
 from collections.abc import Callable
 
-from twotank_validation.cli_common import live_line, loopback_only, out
+from twotank_validation.cli_common import Interrupts, LiveOutput, live_end, loopback_only
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
-from twotank_validation.online import WindowReport
 
 __all__ = [
     "SIM_NOISE_SCALE",
@@ -100,18 +98,10 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
         record_samples=False,
     )
 
-    def show(rep: WindowReport) -> None:
-        out(live_line(rep, args.json))
-
-    result = run_model_live(cfg, on_report=show)
-    simulated = cfg.n_steps * cfg.ts_s
-    print(
-        f"simulated {simulated:.0f} s in {result.wall_s:.1f} s wall "
-        f"({simulated / max(result.wall_s, 1e-9):.0f}x real time); "
-        f"{len(result.reports)} reports; aligner: {result.counters}",
-        file=sys.stderr,
-    )
-    return 0
+    output = LiveOutput(args.json)
+    with Interrupts() as interrupts:
+        result = run_model_live(cfg, on_report=output.report, stop=interrupts)
+    return live_end(output, result, result.steps * cfg.ts_s, interrupts)
 
 
 # --------------------------------------------------------------------------- simulate --model

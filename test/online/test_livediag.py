@@ -109,7 +109,9 @@ def test_live_diagnosis_names_the_injected_fault(spec, confused_with) -> None:
         assert all(abs(a.onset_ns / 1e9 - ONSET_S) <= PERIOD_S for a in answers), [
             a.onset_ns / 1e9 - ONSET_S for a in answers
         ]
-    assert 0.0 <= last.confidence <= 1.0
+    assert 0.0 <= last.score <= 1.0
+    assert last.probability is not None
+    assert 0.0 <= last.probability <= 1.0
     if confused_with is None:
         assert named(last, fault), f"{spec}: named {last.kind} on {last.channel}: {last.summary}"
         if spec in PARAMETERS:  # the fitted size against the injected one
@@ -171,7 +173,18 @@ def test_replay_equals_the_event_fed_run_bit_for_bit(tmp_path) -> None:
     assert entries
     assert entries[-1]["kind"] == "offset"
     assert entries[-1]["channel"] == "height"
-    assert set(entries[-1]) == {"kind", "channel", "parameters", "confidence"}
+    assert set(entries[-1]) == {
+        "kind",
+        "channel",
+        "parameters",
+        "probability",
+        "score",
+        "onset",
+        "window_end",
+        "windows",
+        "update",
+        "summary",
+    }
     assert all(w["diagnosis"] is None for w in windows if w["alarm"] != "ERROR")
 
 

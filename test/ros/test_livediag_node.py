@@ -59,6 +59,7 @@ def run(faults: tuple[str, ...], periods: float, *, wait: bool):
         models=("B",),
         faults=faults,
         validator={"diagnosis_max_updates": 2},
+        inline_diagnosis=False,  # the deployed path: the node's background executor
     )
     listener = Listener(cfg.n_steps, wait_for_diagnosis=wait)
     res = run_live(cfg, attach=listener.attach)
@@ -75,7 +76,8 @@ def test_node_publishes_the_diagnosis_after_the_alarm() -> None:
     assert (d.kind, d.channel) == ("offset", "height"), d.summary
     values = dict(zip(d.parameter_names, d.parameter_values, strict=True))
     assert abs(values["offset"] - 0.05) < 0.005
-    assert 0.0 <= d.confidence <= 1.0
+    assert 0.0 <= d.score <= 1.0
+    assert 0.0 <= d.probability <= 1.0
     stamp_ns = d.header.stamp.sec * 1_000_000_000 + d.header.stamp.nanosec
     assert stamp_ns >= first_error.end_ns  # published for a window at or after the alarm
     onset_ns = d.onset.sec * 1_000_000_000 + d.onset.nanosec

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+import scipy.signal
 
 from twotank_validation.core.columns import centred, column_max_abs, column_mean, period_mean
 from twotank_validation.errors import DatumError, DimensionError
@@ -53,6 +54,24 @@ class NormConvention(enum.StrEnum):
         return "energy: ||w||^2 = sum_k |w(k)|^2, DFT prefactor 1/sqrt(N)"
 
 
+class PeriodicityFinding(enum.StrEnum):
+    """A finding of :func:`assess_periodicity`; the value is the start of its text."""
+
+    ONE_PERIOD = "one period only"
+    """A single period: neither periodicity nor noise can be checked."""
+    INPUT_NOT_PERIODIC = "input not periodic"
+    """An input changes from one period to the next (by more than 1e-6 of its RMS)."""
+    OUTPUT_DRIFTS = "output mean drifts"
+    """An output's period mean moves by more than 5 % of its RMS across the record."""
+    VARIATION_SHRINKS = "period-to-period output variation shrinks"
+    """The outputs' period-to-period variation halves or more along the record."""
+
+    @property
+    def transient(self) -> bool:
+        """The finding suggests a transient still decaying in the record."""
+        return self in (PeriodicityFinding.OUTPUT_DRIFTS, PeriodicityFinding.VARIATION_SHRINKS)
+
+
 @dataclass(frozen=True)
 class PeriodicityReport:
     """How far a record is from periodic.
@@ -68,7 +87,12 @@ class PeriodicityReport:
         input_periodic: every input repeats to within 1e-6 relative.
         transient_suspected: a drift above 5 % or a period-to-period variation that halves
             or more across the record (three or more periods).
-        messages: human-readable findings.
+        findings: what was found, typed (:class:`PeriodicityFinding`), in record order;
+            :attr:`messages` says each in words.
+        last_change: (period_samples, n_inputs) float, ``u_{p-1}(k) - u_{p-2}(k)``: how the
+            last period's input differs from the one before, sample by sample (zeros with
+            one period); what the input's leakage is estimated from
+            (:func:`input_leakage_transient`).
     """
 
     n_periods: int
@@ -78,12 +102,33 @@ class PeriodicityReport:
     output_drift: np.ndarray
     input_periodic: bool
     transient_suspected: bool
-    messages: tuple[str, ...]
+    findings: tuple[PeriodicityFinding, ...] = ()
+    last_change: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
 
     @property
     def is_periodic(self) -> bool:
         """True when the input is periodic and no transient is suspected (then R(n) = 0)."""
         return self.input_periodic and not self.transient_suspected
+
+    @property
+    def messages(self) -> tuple[str, ...]:
+        """Each finding in words (:func:`periodicity_text`)."""
+        return tuple(periodicity_text(f, self) for f in self.findings)
+
+
+def periodicity_text(finding: PeriodicityFinding, report: PeriodicityReport) -> str:
+    """A periodicity finding in words, with its number (the one place its prose is written)."""
+    if finding is PeriodicityFinding.ONE_PERIOD:
+        return f"{finding}: periodicity and noise cannot be checked"
+    if finding is PeriodicityFinding.INPUT_NOT_PERIODIC:
+        worst = float(report.input_variation.max())
+        return f"{finding}: period-to-period variation up to {worst:.3g} of its RMS"
+    if finding is PeriodicityFinding.OUTPUT_DRIFTS:
+        return (
+            f"{finding} by up to {float(report.output_drift.max()):.3g} of its RMS across the "
+            "record: a transient may still be decaying (settle longer before recording)"
+        )
+    return f"{finding} along the record: transient still decaying"
 
 
 @dataclass(frozen=True)
@@ -228,25 +273,19 @@ def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> Per
     y_var = np.sqrt(period_mean(np.diff(yp, axis=0) ** 2)) / y_rms
     means = period_mean(yp)
     drift = np.abs(means[-1] - means[0]) / y_rms
-    messages: list[str] = []
+    findings: list[PeriodicityFinding] = []
     input_periodic = bool(np.all(u_var <= _INPUT_PERIODIC_RTOL))
     if p < 2:
-        messages.append("one period only: periodicity and noise cannot be checked")
+        findings.append(PeriodicityFinding.ONE_PERIOD)
     elif not input_periodic:
-        messages.append(
-            f"input not periodic: period-to-period variation up to {u_var.max():.3g} of its RMS"
-        )
+        findings.append(PeriodicityFinding.INPUT_NOT_PERIODIC)
     transient = bool(np.any(drift > _DRIFT_LIMIT))
     if transient:
-        messages.append(
-            f"output mean drifts by up to {drift.max():.3g} of its RMS across the record: "
-            "a transient may still be decaying (settle longer before recording)"
-        )
+        findings.append(PeriodicityFinding.OUTPUT_DRIFTS)
     if p >= 3 and np.any(y_var[0] > _DECAY_RATIO * y_var[-1]):
         transient = True
-        messages.append(
-            "period-to-period output variation shrinks along the record: transient still decaying"
-        )
+        findings.append(PeriodicityFinding.VARIATION_SHRINKS)
+    last = up[-1] - up[-2] if p >= 2 else np.zeros_like(up[0])
     return PeriodicityReport(
         n_periods=p,
         period_samples=period_samples,
@@ -255,7 +294,8 @@ def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> Per
         output_drift=drift,
         input_periodic=input_periodic,
         transient_suspected=transient,
-        messages=tuple(messages),
+        findings=tuple(findings),
+        last_change=last,
     )
 
 
@@ -378,6 +418,80 @@ def leakage_bound(
         (n_outputs,) float.
     """
     return 2.0 * convention.dft_scale(n_samples) * (moment @ np.asarray(u_max, dtype=float))
+
+
+def input_leakage_transient(
+    pulse: np.ndarray, last_change: np.ndarray, n_periods: int, n_samples: int
+) -> np.ndarray:
+    """The leakage ``r(k)`` of an input that changes from period to period, estimated.
+
+    Over a record of ``N = n_periods * L`` samples, ``y = p * u`` (linear convolution, the
+    input before the record included) differs from the circular convolution that
+    ``Y(n) = P U(n)`` describes by ``r(k) = sum_{i>=1} p(k+i) d(-i)``, with
+    ``d(m) = u(m) - u(m+N)`` the input's change over a record length before the record: its
+    DFT is the leakage ``R(n)`` (Ljung 1987, Thm 2.1, whose bound takes ``max|u|`` for
+    ``d``). A periodic input has ``d = 0``. ``d`` lies before the record and is not
+    observed; it is taken as the last period's change (``last_change``, sample by sample)
+    continued as a steady trend over the ``n_periods`` periods of a record length,
+    ``d(m) = -n_periods * last_change[m mod L]``: exact for an input that ramps, an
+    overestimate (by about ``sqrt(n_periods)``) for changes that do not add up from period
+    to period, such as a loop's answer to the noise. The convolution runs by FFT
+    (``scipy.signal.fftconvolve``) on the pulse response folded onto the period
+    (:func:`fold_pulse`, :func:`folded_leakage`).
+
+    Args:
+        pulse: (n_coeffs, n_outputs, n_inputs) float, the pulse response (``p(0) = D``).
+        last_change: (L, n_inputs) float, ``u_{p-1}(k) - u_{p-2}(k)``.
+        n_periods: whole periods in the record.
+        n_samples: record length N.
+
+    Returns:
+        (n_samples, n_outputs) float.
+    """
+    period = last_change.shape[0]
+    if period == 0 or not np.any(last_change):
+        return np.zeros((n_samples, pulse.shape[1]))
+    return folded_leakage(fold_pulse(pulse, period, n_samples), last_change, n_periods, n_samples)
+
+
+def fold_pulse(pulse: np.ndarray, period: int, n_samples: int) -> np.ndarray:
+    """The pulse response folded onto the period: ``F(j) = sum_{t >= 0} p(j + t L)``.
+
+    Args:
+        pulse: (n_coeffs, n_outputs, n_inputs) float.
+        period: L (samples).
+        n_samples: the record length N.
+
+    Returns:
+        (m, n_outputs, n_inputs) float, ``F(j)`` at ``j = 1 .. m`` (row ``j - 1``), ``m`` the
+        whole periods that cover ``N + L - 1``: what :func:`folded_leakage` needs.
+    """
+    n_coeffs, ny, nu = pulse.shape
+    blocks = -(-(n_samples + period) // period)
+    tail = max(0, -(-(n_coeffs - 1) // period) - blocks)
+    padded = np.zeros(((blocks + tail) * period, ny, nu))
+    padded[: max(n_coeffs - 1, 0)] = pulse[1:]  # padded[j - 1] = p(j)
+    stacked = padded.reshape(blocks + tail, period, ny, nu)
+    # block by block from the end, F(j) = p(j) + F(j + L): a reverse cumulative sum
+    return np.flip(np.cumsum(np.flip(stacked, 0), axis=0), 0)[:blocks].reshape(-1, ny, nu)
+
+
+def folded_leakage(
+    folded: np.ndarray, last_change: np.ndarray, n_periods: int, n_samples: int
+) -> np.ndarray:
+    """:func:`input_leakage_transient` from the folded pulse response (:func:`fold_pulse`).
+
+    ``d(-s)`` repeats every period, so ``r(k) = sum_{s=1..L} d(-s) F(k + s)``: one
+    correlation of the record's length, whatever the pulse response's.
+
+    Returns:
+        (n_samples, n_outputs) float.
+    """
+    period = last_change.shape[0]
+    before = -float(n_periods) * last_change[(-np.arange(1, period + 1)) % period]  # d(-s)
+    # r(k) = sum_s folded[k + s - 1] d(-s): a correlation, by FFT
+    full = scipy.signal.fftconvolve(folded, before[::-1, None, :], axes=0)
+    return np.asarray(full[period - 1 : period - 1 + n_samples].sum(axis=2))
 
 
 def pulse_moment(pulse: np.ndarray) -> np.ndarray:

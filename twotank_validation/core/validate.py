@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -10,7 +11,17 @@ from typing import Any
 import numpy as np
 
 from twotank_validation.core import fast, lti, solvers
-from twotank_validation.core.datum import Datum, NormConvention, leakage_bound
+from twotank_validation.core.columns import column_mean
+from twotank_validation.core.datum import (
+    Datum,
+    NormConvention,
+    PeriodicityFinding,
+    fold_pulse,
+    folded_leakage,
+    leakage_bound,
+    periodicity_text,
+    scaled_dft,
+)
 from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.defaults import METHODS, Method
@@ -45,8 +56,12 @@ class ValidationResult:
         compute_time_s: wall time of the per-bin solve.
         fallback_bins: bins the fast path handed to the per-bin SDP (0 for other methods).
         warnings: what makes the verdict weaker than it looks, in words (a transient in the
-            record, inputs that do not move, a model without noise channels or with an
-            infinite β); empty when there is nothing to say.
+            record, an input whose change from period to period may decide the verdict,
+            inputs that do not move, a model without noise channels or with an infinite
+            β); empty when there is nothing to say.
+        findings: the periodicity findings among the warnings, typed (:class:`Caveats`).
+        input_leakage: how far the input's change from period to period may move β
+            (:func:`input_leakage`; 0 for a periodic input).
     """
 
     model_name: str
@@ -68,6 +83,8 @@ class ValidationResult:
     compute_time_s: float
     fallback_bins: int = 0
     warnings: tuple[str, ...] = ()
+    findings: tuple[PeriodicityFinding, ...] = ()
+    input_leakage: float = 0.0
 
     @property
     def invalidated(self) -> bool:
@@ -159,6 +176,51 @@ def pulse_moment(model: LFTModel, ts_s: float) -> np.ndarray:
     return moment
 
 
+def input_leakage(datum: Datum, model: LFTModel, response: PlantResponse | None = None) -> float:
+    """How far the input's change from period to period may move β: ``rho``, in units of w.
+
+    The leakage transient of that change (:func:`~twotank_validation.core.datum.
+    input_leakage_transient`, through the model's nominal; its folded pulse response kept
+    in the model's cache) is de-meaned as the datum's
+    outputs are and transformed as they are (``R(n)``, the datum's convention); ``rho`` is
+    the norm of the smallest noise that produces it, ``sqrt(sum_n weight_n
+    |P22(n)^+ R(n)|^2)``: what the model's noise weights must spend on it. Adding it to
+    the data moves β by at most that much (the triangle inequality, for models whose noise
+    does not enter the perturbations' inputs, ``P12 = 0``, as Models A and B), so a
+    verdict whose β lies further than ``rho`` from 1 does not hang on it. Infinite where
+    some output leaks without a noise weight to take it; 0 for a periodic input.
+
+    Args:
+        datum: the datum (its ``periodicity.last_change``).
+        model: the model.
+        response: P at the datum's bins, if already evaluated.
+    """
+    per = datum.periodicity
+    if per.input_periodic or per.n_periods < 2:
+        return 0.0
+    key = ("folded_pulse", float(datum.ts_s), datum.period_samples, datum.n_samples)
+    if key not in model.cache:  # every window of a monitor folds the same
+        model.cache[key] = fold_pulse(
+            pulse_response(model, datum.ts_s), datum.period_samples, datum.n_samples
+        )
+    r = folded_leakage(model.cache[key], per.last_change, datum.n_periods, datum.n_samples)
+    leak = scaled_dft(r - column_mean(r), datum.convention)  # (n_bins, ny)
+    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
+    if "noise_pinv" not in resp.memo:
+        resp.memo["noise_pinv"] = np.linalg.pinv(resp.p22) if resp.nw else None
+    pinv = resp.memo["noise_pinv"]
+    size = float(np.max(np.abs(leak))) if leak.size else 0.0
+    if size == 0.0:
+        return 0.0
+    if pinv is None:
+        return math.inf
+    w = np.einsum("kwy,ky->kw", pinv, leak)
+    missed = np.abs(np.einsum("kyw,kw->ky", resp.p22, w) - leak)
+    if float(np.max(missed)) > 1e-9 * size:
+        return math.inf  # an output the noise cannot reach leaks
+    return total_beta(np.linalg.norm(w, axis=1), datum.bin_weights)
+
+
 def bin_response(model: LFTModel, n_samples: int, ts_s: float) -> PlantResponse:
     """P at the bins ``2 pi n / N``, ``n = 0 .. N//2``, of a datum of ``n_samples`` samples.
 
@@ -183,7 +245,7 @@ class BetaResult:
         w_min: (n_bins,) float, lower bound on min ||W(n)|| per bin.
         beta: ``sqrt(sum_n weight_n w_min(n)^2)``.
         beta_upper: the same from the witness.
-        warnings: as :attr:`ValidationResult.warnings`.
+        warnings, findings, input_leakage: as :class:`ValidationResult`'s.
     """
 
     method: str
@@ -192,6 +254,8 @@ class BetaResult:
     beta: float
     beta_upper: float
     warnings: tuple[str, ...] = ()
+    findings: tuple[PeriodicityFinding, ...] = ()
+    input_leakage: float = 0.0
 
     @property
     def margin(self) -> float:
@@ -215,18 +279,28 @@ def validate_beta(
     if route.method != Method.CLOSED_FORM or route.refused:
         res = validate(datum, model, method=method, response=resp)
         return BetaResult(
-            res.method, res.freqs_hz, res.w_min, res.beta, res.beta_upper, res.warnings
+            res.method,
+            res.freqs_hz,
+            res.w_min,
+            res.beta,
+            res.beta_upper,
+            res.warnings,
+            res.findings,
+            res.input_leakage,
         )
     assert route.structure is not None
     lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
     beta = total_beta(lower, datum.bin_weights)
+    caveats = result_caveats(datum, model, beta, resp)
     return BetaResult(
         Method.CLOSED_FORM.value,
         datum.freqs_hz,
         lower,
         beta,
         beta,  # the closed form's witness attains the minimum: upper = lower
-        result_warnings(datum, model, beta),
+        caveats.texts,
+        caveats.findings,
+        caveats.input_leakage,
     )
 
 
@@ -285,6 +359,7 @@ def validate(
         pulse_moment(model, datum.ts_s), datum.u_max, datum.n_samples, datum.convention
     )
     beta = total_beta(sol.lower, datum.bin_weights)
+    caveats = result_caveats(datum, model, beta, resp)
     return ValidationResult(
         model_name=model.name,
         convention=datum.convention,
@@ -304,7 +379,9 @@ def validate(
         ts_s=datum.ts_s,
         compute_time_s=elapsed,
         fallback_bins=fallback_bins,
-        warnings=result_warnings(datum, model, beta),
+        warnings=caveats.texts,
+        findings=caveats.findings,
+        input_leakage=caveats.input_leakage,
     )
 
 
@@ -313,18 +390,57 @@ _STILL = 1e-9
 do not move."""
 
 
-def result_warnings(datum: Datum, model: LFTModel, beta: float) -> tuple[str, ...]:
-    """What makes a verdict on this datum weaker than it looks, in words.
+@dataclass(frozen=True)
+class Caveats:
+    """What makes a verdict on a datum weaker than it looks (:func:`result_caveats`).
+
+    Attributes:
+        findings: the datum's periodicity findings that weaken this verdict, typed: every
+            one but ``INPUT_NOT_PERIODIC``, which counts only where the input's leakage may
+            reach the verdict (``input_leakage >= |1 - beta|``).
+        input_leakage: how far the input's change from period to period may move β
+            (:func:`input_leakage`; 0 for a periodic input).
+        texts: every caveat in words, one sentence each with what to do.
+    """
+
+    findings: tuple[PeriodicityFinding, ...] = ()
+    input_leakage: float = 0.0
+    texts: tuple[str, ...] = ()
+
+
+def result_caveats(
+    datum: Datum, model: LFTModel, beta: float, response: PlantResponse | None = None
+) -> Caveats:
+    """What makes a verdict on this datum weaker than it looks: typed, and in words.
+
+    An input that does not repeat exactly (a closed loop answers the noise) is a caveat
+    only where its leakage may decide the verdict: :func:`input_leakage` at least β's
+    distance from 1. A closed loop's steady answer to the noise stays far below it; a
+    reference that ramps does not.
 
     Args:
         datum: the datum (its periodicity findings are repeated here).
         model: the model.
         beta: the result's β.
-
-    Returns:
-        One sentence per finding, each saying what to do; empty if there is none.
+        response: P at the datum's bins, if already evaluated.
     """
-    out = list(datum.periodicity.messages)
+    per = datum.periodicity
+    rho = 0.0 if per.input_periodic else input_leakage(datum, model, response)
+    findings: list[PeriodicityFinding] = []
+    out: list[str] = []
+    for finding in per.findings:
+        if finding is not PeriodicityFinding.INPUT_NOT_PERIODIC:
+            findings.append(finding)
+            out.append(periodicity_text(finding, per))
+        elif not rho < abs(beta - 1.0):  # NaN and infinite included
+            findings.append(finding)
+            out.append(
+                f"{finding}: its change from one period to the next (up to "
+                f"{float(per.input_variation.max()):.3g} of its RMS) leaks into beta; were it a "
+                f"steady trend, by up to {rho:.3g}, no less than beta's distance from 1 "
+                f"({abs(beta - 1.0):.3g}): the verdict may be the input's, not the model's; "
+                "judge windows where the input repeats (a steady reference)"
+            )
     still = datum.u_max <= _STILL * np.maximum(1.0, np.abs(datum.u_bias))
     if np.all(still):
         out.append(
@@ -343,7 +459,18 @@ def result_warnings(datum: Datum, model: LFTModel, beta: float) -> tuple[str, ..
             "(an output without a noise weight, or a weight that vanishes there); give every "
             "measured output a noise weight"
         )
-    return tuple(out)
+    return Caveats(tuple(findings), rho, tuple(out))
+
+
+def result_warnings(
+    datum: Datum, model: LFTModel, beta: float, response: PlantResponse | None = None
+) -> tuple[str, ...]:
+    """What makes a verdict on this datum weaker than it looks, in words (:func:`result_caveats`).
+
+    Returns:
+        One sentence per finding, each saying what to do; empty if there is none.
+    """
+    return result_caveats(datum, model, beta, response).texts
 
 
 def takes_fast_path(resp: PlantResponse, method: str) -> bool:

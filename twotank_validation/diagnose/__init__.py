@@ -39,6 +39,9 @@ Modules (each imports only those above it):
   and :func:`evidence_points`, the points, curve and R^2 that the text and figure share.
 * :mod:`~twotank_validation.diagnose.steady`: the sensor offset judged on the window means
   against a reference operating point (:class:`Finding`: an effect outside the model file).
+* :mod:`~twotank_validation.diagnose.level`: a level that moved at steady state, a leak or a
+  sensor offset, told apart by the dynamics of the thermal balance and the time course at
+  the change (:class:`~twotank_validation.diagnose.level.LevelVerdict`).
 * :mod:`~twotank_validation.diagnose.distortion`: the harmonic-distortion test
   (:func:`distortion_test`) and the input saturation fit, run beside the catalogue.
 * :mod:`~twotank_validation.diagnose.diagnosis`: :func:`diagnose` (steps 2-4: selection,
@@ -109,6 +112,7 @@ from twotank_validation.diagnose.kinds import (
     expected_effect,
     named,
 )
+from twotank_validation.diagnose.level import LevelVerdict
 from twotank_validation.diagnose.steady import Finding
 from twotank_validation.diagnose.stretches import (
     ChangeConfig,
@@ -141,6 +145,7 @@ __all__ = [
     "Explained",
     "Finding",
     "FittedEffect",
+    "LevelVerdict",
     "ModelNeed",
     "Nominal",
     "RecordingDiagnosis",

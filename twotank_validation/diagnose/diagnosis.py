@@ -13,12 +13,18 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import scipy.stats
 
 from twotank_validation.core.datum import Datum, NormConvention, make_datum
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose.distortion import finding_summary, reported_effects
-from twotank_validation.diagnose.effects import EffectSpec, Nominal, catalogue
+from twotank_validation.diagnose.effects import (
+    EffectSpec,
+    Nominal,
+    catalogue,
+    channel_time_constants,
+)
 from twotank_validation.diagnose.evidence import EvidencePoints, evidence, evidence_points
 from twotank_validation.diagnose.fit import (
     Assessment,
@@ -41,7 +47,19 @@ from twotank_validation.diagnose.inputs import (
     split_windows,
 )
 from twotank_validation.diagnose.kinds import EffectKind
-from twotank_validation.diagnose.steady import Finding
+from twotank_validation.diagnose.level import (
+    LEVEL,
+    Course,
+    DynamicsTest,
+    LevelVerdict,
+    Tank,
+    decide,
+    dynamics_test,
+    leak_spec,
+    level_moved,
+)
+from twotank_validation.diagnose.steady import Finding, dc_gain
+from twotank_validation.errors import TwotankError
 
 
 @dataclass(frozen=True)
@@ -180,6 +198,9 @@ class Diagnosis:
         inputs: input names.
         candidates: every single effect of the catalogue fitted alone, best held-out score
             first (``reduction`` is its penalised held-out reduction).
+        level: what moved the level, where its mean moved: a leak, a sensor offset, or
+            undecided (:class:`~twotank_validation.diagnose.level.LevelVerdict`); None where
+            it did not move.
     """
 
     model: str
@@ -205,6 +226,7 @@ class Diagnosis:
     runners_up: list[RunnerUp] = field(default_factory=list)
     inputs: tuple[str, ...] = ()
     candidates: list[FittedEffect] = field(default_factory=list, repr=False)
+    level: LevelVerdict | None = None
 
     @property
     def unexplained(self) -> bool:
@@ -248,6 +270,7 @@ class Diagnosis:
             ],
             "runners_up": [r.to_dict() for r in self.runners_up],
             "findings": [f.to_dict() for f in self.findings],
+            "level": None if self.level is None else self.level.to_dict(),
             "distortion": self.distortion,
             "fit_windows_start_s": self.fit_windows,
             "heldout_windows_start_s": self.heldout_windows,
@@ -295,8 +318,16 @@ def diagnose(
     source: str = "model",
     convention: NormConvention = NormConvention.POWER,
     reference: OperatingPoint | None = None,
+    course: Course | None = None,
 ) -> Diagnosis:
     """Trace the residual of ``doc``'s model on ``windows`` to the effect it lacks.
+
+    A level whose steady mean moved (an offset on ``height``) is then told a leak or a
+    sensor offset (:mod:`twotank_validation.diagnose.level`): by the time course at the
+    change when ``course`` holds it, and by the dynamics of the thermal balance, which a
+    leak changes (the tank holds less) and a sensor offset does not. A leak is added to the
+    model (the nominal re-linearised at the lower level); when the data cannot tell the two
+    apart both are named, with what would separate them, and no repair is advised.
 
     Args:
         windows: non-overlapping windows of whole periods (same ts and period).
@@ -305,11 +336,37 @@ def diagnose(
         source: label of the model in messages.
         convention: norm convention of the validations.
         reference: reference operating point of the offset check (default: the model's).
+        course: the level's time course at the change that led into these windows
+            (:func:`~twotank_validation.diagnose.level.level_course`); None: no change
+            inside the recording (the fault, if any, was there from the start).
 
     Raises:
         DiagnosisError: too little data, no excitation, or a model that cannot be changed.
     """
     cfg = config or DiagnosisConfig()
+    found = _diagnose(windows, doc, cfg, source=source, convention=convention, reference=reference)
+    return _level_check(
+        found,
+        windows,
+        doc,
+        cfg,
+        source=source,
+        convention=convention,
+        reference=reference,
+        course=course,
+    )
+
+
+def _diagnose(
+    windows: Sequence[Window],
+    doc: Mapping[str, Any],
+    cfg: DiagnosisConfig,
+    *,
+    source: str,
+    convention: NormConvention,
+    reference: OperatingPoint | None,
+) -> Diagnosis:
+    """:func:`diagnose` without the level check: the catalogue, the reported effects."""
     model = model_from_dict(doc, source)
     nominal = Nominal.from_document(doc, source)
     outputs = model.output_names
@@ -382,6 +439,7 @@ def diagnose(
         {e.spec.input: float(e.values[0]) for e in chosen
          if e.spec.kind is EffectKind.INPUT_GAIN and e.spec.input is not None},
         [e.spec.label(outputs) for e in chosen if e.spec.kind.record.moves_operating_point],
+        _moved_outputs(chosen, len(outputs)),
     )  # fmt: skip
     if replaces:  # the linear fit of a clipped input is its describing function
         chosen, changed = [], nominal
@@ -410,6 +468,7 @@ def diagnose(
         red = 1.0 - j_all / max(cost(base, held_data, ts), 1e-300)
         pts = evidence_points(e.spec, e.values, base, fit_data, ts)
         text = evidence(e.spec, e.values, base, fit_data, ts, outputs, red, pts)
+        text += _interval_note(e.uncertainty)
         with_evidence.append(replace(e, reduction=red, evidence=text, points=pts))
     chosen = with_evidence
     chosen_specs = {id(e.spec) for e in chosen}
@@ -484,6 +543,322 @@ def diagnose(
         inputs=tuple(model.input_names),
         candidates=list(singles),
     )
+
+
+# --------------------------------------------------------------------------- the level
+
+
+def _level_check(
+    found: Diagnosis,
+    windows: Sequence[Window],
+    doc: Mapping[str, Any],
+    cfg: DiagnosisConfig,
+    *,
+    source: str,
+    convention: NormConvention,
+    reference: OperatingPoint | None,
+    course: Course | None,
+) -> Diagnosis:
+    """A level offset told a leak or a sensor offset (:func:`diagnose`); else ``found``."""
+    off = next(
+        (
+            f
+            for f in found.findings
+            if f.kind == EffectKind.OFFSET and f.target == LEVEL and not f.extra
+        ),
+        None,
+    )
+    # (a leak only lowers the level: a level above what the inputs predict stays an offset)
+    if (
+        off is None
+        or not float(off.parameters["offset"]) < 0.0
+        or found.nominal_before is None
+        or found.fit_bins is None
+    ):
+        return found
+    model = model_from_dict(doc, source)
+    nominal = found.nominal_before
+    outputs = found.outputs
+    h = outputs.index(LEVEL)
+    ts = windows[0].ts_s
+    change, change_std = float(off.parameters["offset"]), float(off.parameters["offset_std"])
+    gain = float(np.mean(dc_gain(nominal)[h]))
+    outflow = -change / gain if gain else math.nan
+    taus = channel_time_constants(nominal, h, ts)
+    tau_level = max(taus) if taus else math.nan
+    tank = Tank.of(nominal, outputs, model.operating_point)
+    if isinstance(tank, str):
+        verdict = decide(change, change_std, outflow, (), course, tau_level, tank)
+        if verdict.kind is EffectKind.LEAK:  # the time course says so; the model cannot hold it
+            leak = Finding(
+                kind=EffectKind.LEAK.value,
+                target=LEVEL,
+                parameters={"level_change": change, "outflow": outflow},
+                evidence=verdict.evidence(),
+                recommendation=_leak_advice(outflow),
+                heldout_reduction=off.heldout_reduction,
+                extra={"level": verdict.to_dict()},
+            )
+            findings = [leak if f is off else f for f in found.findings]
+            return replace(
+                found, findings=findings, level=verdict, summary=_resummary(found, findings)
+            )
+        return _offset_or_undecided(found, off, verdict)
+    moved = copy.deepcopy(dict(doc))
+    moved["nominal"] = level_moved(nominal, change, tank).to_node()
+    moved["operating_point"] = {**dict(doc.get("operating_point") or {}), LEVEL: tank.h0 + change}
+    moved_ref = None
+    if reference is not None:
+        y = np.array(reference.y, dtype=float)
+        y[h] += change
+        moved_ref = OperatingPoint(u=reference.u, y=y)
+    try:
+        leaky = _diagnose(
+            windows,
+            moved,
+            cfg,
+            source=f"{source} with the level {change:+.3g}",
+            convention=convention,
+            reference=moved_ref,
+        )
+    except TwotankError as err:  # the moved model cannot be judged: the dynamics not tested
+        why = f"the model re-linearised at the moved level: {err}"
+        verdict = decide(change, change_std, outflow, (), course, tau_level, why)
+        return _offset_or_undecided(found, off, verdict)
+    # the level fitted to the dynamics with the effects each explanation chose (Bonferroni
+    # over the two): a stand-in for the other explanation only widens its own interval
+    tests: list[DynamicsTest] = []
+    for chosen in (found.effects, leaky.effects):
+        effects = [(e.spec, e.values, e.spec.label(outputs)) for e in chosen]
+        if any(t.with_effects == tuple(x[2] for x in effects) for t in tests):
+            continue
+        tests.append(
+            dynamics_test(nominal, tank, change, effects, found.fit_bins, ts, cfg.alpha / 2)
+        )
+    verdict = decide(change, change_std, outflow, tests, course, tau_level)
+    if verdict.kind is EffectKind.LEAK:
+        return _as_leak(found, leaky, verdict, doc, tank, model, cfg, ts)
+    return _offset_or_undecided(found, off, verdict)
+
+
+def _leak_advice(outflow: float) -> str:
+    return (
+        f"find and stop the leak (about {outflow:.3g} model flow units lost besides the "
+        "outlet); the height sensor reads right: do not recalibrate it"
+    )
+
+
+def _resummary(found: Diagnosis, findings: Sequence[Finding]) -> str:
+    """The summary of ``found`` with other findings (as :func:`_diagnose` writes it)."""
+    ex = found.explained
+    assert ex is not None
+    dynamic = (
+        _summary(found.model, found.before, found.after, found.effects, found.outputs, ex, True)
+        if found.effects
+        else ""
+    )
+    return finding_summary(found.model, findings, dynamic)
+
+
+def _offset_or_undecided(found: Diagnosis, off: Finding, verdict: LevelVerdict) -> Diagnosis:
+    """The offset confirmed by the evidence, or both named (no repair) when it does not decide."""
+    extra = {"level": verdict.to_dict()}
+    if verdict.kind is EffectKind.OFFSET:
+        sure = replace(
+            off,
+            evidence=f"{off.evidence}; not a leak: {verdict.evidence()}",
+            extra=extra,
+        )
+        confirmed = [sure if f is off else f for f in found.findings]
+        why = f"not a leak: {verdict.evidence()}"
+        rejected = [*found.rejected, ("leak (a constant extra outflow)", 0.0, why)]
+        return replace(
+            found,
+            findings=confirmed,
+            rejected=rejected,
+            level=verdict,
+            summary=_resummary(found, confirmed),
+        )
+    side = "lower" if verdict.change < 0 else "higher"
+    advice = (
+        f"no repair yet: a {LEVEL} sensor offset of {verdict.change:+.3g} or a leak of about "
+        f"{verdict.outflow:.3g} (a constant extra outflow, the level really "
+        f"{abs(verdict.change):.3g} {side}) fit these data alike; {verdict.separating()}"
+    )
+    undecided = f"the data do not tell it from a leak: {verdict.evidence()}"
+    both = replace(
+        off,
+        evidence=f"{off.evidence}; {undecided}",
+        recommendation=advice,
+        extra={**extra, "undecided_with": EffectKind.LEAK.value},
+    )
+    leak = Finding(
+        kind=EffectKind.LEAK.value,
+        target=LEVEL,
+        parameters={"level_change": verdict.change, "outflow": verdict.outflow},
+        evidence=(
+            f"a constant extra outflow of {verdict.outflow:.3g} puts the level "
+            f"{abs(verdict.change):.3g} {side}, as the {LEVEL} reads; the data do not tell it "
+            f"from a sensor offset: {verdict.evidence()}"
+        ),
+        recommendation=advice,
+        heldout_reduction=off.heldout_reduction,
+        extra={**extra, "undecided_with": EffectKind.OFFSET.value},
+    )
+    findings: list[Finding] = []
+    for f in found.findings:
+        findings += [both, leak] if f is off else [f]
+    return replace(found, findings=findings, level=verdict, summary=_resummary(found, findings))
+
+
+def _as_leak(  # noqa: PLR0917 - both diagnoses and the tank
+    found: Diagnosis,
+    leaky: Diagnosis,
+    verdict: LevelVerdict,
+    doc: Mapping[str, Any],
+    tank: Tank,
+    model: Any,
+    cfg: DiagnosisConfig,
+    ts: float,
+) -> Diagnosis:
+    """The diagnosis with the leak added.
+
+    The nominal re-linearised at the lower level, then the effects chosen against it.
+    """
+    outputs = found.outputs
+    nominal = found.nominal_before
+    assert nominal is not None
+    assert found.fit_bins is not None
+    change = verdict.change
+    spec = leak_spec(nominal, tank, change)
+    values = np.array([change])
+    rest = list(leaky.effects)
+    changed = leaky.nominal_after if leaky.nominal_after is not None else nominal
+    held = bin_data(found.heldout, model, cfg.excitation_floor)
+    without = nominal
+    for e in rest:
+        without = e.spec.apply(without, e.values)
+    j_all = cost(changed, held, ts)
+    red = 1.0 - j_all / max(cost(without, held, ts), 1e-300)
+    pts = evidence_points(spec, values, without, found.fit_bins, ts)
+    z = float(scipy.stats.norm.ppf(0.5 + cfg.confidence / 2.0))
+    sd = verdict.change_std
+    sure = Uncertainty(np.array([sd]), values - z * sd, values + z * sd, ("",), 1.0, cfg.confidence)
+    text = (
+        f"the level sits {abs(change):.3g} {'below' if change < 0 else 'above'} what the "
+        f"inputs predict at steady state (from the means: ± {sd:.1g}), a constant extra "
+        f"outflow of about {verdict.outflow:.3g}, and it is not a sensor offset: "
+        f"{verdict.evidence()}; the lower level removes {red:.0%} of the held-out error left "
+        "without it"
+    )
+    leak = FittedEffect(
+        spec, values, cost(changed, found.fit_bins, ts), j_all, red, text, sure, pts
+    )
+    effects = [leak, *rest]
+    document = changed_document(doc, changed, effects, outputs)
+    document["operating_point"] = {
+        **dict(document.get("operating_point") or {}),
+        LEVEL: tank.h0 + change,
+    }
+    after = leaky.after
+    explained = _explained(
+        output_costs(nominal, held, ts),
+        output_costs(changed, held, ts),
+        output_noise_floors(held),
+        after,
+        outputs,
+        cfg,
+    )
+    summary = _leak_summary(
+        found.model, found.before, after, leak, rest, leaky.findings, explained, outputs, verdict
+    )
+    why = f"not a sensor offset: {verdict.evidence()}"
+    return replace(
+        leaky,
+        model=found.model,
+        before=found.before,
+        after=after,
+        effects=effects,
+        rejected=[*leaky.rejected, (f"offset on {LEVEL}", 0.0, why)],
+        not_applicable=found.not_applicable,
+        document=document,
+        adequate=False,
+        summary=summary,
+        noise_ratio=found.noise_ratio,
+        nominal_before=nominal,
+        nominal_after=changed,
+        explained=explained,
+        level=verdict,
+    )
+
+
+def _leak_summary(  # noqa: PLR0917 - everything the paragraph says
+    name: str,
+    before: Assessment,
+    after: Assessment,
+    leak: FittedEffect,
+    rest: Sequence[FittedEffect],
+    others: Sequence[Finding],
+    explained: Explained,
+    outputs: Sequence[str],
+    verdict: LevelVerdict,
+) -> str:
+    """The paragraph of a diagnosis that found a leak: the leak and what to do first."""
+    change = verdict.change
+    head = (
+        f"Model {name}: leak: the level sits {abs(change):.3g} "
+        f"{'lower' if change < 0 else 'higher'} than the inputs hold it (a constant extra "
+        f"outflow); {_leak_advice(verdict.outflow)}"
+    )
+    head += "".join(f"; {f.kind} on {f.target}: {f.recommendation}" for f in others) + "."
+    if explained.unexplained:  # what the leak (and the rest) leave
+        partial = (
+            f"; the best partial fit adds {' and '.join(e.spec.label(outputs) for e in rest)}"
+            if rest
+            else ""
+        )
+        return (
+            f"{head} Beside the leak, {'; '.join(explained.reasons)}: an effect outside the "
+            f"catalogue{partial} (held-out beta {before.beta:.3f} -> {after.beta:.3f})."
+        )
+    added = " and ".join(f"{e.spec.label(outputs)} ({_values_text(e)})" for e in rest)
+    rms = ", ".join(f"{o} {before.rms[o]:.4g} -> {after.rms[o]:.4g}" for o in outputs)
+    frac = explained.fraction
+    share = (
+        f"; {frac:.0%} of the held-out error above the noise explained" if frac is not None else ""
+    )
+    return (
+        f"{head} {f'Model {name} also lacks {added}. ' if rest else ''}On held-out data beta "
+        f"{before.beta:.3f} -> {after.beta:.3f}; RMS simulation error {rms} (model units)"
+        f"{share}."
+    )
+
+
+WIDE_INTERVAL = 2.0
+"""An interval widened by at least this factor for model error says so in the evidence."""
+
+
+def _interval_note(sure: Uncertainty | None) -> str:
+    """Why the intervals are wide, when the model error the fit leaves widened them."""
+    if sure is None or not sure.inflation >= WIDE_INTERVAL**2:
+        return ""
+    return (
+        f"; its interval is {math.sqrt(sure.inflation):.1f} times as wide as the measurement "
+        f"noise alone would make it: the fit leaves {sure.inflation:.0f} times the noise at its "
+        "bins (model error: the plant's nonlinearity or an effect outside the catalogue), and "
+        "what the parameter absorbs of it is not in that residual"
+    )
+
+
+def _moved_outputs(chosen: Sequence[FittedEffect], ny: int) -> list[int] | None:
+    """The outputs whose operating point the chosen effects move by themselves (None: all).
+
+    A thermal effect moves its own output (the temperature) alone.
+    """
+    moving = [e for e in chosen if e.spec.kind.record.moves_operating_point]
+    if any(not e.spec.kind.record.thermal for e in moving):
+        return None
+    return sorted({e.spec.channel for e in moving if e.spec.channel < ny})
 
 
 def _split(sure: Uncertainty, effects: Sequence[FittedEffect]) -> list[Uncertainty]:

@@ -234,6 +234,7 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
     dynamics: str = "its dynamics are unchanged",
     input_gains: Mapping[int, float] | None = None,
     moves_operating_point: Sequence[str] = (),
+    moved_outputs: Sequence[int] | None = None,
 ) -> tuple[list[Finding], bool, list[tuple[str, float, str]], dict[str, Any]]:
     """Run the effects outside the state-space catalogue: input saturation, then offset.
 
@@ -257,6 +258,9 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
         moves_operating_point: labels of chosen effects that shift the equilibrium by
             themselves (a leak, a heat loss, a hot-supply change): beside them the offset is
             not judged, since the deviation model cannot say how far they move it.
+        moved_outputs: the outputs whose operating point those effects move (None: all; a
+            thermal effect moves the temperature alone, so the level's offset is still
+            judged beside it).
 
     Returns:
         ``(findings, replaces, rejected, extra)``: the reported effects; whether a saturation
@@ -328,12 +332,15 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
             _, u_eff = _clipped_bins([*fit_w, *held_w], _stack(fit_data, held_data), s.input,
                                      s.level, s.side)  # fmt: skip
     ref, how = resolve_reference([*fit_w, *held_w], outputs, model.operating_point, reference)
-    if ref is not None and moves_operating_point and not replaces:
-        rejected.append(("offset", 0.0, (
-            f"not judged: {' and '.join(moves_operating_point)} moves the operating point by "
-            "itself, by an amount the linear model does not give, so a constant sensor offset "
-            "cannot be told apart from it on the window means"
-        )))  # fmt: skip
+    moved = set(range(len(outputs)) if moved_outputs is None else moved_outputs)
+    unjudged = moved if moves_operating_point and not replaces else set()
+    why_unjudged = (
+        f"not judged: {' and '.join(moves_operating_point)} moves the operating point by "
+        "itself, by an amount the linear model does not give, so a constant sensor offset "
+        "cannot be told apart from it on the window means"
+    )
+    if ref is not None and unjudged == set(range(len(outputs))):
+        rejected.append(("offset", 0.0, why_unjudged))
     elif ref is None:
         rejected.append(("offset", 0.0, (
             "not applicable: no reference operating point (the model file has no "
@@ -351,8 +358,12 @@ def reported_effects(  # noqa: PLR0917 - the diagnosis context
             fit_w, held_w, nominal if replaces else changed, outputs, ref, noise_dc, cfg, how,
             "with the input clipped as found" if replaces else dynamics, u_eff,
         )  # fmt: skip
-        findings += off
-        rejected += why_not
+        # beside an effect that moves some outputs' operating point (a thermal one moves the
+        # temperature alone), the others' offsets are still judged
+        names = {outputs[c] for c in unjudged}
+        findings += [f for f in off if f.target not in names]
+        rejected += [r for r in why_not if r[0] not in {f"offset on {n}" for n in names}]
+        rejected += [(f"offset on {n}", 0.0, why_unjudged) for n in sorted(names)]
     return findings, replaces, rejected, extra
 
 
@@ -375,7 +386,18 @@ def _stack(a: BinData, b: BinData) -> BinData:
 
 
 def finding_summary(name: str, findings: Sequence[Finding], dynamic: str) -> str:
-    """The summary with the reported effects first."""
-    parts = [f"{f.kind} on {f.target}: {f.recommendation}" for f in findings]
+    """The summary with the reported effects first.
+
+    Two findings the data cannot tell apart (``extra["undecided_with"]``: a level offset
+    and a leak) are one part, ``offset on height or leak: ...``, with their one advice.
+    """
+    parts, paired = [], set()
+    for f in findings:
+        other = f.extra.get("undecided_with")
+        if other is None:
+            parts.append(f"{f.kind} on {f.target}: {f.recommendation}")
+        elif (other, f.target) not in paired:  # the pair once, in the findings' order
+            paired.add((f.kind, f.target))
+            parts.append(f"{f.kind} on {f.target} or {other}: {f.recommendation}")
     head = f"Model {name}: " + "; ".join(parts) + "."
     return f"{head} {dynamic}".strip()

@@ -233,6 +233,9 @@ class EffectSpec:
         explain: the effect's own evidence in words, ``(values, before, data, ts_s,
             outputs) -> str`` (``None``: the generic evidence of
             :mod:`twotank_validation.diagnose.evidence`).
+        acts_on: index of the output the effect acts on when that is not the one its
+            evidence shows (``channel``): a constant leak moves the level, and its response
+            shows on the temperature. ``None``: ``channel``.
     """
 
     kind: EffectKind
@@ -250,10 +253,13 @@ class EffectSpec:
     explain: Callable[[np.ndarray, Nominal, Bins, float, Sequence[str]], str] | None = field(
         default=None, repr=False, compare=False
     )
+    acts_on: int | None = None
 
     def target(self, outputs: Sequence[str]) -> str:
         """What the effect acts on: the input's name for an input effect, else the output's."""
-        return self.input_name if self.input is not None else outputs[self.channel]
+        if self.input is not None:
+            return self.input_name
+        return outputs[self.channel if self.acts_on is None else self.acts_on]
 
     @property
     def n_params(self) -> int:

@@ -24,7 +24,8 @@ and after an alarm's onset) it
    * else the catalogue's dynamic effect that removes most of the held-out error;
    * else ``unexplained``.
 
-Confidence (in [0, 1]):
+Score (in [0, 1]; the diagnosis's own ranking, mapped to the answer's probability by
+:func:`~.answer_probability.answer_probability`, fitted on the isolation bench):
 
 * a dynamic effect: the explained fraction of the held-out error above the noise floor,
   halved when the best runner-up is a close call (its score within the parsimony factor);
@@ -46,6 +47,7 @@ import scipy.signal
 
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.oppoint import OperatingPoint
+from twotank_validation.diagnose.answer_probability import answer_probability
 from twotank_validation.diagnose.diagnosis import Diagnosis, diagnose
 from twotank_validation.diagnose.effects import Nominal, channel_time_constants
 from twotank_validation.diagnose.inputs import DiagnosisConfig, DiagnosisError, Window
@@ -199,20 +201,22 @@ def _answer(  # noqa: PLR0917 - the fields of the answer
     kind: EffectKind,
     channel: str,
     parameters: Mapping[str, float],
-    confidence: float,
+    score: float,
     summary: str,
 ) -> LiveDiagnosis:
+    score = float(np.clip(score, 0.0, 1.0)) if math.isfinite(score) else 0.0
     return LiveDiagnosis(
         model=job.model,
         kind=kind.value,
         channel=channel,
         parameters={k: float(v) for k, v in parameters.items()},
-        confidence=float(np.clip(confidence, 0.0, 1.0)) if math.isfinite(confidence) else 0.0,
+        score=score,
         summary=summary,
         onset_ns=job.onset_ns,
         window_end_ns=job.trigger_end_ns,
         windows=len(job.post),
         update=job.update,
+        probability=answer_probability(kind.value, score),
     )
 
 

@@ -77,13 +77,15 @@ class Finding:
 
 
 PLANT_CAUSES = {
-    "height": "; a constant extra outflow (a leak) moves the level the same way at steady state",
     "temperature": (
         "; a changed supply temperature or heat loss moves the temperature the same way at "
         "steady state"
     ),
 }
-"""What else shifts each two-tank output at steady state, for the offset's recommendation."""
+"""What else shifts each two-tank output at steady state, for the offset's recommendation.
+
+(The level's other cause, a leak, is told apart from a sensor offset by the diagnosis:
+:mod:`twotank_validation.diagnose.level`.)"""
 
 
 def window_means(windows: Sequence[Window]) -> tuple[np.ndarray, np.ndarray]:
@@ -223,12 +225,6 @@ def fit_offsets(  # noqa: PLR0917 - the diagnosis context
             )))  # fmt: skip
             continue
         side = "above" if b > 0 else "below"
-        note = (
-            "; a constant change of the level's equilibrium (e.g. a constant extra outflow) "
-            "looks the same at steady state: the transient at the change tells them apart"
-            if out == "height"
-            else ""
-        )
         findings.append(
             Finding(
                 kind="offset",
@@ -238,7 +234,7 @@ def fit_offsets(  # noqa: PLR0917 - the diagnosis context
                     f"the {out} reads {abs(b):.3g} ± {se:.1g} {side} what the inputs predict at "
                     f"steady state, in all {n} windows ({how}; the model's noise allows "
                     f"{s:.3g}); {dynamics}; the offset removes {red:.0%} of the held-out "
-                    f"steady-state deviation{note}"
+                    f"steady-state deviation"
                 ),
                 recommendation=(
                     f"recalibrate the {out} sensor (it reads {b:+.3g} off), or correct the "

@@ -61,6 +61,7 @@ from twotank_validation.diagnose.diagnosis import Diagnosis, diagnose
 from twotank_validation.diagnose.effects import Nominal
 from twotank_validation.diagnose.fit import bin_data, scaled_error
 from twotank_validation.diagnose.inputs import DiagnosisConfig, DiagnosisError, Window
+from twotank_validation.diagnose.level import LEVEL, level_course
 
 TRANSIENT_WORDS = ("transient", "drifts")
 """Words of the validator's findings (``WindowReport.warnings``) that mark a transient."""
@@ -271,20 +272,27 @@ def window_features(
 # --------------------------------------------------------------------------- segmentation
 
 
-def feature_noise(x: np.ndarray, floors: np.ndarray) -> np.ndarray:
+def feature_noise(
+    x: np.ndarray, floors: np.ndarray, adjacent: np.ndarray | None = None
+) -> np.ndarray:
     """(d,) float: each feature's window-to-window noise, never below its floor.
 
     The median absolute deviation of the differences of consecutive windows, over
     ``0.6745 sqrt(2)`` (a Gaussian's standard deviation): a few changes among the
-    differences do not inflate it.
+    differences do not inflate it. Fewer than two differences: the floors.
 
     Args:
         x: (n_windows, d) float, features in time order.
         floors: (d,) float.
+        adjacent: (n_windows - 1,) bool, which consecutive windows follow each other
+            directly; None: all. A difference across a transient window (skipped between
+            two steady ones: the plant moved there) is not noise and is left out.
     """
-    if x.shape[0] < 3:
-        return floors.copy()
     d = np.diff(x, axis=0)
+    if adjacent is not None:
+        d = d[np.asarray(adjacent, dtype=bool)]
+    if d.shape[0] < 2:
+        return floors.copy()
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0) / (0.6745 * math.sqrt(2.0))
     return np.maximum(mad, floors)
 
@@ -402,7 +410,8 @@ def find_stretches(
     ny = len(outputs)
     x = np.array([f.vector() for f in features])
     steady = [i for i, f in enumerate(features) if not f.transient]
-    sigma = feature_noise(x[steady], feature_floors(ny, cfg)) if steady else None
+    adjacent = np.diff(steady) == 1  # no transient window between them
+    sigma = feature_noise(x[steady], feature_floors(ny, cfg), adjacent) if steady else None
     groups: list[list[int]] = [steady] if steady else []
     if split and sigma is not None and len(steady) >= 2:
         cuts = segment(x[steady], sigma, cfg.alpha)
@@ -661,16 +670,32 @@ def diagnose_stretches(
         excitation_floor=cfg.excitation_floor,
     )
     stretches = find_stretches(feats, model.output_names, change_config, split=split)
+    nominal = Nominal.from_document(doc, source)
     out: list[StretchDiagnosis] = []
     prev: Diagnosis | None = None
     prev_windows: list[Window] = []
+    prev_index: list[int] = []
     for st in stretches:
         ws = [windows[i] for i in st.windows]
         why = too_few(ws)
         rel_model = rel_prev = None
+        # the level's time course across the change (a sensor steps, a leaking tank settles)
+        course = None
+        if st.change_at_s is not None and prev_index and st.windows and LEVEL in model.output_names:
+            around = windows[prev_index[-2:][0] : st.windows[-1] + 1]
+            course = level_course(around, nominal, model.output_names.index(LEVEL), cfg.alpha)
         if not why:
             try:
-                rel_model = diagnose(ws, doc, cfg, source=source, convention=convention)
+                rel_model = diagnose(
+                    ws,
+                    doc,
+                    cfg,
+                    source=source,
+                    convention=convention,
+                    # relative to the model, the change is the level's whole move only when
+                    # the level matched the model before it
+                    course=course if prev is not None and prev.level is None else None,
+                )
             except DiagnosisError as err:
                 why = str(err)
         if rel_model is not None and prev is not None:
@@ -684,6 +709,7 @@ def diagnose_stretches(
                 source=f"{source} with the previous stretch's effects",
                 convention=convention,
                 reference=steady_means(prev_windows),
+                course=course,
             )
         out.append(
             StretchDiagnosis(
@@ -696,7 +722,7 @@ def diagnose_stretches(
             )
         )
         if rel_model is not None:
-            prev, prev_windows = rel_model, ws
+            prev, prev_windows, prev_index = rel_model, ws, list(st.windows)
     return RecordingDiagnosis(out, feats, split)
 
 

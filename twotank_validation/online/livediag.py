@@ -25,7 +25,7 @@ executor with one worker). An answer is attached to the first report of its mode
 newer answer replaces it. Synchronously (bag replay, tests) the job finishes before its own
 report is returned, so the answer rides on that report; in the node (a background executor)
 it is published on ``validation/M/diagnosis`` as soon as it is done and rides on a later
-report. The answers themselves (the windows diagnosed, kind, parameters, confidence) are the
+report. The answers themselves (the windows diagnosed, kind, parameters, score, probability) are the
 same in both: they depend only on the windows, never on the timing.
 
 Memory is bounded: per model the last ``keep_windows`` judged windows' samples and the last
@@ -65,7 +65,14 @@ class LiveDiagnosis:
             findings), ``stuck`` (a valve that follows no command), or ``unexplained``.
         channel: the output or input it acts on (``""`` for ``unexplained``).
         parameters: fitted parameters (SI units, model units for levels and offsets).
-        confidence: how sure, in [0, 1] (docs/diagnosis.md, "The fault named live").
+        score: the diagnosis's own ranking of how clearly the effect stood out, in [0, 1];
+            its meaning differs between kinds of answer, so it is no probability (see
+            ``probability``).
+        probability: the probability that this answer names the fault behind the alarm:
+            the frequency with which answers of this kind and score named the injected
+            fault on the isolation bench, cross-validated over its seeds (docs/diagnosis.md,
+            "The probability of an answer"); None for ``unexplained`` (no fault named) and
+            for a kind of answer the bench did not measure.
         summary: the answer in one sentence.
         onset_ns: the estimated onset (end of the last valid window before the alarm).
         window_end_ns: end stamp of the window whose report started the job (the answer's
@@ -78,12 +85,13 @@ class LiveDiagnosis:
     kind: str
     channel: str
     parameters: Mapping[str, float]
-    confidence: float
+    score: float
     summary: str
     onset_ns: int = 0
     window_end_ns: int = 0
     windows: int = 0
     update: int = 0
+    probability: float | None = None
 
     @property
     def unexplained(self) -> bool:
@@ -91,12 +99,22 @@ class LiveDiagnosis:
         return self.kind == UNEXPLAINED
 
     def to_json(self) -> dict[str, Any]:
-        """``{"kind", "channel", "parameters", "confidence"}`` (the validate JSON's entry)."""
+        """The JSON entry (``validate`` per window, ``live`` per answer).
+
+        ``{"kind", "channel", "parameters", "probability", "score", "onset", "window_end",
+        "windows", "update", "summary"}``; times in seconds of the data's time base.
+        """
         return {
             "kind": self.kind,
             "channel": self.channel,
             "parameters": {k: float(v) for k, v in self.parameters.items()},
-            "confidence": float(self.confidence),
+            "probability": None if self.probability is None else float(self.probability),
+            "score": float(self.score),
+            "onset": self.onset_ns / 1e9,
+            "window_end": self.window_end_ns / 1e9,
+            "windows": self.windows,
+            "update": self.update,
+            "summary": self.summary,
         }
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from twotank_validation.core import fast
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
-from twotank_validation.core.datum import Datum, NormConvention, make_datum
+from twotank_validation.core.datum import Datum, NormConvention, PeriodicityFinding, make_datum
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
 from twotank_validation.core.validate import (
@@ -231,6 +231,16 @@ class WindowReport:
             while the alarm is not ERROR, and without a diagnoser.
         quality: the window's state typed (:class:`~.states.WindowQuality`): judged (ok,
             recovered) or why not, with the kind of the first unusable sample.
+        findings: the periodicity findings among the :attr:`warnings`, typed
+            (:class:`~twotank_validation.core.datum.PeriodicityFinding`: ``INPUT_NOT_PERIODIC``
+            only where the input's leakage may decide the verdict, a transient, ...).
+        input_leakage: how far the input's change from period to period may move β
+            (``ValidationResult.input_leakage``; 0 for a periodic input, NaN when not
+            judged): the warning ``INPUT_NOT_PERIODIC`` is given where it reaches ``|1 - β|``.
+        input_change: what the input periodicity gate measured: the largest change of an
+            input from one period to the next over the window and its settling periods,
+            relative to that input's RMS (``input_periodic_rtol`` bounds it); NaN where the
+            gate did not run (unusable samples, settling).
     """
 
     model: str
@@ -258,6 +268,9 @@ class WindowReport:
     operating_point: str = ""
     diagnosis: LiveDiagnosis | None = None
     quality: WindowQuality = QUALITY_OK
+    findings: tuple[PeriodicityFinding, ...] = ()
+    input_leakage: float = math.nan
+    input_change: float = math.nan
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
@@ -506,8 +519,11 @@ class WindowMonitor:
             rtol=cfg.input_periodic_rtol,
         )
 
-    def _quality(self, rec: Recovery, flags: list[str | None]) -> tuple[str, WindowQuality]:
-        """Whether the span can be judged: the text and the typed state (``OK`` or why not)."""
+    def _quality(self, rec: Recovery, flags: list[str | None]) -> tuple[str, WindowQuality, float]:
+        """Whether the span can be judged: text, typed state and the input change measured.
+
+        The state is ``OK`` or why not; the measure is ``WindowReport.input_change``.
+        """
         cfg = self.config
         L = cfg.period_samples
         span = len(flags)
@@ -520,30 +536,45 @@ class WindowMonitor:
                 WindowState.UNUSABLE_SAMPLES, SampleFlag.of(bad[0] if bad else None)
             )
             if cfg.max_recovered_fraction <= 0.0:
-                return head + first, unusable
-            return f"{head}: {rec.reason}{first}", unusable
+                return head + first, unusable, math.nan
+            return f"{head}: {rec.reason}{first}", unusable, math.nan
         u = rec.u
         if self._count < cfg.span_samples:
             return (
-                f"settling: {cfg.settle_periods} period(s) of periodic input are needed before "
-                f"the window ({self._count // L - cfg.periods_per_window} so far)"
-            ), WindowQuality(WindowState.SETTLING)
+                (
+                    f"settling: {cfg.settle_periods} period(s) of periodic input are needed "
+                    f"before the window ({self._count // L - cfg.periods_per_window} so far)"
+                ),
+                WindowQuality(WindowState.SETTLING),
+                math.nan,
+            )
         rms = np.sqrt(column_mean(centred(u, column_mean(u)) ** 2))
         change = column_max_abs(u[L:] - u[:-L]) if span > L else np.zeros(self.n_inputs)
+        relative = change / np.maximum(rms, 1e-12)
+        measured = float(np.max(relative)) if relative.size else 0.0
         if np.any(change > cfg.input_periodic_rtol * np.maximum(rms, 1e-12)):
-            j = int(np.argmax(change / np.maximum(rms, 1e-12)))
+            j = int(np.argmax(relative))
             return (
-                f"input not periodic: input {j} changes by {change[j]:.3g} from one period to "
-                "the next (excitation started or changed; waiting for the plant to settle)"
-            ), WindowQuality(WindowState.INPUT_NOT_PERIODIC)
+                (
+                    f"input not periodic: input {j} changes by {change[j]:.3g} from one period "
+                    "to the next (excitation started or changed; waiting for the plant to "
+                    "settle)"
+                ),
+                WindowQuality(WindowState.INPUT_NOT_PERIODIC),
+                measured,
+            )
         win_u = u[-cfg.window_samples :]
         win_rms = np.sqrt(column_mean(centred(win_u, column_mean(win_u)) ** 2))
         if float(np.max(win_rms)) < cfg.min_excitation_rms:
             return (
-                f"too little excitation: input RMS {np.array2string(win_rms, precision=4)} below "
-                f"min_excitation_rms = {cfg.min_excitation_rms}"
-            ), WindowQuality(WindowState.TOO_LITTLE_EXCITATION)
-        return "ok", QUALITY_OK
+                (
+                    f"too little excitation: input RMS {np.array2string(win_rms, precision=4)} "
+                    f"below min_excitation_rms = {cfg.min_excitation_rms}"
+                ),
+                WindowQuality(WindowState.TOO_LITTLE_EXCITATION),
+                measured,
+            )
+        return "ok", QUALITY_OK, measured
 
     def _evaluate(self) -> list[WindowReport]:
         cfg = self.config
@@ -552,7 +583,7 @@ class WindowMonitor:
         u_span, y_span, stamps, flags = self._ordered(min(self._count, cfg.span_samples))
         start_ns, end_ns = int(stamps[-n]), int(stamps[-1])
         rec = self._recovered(u_span, y_span, flags)
-        quality, reason = self._quality(rec, flags)
+        quality, reason, input_change = self._quality(rec, flags)
         u, y = rec.u[-n:], rec.y[-n:]
         judged_quality, judged_reason = "ok", QUALITY_OK
         if rec.recovered.any():
@@ -584,7 +615,8 @@ class WindowMonitor:
                     )
             datum = data.get(key, (quality, reason))
             if isinstance(datum, tuple):
-                reports.append(self._unjudged(model.name, start_ns, end_ns, *datum))
+                unjudged = self._unjudged(model.name, start_ns, end_ns, *datum)
+                reports.append(replace(unjudged, input_change=input_change))
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()
@@ -634,6 +666,9 @@ class WindowMonitor:
                     raised_by=raised_by(res.beta, op.beta, total),
                     operating_point=f"{op.state}: {op.note}" if op.note else str(op.state),
                     quality=judged_reason,
+                    findings=res.findings,
+                    input_leakage=res.input_leakage,
+                    input_change=input_change,
                 )
             )
         return reports

@@ -21,8 +21,9 @@ it the validation of the windows (``bench/bench_replay.py``).
 
 The package: :mod:`.config` (ReplayConfig, ReplayResult), :mod:`.recording` (a recording
 opened once), :mod:`.feed` (a bag or a table through the validator), :mod:`.timing` (the
-periods of a recording), :mod:`.summary` (the JSON summary, the reasons no window was
-judged), :mod:`.windows` (windows for diagnose and calibrate).
+periods of a recording), :mod:`.timebase` (the clock its windows are timed by),
+:mod:`.summary` (the JSON summary, the reasons no window was judged), :mod:`.windows`
+(windows for diagnose and calibrate).
 """
 
 from twotank_validation.replay.config import (
@@ -30,6 +31,7 @@ from twotank_validation.replay.config import (
     ReplayConfigError,
     ReplayInterrupted,
     ReplayResult,
+    TimeBase,
     WindowSnapshot,
     model_documents,
 )
@@ -44,6 +46,7 @@ from twotank_validation.replay.summary import (
     warning_kind,
     window_entry,
 )
+from twotank_validation.replay.timebase import TimeBaseError, stamp_base
 from twotank_validation.replay.timing import (
     GivenBy,
     Timing,
@@ -67,6 +70,8 @@ __all__ = [
     "ReplayConfigError",
     "ReplayInterrupted",
     "ReplayResult",
+    "TimeBase",
+    "TimeBaseError",
     "Timing",
     "TimingConflict",
     "TimingSetting",
@@ -81,6 +86,7 @@ __all__ = [
     "replay_recording",
     "replay_table",
     "resolve_timing",
+    "stamp_base",
     "summary_json",
     "unjudged",
     "warning_kind",

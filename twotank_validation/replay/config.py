@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +108,22 @@ def model_documents(
     return out
 
 
+class TimeBase(StrEnum):
+    """The clock a recording's windows are timed by; the value is how outputs name it.
+
+    Chosen by :func:`~twotank_validation.replay.timebase.stamp_base` for a bag.
+    """
+
+    HEADER = "header stamps"
+    """Every source is stamped by its message's ``header.stamp``."""
+    LOG = "log times"
+    """Every source is stamped by the time the recorder logged its message."""
+    HEADER_AND_LOG = "header stamps and log times"
+    """The map mixes the two, and in this bag they agree (within the grid's jitter band)."""
+    TIME_COLUMN = "time column"
+    """A table: its time column."""
+
+
 class ReplayConfigError(TwotankError, ValueError):
     """A replay setting cannot be used as given (the message says what to change)."""
 
@@ -135,11 +152,13 @@ class ReplayResult:
         messages: messages read (a table: rows read).
         decode_s: wall time spent reading and decoding.
         validate_s: wall time spent aligning and validating.
-        bag_start_ns: first log time in the bag, or a table's first time (reports' times are
+        bag_start_ns: the first stamp in the recording's time base (``time_base``): a bag's
+            first header stamp or first log time, a table's first time (reports' times are
             relative to it in JSON).
         snapshots: windows of interest per model.
         source: ``"bag"`` or ``"table"``.
-        end_ns: last log time in the bag, or a table's last time (0: not known).
+        end_ns: the last stamp in the time base, or a table's last time (0: not known).
+        time_base: the clock the windows are timed by.
         interrupted: the replay was stopped by a signal (:class:`ReplayInterrupted`); the
             reports are those judged before it (``complete`` is then False).
     """
@@ -157,6 +176,7 @@ class ReplayResult:
     source: str = "bag"
     end_ns: int = 0
     interrupted: bool = False
+    time_base: TimeBase = TimeBase.HEADER
 
 
 class ReplayInterrupted(Interrupted):

@@ -34,9 +34,11 @@ from twotank_validation.replay.config import (
     ReplayConfigError,
     ReplayInterrupted,
     ReplayResult,
+    TimeBase,
     WindowSnapshot,
 )
 from twotank_validation.replay.recording import Recording, is_table_input, table_map
+from twotank_validation.replay.timebase import stamp_base
 
 BATCH = 4096  # messages decoded and validated at a time
 
@@ -74,6 +76,9 @@ def replay_bag(
         ReplayConfigError: the interface map reads a table's columns.
         ReplayInterrupted: SIGINT or SIGTERM (a KeyboardInterrupt) stopped the replay; it
             carries the result up to then.
+        TimeBaseError: the map stamps some sources by their header and others by the log
+            time, and in this bag the two clocks disagree
+            (:func:`~twotank_validation.replay.timebase.stamp_base`).
     """
     cfg = config or ReplayConfig()
     where = path.given if isinstance(path, Recording) else path
@@ -87,8 +92,9 @@ def replay_bag(
     result = ReplayResult(Path(where))
     report = _reporter(result, core, on_window, on_report)
     with _interruptible(result, core), _bag_of(path) as bag:
-        result.bag_start_ns = bag.info.start_ns or 0
-        result.end_ns = bag.info.end_ns or 0
+        base = stamp_base(bag, cfg.interface, cfg.jitter_fraction * cfg.monitor.ts_s)
+        result.time_base, result.bag_start_ns = base.base, base.origin_ns
+        result.end_ns = 0 if base.base is TimeBase.HEADER else bag.info.end_ns or 0
         _feed_bag(bag, core, cfg.interface, result, report, progress=progress)
     result.counters = dataclasses.asdict(core.counters())
     result.problems.extend(core.input_problems())
@@ -202,6 +208,7 @@ def replay_table(
         source="table",
         bag_start_ns=int(table.stamps_ns[0]),
         end_ns=int(table.stamps_ns[-1]),
+        time_base=TimeBase.TIME_COLUMN,
     )
     result.decode_s = read_s
     t_start = time.perf_counter()
@@ -346,6 +353,11 @@ class _Sink:
     result: ReplayResult
     on_report: Callable[[WindowReport], None]
 
+    def seen(self, last_ns: int) -> None:
+        """A stamp fed: the recording's end in a header time base is its latest."""
+        if self.result.time_base is TimeBase.HEADER and last_ns > self.result.end_ns:
+            self.result.end_ns = last_ns
+
 
 def _feed_messages(
     bag: bag_reader.BagReader,
@@ -381,6 +393,7 @@ def _feed_messages(
                 values.append(math.nan)  # flagged as non-finite
                 bad_values += 1
         stamp = source_stamp_ns(m.msg, bindings[0].source, m.log_time_ns)
+        sink.seen(stamp)
         for rep in core.feed(m.topic, stamp, tuple(values)):
             on_report(rep)
     if bad_values:
@@ -443,6 +456,8 @@ def _feed_bulk(
             t_dec += now - tick
             before = result.messages
             result.messages += len(batch)
+            if len(batch):
+                sink.seen(int(batch.stamp_ns.max()))
             if events:
                 core.feed_many(*_events(batch, fields, topics, width), on_report)
             else:

@@ -27,7 +27,10 @@ def warning_kind(text: str) -> str:
 
 
 def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[str, Any]:
-    """The documented JSON (docs/cli.md, "validate JSON"): times in seconds of bag time.
+    """The documented JSON (docs/cli.md, "validate JSON"): times in s from the first stamp.
+
+    Times count from the recording's first stamp in its time base (``time_base``: the
+    header stamps, the log times or a table's time column; :attr:`ReplayResult.time_base`).
 
     Args:
         result: the replay.
@@ -77,6 +80,7 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
     return {
         "bag": str(result.path),
         "source": result.source,
+        "time_base": str(result.time_base),
         "complete": result.complete,
         "interrupted": result.interrupted,
         "problems": list(result.problems),
@@ -98,6 +102,8 @@ def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
         "data_quality": rep.data_quality,
         "margin": rep.margin if rep.judged and math.isfinite(rep.margin) else None,
         "warnings": list(rep.warnings),
+        "input_leakage": rep.input_leakage if math.isfinite(rep.input_leakage) else None,
+        "input_change": rep.input_change if math.isfinite(rep.input_change) else None,
         "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
         "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
         "raised_by": str(rep.raised_by),

@@ -30,6 +30,7 @@ from twotank_validation.online.sources import STAMP_HEADER, InterfaceMapError, S
 from twotank_validation.replay.config import ReplayConfig
 from twotank_validation.replay.feed import BATCH, converted
 from twotank_validation.replay.recording import Recording, is_table_input, table_map
+from twotank_validation.replay.timebase import BagClocks, bag_clocks
 
 
 class TimingSetting(StrEnum):
@@ -250,9 +251,13 @@ def resolve_timing(
         BagError subclasses: the path is not a readable bag.
         TableError, ReplayConfigError: the path is a table that cannot be read through the
             map (or there is no map of columns).
+        TimeBaseError: the map stamps some sources by their header and others by the log
+            time, and in this bag the two clocks disagree
+            (:meth:`~twotank_validation.replay.timebase.BagClocks.base`).
     """
     cfg = config or ReplayConfig()
     imap = cfg.interface
+    clocks: BagClocks | None = None
     meta_ts: float | None
     meta_period: int | None
     record: tuple[np.ndarray, np.ndarray] | None
@@ -279,6 +284,7 @@ def resolve_timing(
             meta_ts, meta_period = _metadata_timing(bag.info.custom_data)
             record = _command_record(bag, imap)
             out_stamps = _output_stamps(bag, imap)
+            clocks = bag_clocks(bag, imap)
     notes: list[str] = []
     conflicts: list[TimingConflict] = []
     grid = infer_sample_period(record[0]) if record is not None else None
@@ -365,6 +371,10 @@ def resolve_timing(
             f"sample period {fmt_s(ts)} s (the default): no --ts, no metadata, and the "
             "command stamps show no grid; pass --ts"
         )
+    if clocks is not None:  # one time base, or the mixture refused (TimeBaseError)
+        base = clocks.base(cfg.jitter_fraction * ts)
+        if base.note is not None:
+            notes.insert(0, base.note)
     # the commands' repetition on their own grid, in samples of that grid and in seconds
     data_period = None
     grid_ts = data_ts if data_ts is not None else ts

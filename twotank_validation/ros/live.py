@@ -12,6 +12,14 @@ opened (:data:`~twotank_validation.sim.control.CLOSED_LOOP_INPUT_PERIODIC_RTOL`)
 alarm. All the
 nodes run with ``use_sim_time`` and talk over their ordinary topics (loopback DDS), so this
 exercises the same code as a deployment, faster than real time and deterministically.
+
+The live diagnosis runs in the validator's worker (``LiveConfig.inline_diagnosis``): the
+simulated clock does not move on while it computes, so each answer rides on the report of
+the window that started it, as in a replay of the same data; a deployment computes it in the
+background and it rides on a later report (:mod:`twotank_validation.online.livediag`).
+
+A run can be stopped between two samples (``run_live(stop=...)``, e.g. on SIGINT): what the
+validator received by then is judged and delivered, and the result says it was interrupted.
 """
 
 from __future__ import annotations
@@ -28,6 +36,7 @@ import numpy as np
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.logging_severity import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -72,6 +81,11 @@ class LiveConfig:
         keep_reports: keep every report in the result. Each carries its per-bin spectrum
             (tens of kB at Ts 0.1 s), so long runs that only need ``on_report`` set False:
             the result's ``reports`` is then empty and memory does not grow with the run.
+        inline_diagnosis: the validator runs the live diagnosis in its worker, before the
+            report that started it goes out (module docstring); False: in its background
+            executor, as deployed.
+        node_info_log: the validator logs each answer of the live diagnosis (ROS log, wall
+            clock stamps); False where the caller shows the answers itself.
     """
 
     duration_s: float = 3000.0
@@ -90,6 +104,8 @@ class LiveConfig:
     controller: dict[str, Any] = field(default_factory=dict)
     record_samples: bool = True
     keep_reports: bool = True
+    inline_diagnosis: bool = True
+    node_info_log: bool = True
 
     @property
     def n_steps(self) -> int:
@@ -107,6 +123,8 @@ class LiveResult:
         wall_s: wall time of the run.
         counters: aligner counters (duplicates, gaps, ...).
         transitions: the supervisor's mode changes (with ``LiveConfig.supervisor``).
+        steps: samples simulated (all of them unless interrupted).
+        interrupted: the run was stopped before its end (``run_live(stop=...)``).
     """
 
     reports: list[WindowReport]
@@ -114,6 +132,8 @@ class LiveResult:
     wall_s: float
     counters: dict[str, int]
     transitions: list[Transition] = field(default_factory=list)
+    steps: int = 0
+    interrupted: bool = False
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter[Any]]:
@@ -147,6 +167,24 @@ def _sample_arrived(val: ValidatorNode, k: int) -> bool:
     return min(val.received.values()) > k
 
 
+DRAIN_TIMEOUT_S = 600.0
+"""Longest wall time the driver waits for the validator's worker to catch up (at the end of a
+run, and every eighth of a period with a supervisor); with the diagnosis inline the worker may
+be a few diagnoses behind, each taking seconds."""
+
+
+def wait_worker(val: ValidatorNode) -> None:
+    """Block until the validator's worker processed everything queued.
+
+    Raises:
+        RuntimeError: not within :data:`DRAIN_TIMEOUT_S`.
+    """
+    if not val.wait_idle(DRAIN_TIMEOUT_S):
+        raise RuntimeError(
+            f"the validator's worker did not catch up within {DRAIN_TIMEOUT_S:.0f} s of wall time"
+        )
+
+
 class _RecordingValidator(ValidatorNode):
     """Validator that also keeps every report and the aligned samples it consumed (parity)."""
 
@@ -174,6 +212,7 @@ def run_live(
     on_step: Callable[[int], None] | None = None,
     context: Context | None = None,
     attach: Callable[[Context], tuple[Sequence[Node], Callable[[int], bool]]] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> LiveResult:
     """Run the composition for ``config.duration_s`` simulated seconds.
 
@@ -188,6 +227,8 @@ def run_live(
             them and a predicate ``synced(k)``: they have every message of sample k. It is
             awaited once more for the last sample after the validator's last reports went
             to ``on_report``, so a predicate that also counts reports sees them all.
+        stop: asked before each sample; True ends the run there (the samples sent so far
+            are judged and delivered; the result is ``interrupted``).
     """
     if config.supervisor and not config.closed_loop:
         raise ValueError(
@@ -226,6 +267,7 @@ def run_live(
         plant = PlantNode(context=ctx, parameter_overrides=[sim, *_overrides(plant_params)])
         val = _RecordingValidator(
             record_samples=config.record_samples,
+            inline_diagnosis=config.inline_diagnosis,
             context=ctx,
             parameter_overrides=[
                 sim,
@@ -239,6 +281,8 @@ def run_live(
                 ),
             ],
         )
+        if not config.node_info_log:
+            val.get_logger().set_level(LoggingSeverity.WARN)
         driver = Node("twotank_clock", context=ctx)
         extra_nodes, synced = attach(ctx) if attach is not None else ((), None)
         nodes = [exc, plant, val, driver, *extra_nodes]
@@ -277,7 +321,10 @@ def run_live(
 
         sync_every = max(1, config.period_samples // 8)
         start = time.monotonic()
+        steps = 0
         for k in range(config.n_steps):
+            if stop is not None and stop():
+                break
             t = k * ts_ns
             clk = Clock()
             itf.set_stamp(clk.clock, t)
@@ -305,23 +352,27 @@ def run_live(
             # worker within an eighth of a period of it (a real deployment runs in real time,
             # where the worker keeps up; here time runs as fast as the driver goes)
             if supervisor is not None and (k + 1) % sync_every == 0:
-                val.wait_idle()
+                wait_worker(val)
+            steps = k + 1
             deliver()
             if on_step is not None:
                 on_step(k)
-        # deliver what is still in flight, then let the worker finish
-        expected = config.n_steps
-        spin_until(
-            executor, lambda: val.core.next_index >= expected - 1 and val._queue.empty(), 10.0
-        )
-        val.wait_idle()
+        # every sample sent has reached the validator (checked per sample): let the worker
+        # finish them, then deliver the last reports
+        wait_worker(val)
         deliver()
-        if synced is not None and not spin_until(executor, partial(synced, expected - 1)):
+        interrupted = steps < config.n_steps
+        if (
+            synced is not None
+            and steps
+            and not interrupted
+            and not spin_until(executor, partial(synced, steps - 1))
+        ):
             raise RuntimeError("attached nodes did not receive everything by the end of the run")
         wall = time.monotonic() - start
         counters = dataclasses.asdict(val.core.counters())
         log = list(supervisor.machine.log) if supervisor is not None else []
-        return LiveResult(kept, list(val.samples), wall, counters, log)
+        return LiveResult(kept, list(val.samples), wall, counters, log, steps, interrupted)
     finally:
         for n in nodes:
             n.destroy_node()

@@ -39,7 +39,7 @@ from twotank_validation.online import WindowReport
 from twotank_validation.online import streams as itf
 from twotank_validation.online.channels import ChannelError, match_channels
 from twotank_validation.online.interface import InterfaceMap, source_to_text
-from twotank_validation.ros.live import LiveResult, _RecordingValidator, spin_until
+from twotank_validation.ros.live import LiveResult, _RecordingValidator, spin_until, wait_worker
 from twotank_validation.ros.model_plant_node import (
     MODEL_PLANT_PARAMS,
     ModelPlantNode,
@@ -160,6 +160,7 @@ def run_model_live(
     *,
     on_report: Callable[[WindowReport], None] | None = None,
     context: Context | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> LiveResult:
     """Run the model plant and the validator for ``config.n_steps`` samples.
 
@@ -167,6 +168,8 @@ def run_model_live(
         config: run settings.
         on_report: called (from the driver thread) with each new report as it appears.
         context: rclpy context to use (a fresh one is created and shut down otherwise).
+        stop: asked before each sample; True ends the run there (the samples sent so far
+            are judged and delivered; the result is ``interrupted``).
 
     Returns:
         Every report, the aligned samples the validator consumed (``record_samples``), the
@@ -235,7 +238,10 @@ def run_model_live(
                     on_report(rep)
 
         start = time.monotonic()
+        steps = 0
         for k in range(config.n_steps):
+            if stop is not None and stop():
+                break
             t = k * ts_ns
             clk = Clock()
             itf.set_stamp(clk.clock, t)
@@ -248,13 +254,10 @@ def run_model_live(
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.3f} s"
                 )
+            steps = k + 1
             deliver()
-        spin_until(
-            executor,
-            lambda: val.core.next_index >= config.n_steps - 1 and val._queue.empty(),
-            10.0,
-        )
-        val.wait_idle()
+        # every sample sent has reached the validator (checked per sample)
+        wait_worker(val)
         deliver()
         wall = time.monotonic() - start
         samples = list(val.samples)
@@ -265,7 +268,9 @@ def run_model_live(
                 f"{off[0]} ns): the receive times did not follow the simulated clock"
             )
         counters = dataclasses.asdict(val.core.counters())
-        return LiveResult(kept, samples, wall, counters)
+        return LiveResult(
+            kept, samples, wall, counters, steps=steps, interrupted=steps < config.n_steps
+        )
     finally:
         for n in nodes:
             n.destroy_node()

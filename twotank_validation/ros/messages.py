@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import array
 import importlib
+import math
 from typing import Any
 
 import numpy as np
@@ -62,7 +63,9 @@ def diagnosis_message(diagnosis: LiveDiagnosis, cls: Any) -> Any:
     msg.channel = diagnosis.channel
     msg.parameter_names = list(diagnosis.parameters)
     msg.parameter_values = [float(v) for v in diagnosis.parameters.values()]
-    msg.confidence = float(diagnosis.confidence)
+    p = diagnosis.probability
+    msg.probability = math.nan if p is None else float(p)
+    msg.score = float(diagnosis.score)
     set_stamp(msg.onset, max(diagnosis.onset_ns, 0))
     msg.windows = int(diagnosis.windows)
     msg.update = int(diagnosis.update)

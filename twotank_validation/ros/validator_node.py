@@ -166,6 +166,21 @@ _BLANK_REPORT = WindowReport(
 )
 
 
+def probability_text(p: float | None) -> str:
+    """``"0.970"``, or ``"none"`` (``unexplained``, or a kind the bench did not measure)."""
+    return "none" if p is None else f"{p:.3f}"
+
+
+def diagnosis_text(d: LiveDiagnosis) -> str:
+    """The node's log line of an answer, stamped with the data's time (the window's end)."""
+    where = f" on {d.channel}" if d.channel else ""
+    p = "" if d.probability is None else f" (probability {d.probability:.3f})"
+    return (
+        f"model {d.model}, window ending {d.window_end_ns / NS_PER_S:.1f} s: most likely "
+        f"{d.kind}{where}{p}: {d.summary}"
+    )
+
+
 def op_reference_text(op: dict[str, Any]) -> str:
     """``"commissioned: u [0.4, 0.4], y [0.47, 0.5]"`` (or the state alone without one)."""
     if op["u"] is None:
@@ -196,6 +211,11 @@ class ValidatorNode(Node):
         models: models to use instead of the ``models`` parameter (tests, composition).
         documents: model name -> model document for the live diagnosis (default: the
             documents the ``models`` parameter names, or the built-in model of each name).
+        inline_diagnosis: run the live diagnosis in the worker thread, before the report
+            that started it is published (the answer rides on that report, as in replay),
+            instead of in a background executor. For a simulated clock, which waits for it
+            (``twotank-validation live``); a deployment keeps the default, so that a
+            diagnosis never delays a report.
         keep_reports: reports kept in :attr:`reports` (the most recent ones).
         **kwargs: passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
 
@@ -210,6 +230,7 @@ class ValidatorNode(Node):
         documents: dict[str, Any] | None = None,
         name: str = "twotank_validator",
         keep_reports: int = 16,
+        inline_diagnosis: bool = False,
         **kwargs: Any,
     ) -> None:
         super().__init__(name, **kwargs)
@@ -232,8 +253,9 @@ class ValidatorNode(Node):
             self._executor: ThreadPoolExecutor | None = None
             if bool(values["diagnosis"]):
                 docs = model_documents(self.models, docs)
-                # one worker: answers come in the order their windows came
-                self._executor = ThreadPoolExecutor(1, thread_name_prefix="twotank_diagnosis")
+                if not inline_diagnosis:
+                    # one worker: answers come in the order their windows came
+                    self._executor = ThreadPoolExecutor(1, thread_name_prefix="twotank_diagnosis")
                 self.diagnoser = LiveDiagnoser(
                     catalogue_diagnosis(docs, convention=self.config.convention),
                     LiveDiagConfig(
@@ -261,6 +283,8 @@ class ValidatorNode(Node):
 
         self._queue: queue.Queue[_Item] = queue.Queue()
         self._lock = threading.Lock()
+        # the operating points as of the last report (read by the /diagnostics publisher)
+        self._ops = self.core.operating_points()
         self._last_rx: dict[str, int | None] = dict.fromkeys(self._watched)
         self.received: dict[str, int] = dict.fromkeys(self._watched, 0)
         # per model: level, text and the last report; replaced whole (never updated in place)
@@ -371,6 +395,7 @@ class ValidatorNode(Node):
     def _on_reset_op(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         with self._lock:
             self.core.reset_operating_points()
+            self._ops = self.core.operating_points()
         resp.success = True
         resp.message = (
             "operating point reset: the given reference again, or commissioned from the next "
@@ -386,7 +411,10 @@ class ValidatorNode(Node):
         The worker calls this; tests may too.
         """
         with self._lock:
-            return self.core.feed(topic, stamp, value)
+            reports = self.core.feed(topic, stamp, value)
+            if reports:
+                self._ops = self.core.operating_points()
+            return reports
 
     def _work(self) -> None:
         while True:
@@ -447,11 +475,7 @@ class ValidatorNode(Node):
         self._latest_diagnosis[d.model] = d
         self.diagnoses.append(d)
         self._pub_diagnosis[d.model].publish(messages.diagnosis_message(d, self._diagnosis_cls))
-        where = f" on {d.channel}" if d.channel else ""
-        self.get_logger().info(
-            f"model {d.model}: most likely {d.kind}{where} (confidence {d.confidence:.2f}): "
-            f"{d.summary}"
-        )
+        self.get_logger().info(diagnosis_text(d))
 
     def _diagnosis_values(self, name: str, rep: WindowReport) -> list[KeyValue]:
         """The /diagnostics keys of the latest live diagnosis while the alarm is ERROR."""
@@ -463,7 +487,8 @@ class ValidatorNode(Node):
             KeyValue(key="diagnosis_kind", value=d.kind),
             KeyValue(key="diagnosis_channel", value=d.channel),
             KeyValue(key="diagnosis_parameters", value=params),
-            KeyValue(key="diagnosis_confidence", value=f"{d.confidence:.3f}"),
+            KeyValue(key="diagnosis_probability", value=probability_text(d.probability)),
+            KeyValue(key="diagnosis_score", value=f"{d.score:.3f}"),
             KeyValue(key="diagnosis_summary", value=d.summary),
         ]
 
@@ -478,8 +503,9 @@ class ValidatorNode(Node):
         fault = self.core.input_fault
         override = override or self._watch
         status = self._status
-        with self._lock:
-            ops = self.core.operating_points()
+        # the latest the worker saw: a timer callback never waits for a window being judged
+        # (or diagnosed) under the lock
+        ops = self._ops
         for m in self.models:
             level, text, rep = status[m.name]
             if override is not None:

@@ -97,8 +97,8 @@ change in closed loop is then not taken for a model error, and a persistent faul
 the operating-point check once the loop has settled (the inputs moved, the outputs did not
 move as the model predicts). The value is calibrated for the default loop (Ts 0.1 s, the
 excitation at the output); another loop, sample time or noise needs its own: the steady
-loop's variation is in every judged window's warning ("period-to-period variation up to X of
-its RMS"), and the gate goes between it and the moves (at Ts 0.8 s the steady loop reaches
+loop's variation is every window's ``input_change`` (``WindowReport``, the validate JSON),
+and the gate goes between it and the moves (at Ts 0.8 s the steady loop reaches
 0.33, with the excitation at the setpoints 0.43; at Ts 0.1 s with it at the setpoints 0.19).
 The test itself does not need a periodic input (docs/theory.md, closed loop)."""
 

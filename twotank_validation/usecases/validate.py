@@ -298,11 +298,19 @@ def windows_text(summary: Mapping[str, Any]) -> list[str]:
 
 
 def diagnosis_text(d: Mapping[str, Any]) -> str:
-    """``"leak on height (outflow 0.058), confidence 0.17"`` of a window's diagnosis entry."""
+    """``"leak on height (outflow 0.058), probability 0.997"`` of a diagnosis entry.
+
+    The probability that the answer names the fault (docs/diagnosis.md, "The probability of
+    an answer"); an ``unexplained`` answer names none; a kind of answer the isolation bench
+    did not measure says so.
+    """
     params = ", ".join(f"{k} {v:.3g}" for k, v in d["parameters"].items())
     where = f" on {d['channel']}" if d["channel"] else ""
-    return (
-        f"{d['kind']}{where}"
-        + (f" ({params})" if params else "")
-        + (f", confidence {d['confidence']:.2f}")
-    )
+    p = d["probability"]
+    if d["kind"] == "unexplained":
+        tail = ": no effect of the catalogue explains the change"
+    elif p is None:
+        tail = ", probability not measured (too rare on the isolation bench)"
+    else:
+        tail = f", probability {p:.3f}"
+    return f"{d['kind']}{where}" + (f" ({params})" if params else "") + tail
