@@ -348,10 +348,12 @@ def run_live(
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.1f} s"
                 )
-            # the supervisor judges staleness on the simulated clock: keep the validator's
-            # worker within an eighth of a period of it (a real deployment runs in real time,
-            # where the worker keeps up; here time runs as fast as the driver goes)
-            if supervisor is not None and (k + 1) % sync_every == 0:
+            # keep the validator's worker within an eighth of a period of the simulated clock
+            # (a real deployment runs in real time, where the worker keeps up; here time runs
+            # as fast as the driver goes): the supervisor judges staleness on that clock, and
+            # the reports (and an interrupt) must come in simulated time, not all at the end
+            # when the worker lags on a loaded machine
+            if (k + 1) % sync_every == 0:
                 wait_worker(val)
             steps = k + 1
             deliver()

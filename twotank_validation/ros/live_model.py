@@ -237,6 +237,7 @@ def run_model_live(
                 if on_report is not None:
                     on_report(rep)
 
+        sync_every = max(1, config.period_samples // 8)
         start = time.monotonic()
         steps = 0
         for k in range(config.n_steps):
@@ -254,6 +255,8 @@ def run_model_live(
                 raise RuntimeError(
                     f"validator did not receive the sample of t = {t / NS_PER_S:.3f} s"
                 )
+            if (k + 1) % sync_every == 0:  # the reports in simulated time (as in live.py)
+                wait_worker(val)
             steps = k + 1
             deliver()
         # every sample sent has reached the validator (checked per sample)
