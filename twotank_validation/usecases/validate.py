@@ -11,6 +11,7 @@ from typing import Any
 
 from twotank_validation import replay
 from twotank_validation.errors import ExitCode, TwotankError
+from twotank_validation.online.op_tracker import SUSPENDED_NOTE, OpState
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
@@ -134,6 +135,8 @@ def windows_text(summary: Mapping[str, Any]) -> list[str]:
             if w["raised_by"]:
                 verdict += f" ({w['raised_by']})"
             extra = f"  ({w['reason']})" if w["reason"] else ""
+            if w["beta"] is not None and w.get("op_state") == OpState.SUSPENDED:
+                extra += f"  (operating point not checked: {SUSPENDED_NOTE})"
             extra += "".join(f"  (warning: {text})" for text in w["warnings"])
             if w["diagnosis"] is not None:
                 extra += "  (diagnosis: {})".format(diagnosis_text(w["diagnosis"]))
