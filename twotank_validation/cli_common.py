@@ -86,6 +86,7 @@ def report_dict(rep: WindowReport) -> dict[str, object]:
         "beta_total": finite(rep.beta_total),
         "raised_by": rep.raised_by,
         "operating_point": rep.operating_point,
+        "op_state": None if rep.op_state is None else str(rep.op_state),
         "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
     }
 

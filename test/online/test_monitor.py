@@ -408,3 +408,18 @@ def test_takes_fast_path_names_validates_route(method: str) -> None:
     resp3 = PlantResponse(p, blocks, 2, 2, 2)
     assert takes_fast_path(resp3, "auto")
     assert not takes_fast_path(resp3, "sdp")
+
+
+def test_alarm_stays_warn_while_the_operating_point_is_unchecked() -> None:
+    """By hand: valid windows whose operating point cannot be checked since the model was
+    invalidated count towards clearing ERROR, but the level never returns to OK on them."""
+    cfg = AlarmConfig(alarm_windows=2, clear_windows=2, debounce="count")
+    state, levels = AlarmState(), []
+    # (invalidated, unchecked): two invalidating, three valid unchecked, two valid checked
+    for inv, unchecked in [(True, False), (True, True)] + [(False, True)] * 3 + [(False, False)]:
+        state = update_alarm(
+            state, cfg, judged=True, invalidated=inv, beta=1.5 if inv else 0.1, unchecked=unchecked
+        )
+        levels.append(state.level)
+    ok, w, e = Alarm.OK, Alarm.WARN, Alarm.ERROR
+    assert levels == [w, e, e, w, w, ok]

@@ -29,6 +29,7 @@ from twotank_validation.core.oppoint import (
 )
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.online.op_tracker import OpPointConfig, OpState
+from twotank_validation.online.window import verdict_text
 from twotank_validation.sim import rig
 from twotank_validation.sim import scenario as sc
 
@@ -311,3 +312,86 @@ def test_the_fast_path_and_the_sdp_agree_for_a_structured_model(tmp_path) -> Non
             model, 0.1, ref, new, n_samples=4096, allowance=0.001, method="sdp"
         )
         assert fast.beta == pytest.approx(sdp.beta, rel=1e-5, abs=1e-7)
+
+
+# --- a fault before the reference is commissioned ---------------------------------------------
+
+EARLY = 700.0  # s: before the second commissioning window a period after the first (818 s)
+
+
+def test_a_fault_before_commissioning_is_not_taken_for_the_reference() -> None:
+    """A leak from 700 s, before the reference could be commissioned: its transient
+    invalidates the model (β > 1); the windows after it are not known-healthy, so they must
+    not become the reference, and the alarm must not return to OK while the leak goes on.
+
+    References: the scenario's fault schedule (the leak lasts to the end), and a reference
+    given from the healthy rig, against which the same windows are invalidated by the
+    operating point (the leak is there to see in every steady window after it)."""
+    scn = scenario([f"leak=0.04@{EARLY}"], periods=16)
+    core, reports = run(scn)
+    judged = [r for r in reports if r.judged]
+    first = next(i for i, r in enumerate(judged) if r.invalidated)
+    assert judged[first].end_ns / 1e9 > EARLY
+    after = judged[first:]
+    assert all(r.alarm is not Alarm.OK for r in after), [
+        (r.end_ns / 1e9, r.alarm.name, r.operating_point) for r in after if r.alarm is Alarm.OK
+    ]
+    ref = core.operating_points()["B"]
+    assert ref["state"] == OpState.SUSPENDED
+    assert ref["u"] is None
+    # every valid window after it says why it is not OK (typed and in words)
+    quiet = [r for r in after if not r.invalidated and r.alarm is Alarm.WARN]
+    assert quiet
+    assert all(r.op_state is OpState.SUSPENDED for r in quiet)
+    assert all("reset_operating_point" in r.operating_point for r in quiet)
+    assert all("operating point not checked" in verdict_text(r) for r in quiet)
+    # the independent reference: against the healthy rig's reference the leak is seen
+    healthy, _ = run(scenario(periods=8))
+    given = MonitorConfig(
+        ts_s=0.8,
+        period_samples=256,
+        op=OpPointConfig(
+            reference_u=tuple(healthy.operating_points()["B"]["u"]),
+            reference_y=tuple(healthy.operating_points()["B"]["y"]),
+        ),
+    )
+    _, seen = run(scn, given)
+    steady = [r for r in seen if r.judged and math.isfinite(r.beta_op) and r.start_ns / 1e9 > 1200]
+    assert len(steady) >= 10
+    assert all(r.raised_by.operating_point and r.alarm is Alarm.ERROR for r in steady)
+
+
+def test_a_nominal_run_still_commissions_and_stays_ok() -> None:
+    core, reports = run(scenario(periods=16))
+    judged = [r for r in reports if r.judged]
+    assert len(judged) >= 40
+    assert all(r.alarm is Alarm.OK for r in judged)
+    assert core.operating_points()["B"]["state"] == OpState.COMMISSIONED
+
+
+def test_reset_commissions_after_a_suspension_once_the_plant_is_healthy() -> None:
+    """The leak from 700 s ends at 1600 s: the reference stays suspended (its end's
+    transient ERROR clears to WARN, never OK) until reset_operating_point; then it
+    commissions on the healthy plant and the alarm returns to OK. Reference: the healthy
+    run's own commissioned reference."""
+    scn = scenario([f"leak=0.04@{EARLY}-1600"], periods=20)
+    stamps, u, y = sc.simulate_scenario(scn)
+    core = OnlineValidator(
+        MonitorConfig(ts_s=scn.ts_s, period_samples=scn.period_samples), [MODEL_B]
+    )
+    cut = int(np.searchsorted(stamps, round(3000 * 1e9)))
+    before = core.feed_many(*record_events(stamps[:cut], u[:cut], y[:cut]))
+    late = [r for r in before if r.judged and r.start_ns / 1e9 > 1700]
+    assert late
+    assert all(r.alarm is not Alarm.OK and r.op_state is OpState.SUSPENDED for r in late)
+    assert late[-1].alarm is Alarm.WARN
+    assert not late[-1].invalidated
+    core.reset_operating_points()
+    assert core.operating_points()["B"]["state"] == OpState.COMMISSIONING
+    rest = core.feed_many(*record_events(stamps[cut:], u[cut:], y[cut:]))
+    assert core.operating_points()["B"]["state"] == OpState.COMMISSIONED
+    assert rest[-1].alarm is Alarm.OK
+    healthy, _ = run(scenario(periods=8))
+    np.testing.assert_allclose(
+        core.operating_points()["B"]["y"], healthy.operating_points()["B"]["y"], atol=0.0015
+    )

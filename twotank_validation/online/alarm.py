@@ -11,7 +11,11 @@ equal diagnostic_msgs/DiagnosticStatus levels. Two rules (``AlarmConfig.debounce
   invalidating window. Weighted by time, the evidence of a β path does not depend on how
   often it is sampled (docs/theory.md §9).
 
-Both clear after ``clear_windows`` valid windows in a row.
+Both clear after ``clear_windows`` valid windows in a row. OK means judged valid in every
+respect: after an invalidating window the level returns to OK only through the clear rule's
+valid windows, and never while the operating point cannot be checked since the model was
+invalidated (``unchecked``: the reference was not commissioned before the fault,
+:class:`~twotank_validation.online.op_tracker.OpState` ``SUSPENDED``).
 """
 
 from __future__ import annotations
@@ -115,6 +119,7 @@ def update_alarm(
     invalidated: bool,
     beta: float,
     weight: float = 1.0,
+    unchecked: bool = False,
 ) -> AlarmState:
     """Next alarm state after one window.
 
@@ -124,8 +129,8 @@ def update_alarm(
     an invalidating window (the sequential rule), and clears after ``clear_windows`` valid
     ones (never, while latched). Otherwise WARN when ``beta >= warn_beta`` or while the
     model stands invalidated by a judged window without the clear rule's valid windows since
-    (``AlarmState.unsettled``: the level returns to OK only through them, as ERROR clears),
-    else OK.
+    (``AlarmState.unsettled``: the level returns to OK only through them, as ERROR clears)
+    or while ``unchecked``, else OK.
 
     Args:
         state: the state after the previous window.
@@ -134,6 +139,9 @@ def update_alarm(
         invalidated: its raw verdict.
         beta: its β (the one the verdict compares with 1).
         weight: the share of a period the window adds to the evidence (hop / period).
+        unchecked: part of the verdict could not be judged since the model was invalidated
+            (the operating point: its reference suspended): the window is valid in what was
+            judged, so it counts towards clearing ERROR, but the level stays at least WARN.
     """
     if not judged:
         return replace(state, level=Alarm.STALE)
@@ -158,7 +166,7 @@ def update_alarm(
     unsettled = invalidated or (state.unsettled and valid_run < config.clear_windows)
     if in_error:
         level = Alarm.ERROR
-    elif beta >= config.warn_beta or unsettled:
+    elif beta >= config.warn_beta or unsettled or unchecked:
         level = Alarm.WARN
     else:
         level = Alarm.OK

@@ -19,6 +19,14 @@ steady state feed it their input and output means; it answers with the zero-freq
 4. **Transients.** A window whose outputs still drift (the datum's transient finding) is not
    in steady state: its means are not an operating point, so it is neither checked nor used
    to commission.
+5. **Suspended.** A judged window that invalidates the model (its dynamics: β > 1) while no
+   reference exists ends the commissioning: the windows after it are not known to be
+   healthy (a leak's transient invalidates the dynamics, the steady windows after it sit at
+   the leak's operating point), so none of them becomes the reference. The operating point
+   then goes unchecked until a reference is given (``reference_u``/``reference_y``) or
+   :meth:`OperatingPointTracker.reset` (the ``reset_operating_point`` service) commissions
+   again once the plant is healthy; meanwhile the alarm stays at least WARN
+   (:func:`~twotank_validation.online.alarm.update_alarm`, ``unchecked``).
 
 The tracker is reset (re-commissioned) by :meth:`OperatingPointTracker.reset`, as the alarm
 latch is.
@@ -55,6 +63,17 @@ class OpState(enum.StrEnum):
     """The reference is the mean of the first steady windows."""
     MOVED = "moved by a setpoint change"
     """The inputs moved and the model explained the move: the reference followed."""
+    SUSPENDED = "suspended"
+    """Not commissioned: the model was invalidated before a reference was set, and the
+    windows after that are not known to be healthy. Left by a given reference or a reset."""
+
+
+SUSPENDED_NOTE = (
+    "not commissioned: the model was invalidated before a reference was set; give the "
+    "reference (op_reference_u, op_reference_y) or call reset_operating_point once the plant is "
+    "healthy"
+)
+"""Why a suspended reference checks nothing, and what clears it (every window says so)."""
 
 
 @dataclass(frozen=True)
@@ -135,6 +154,11 @@ class OpVerdict:
         """β_op, NaN where the window was not checked."""
         return self.check.beta if self.check is not None else math.nan
 
+    @property
+    def unchecked(self) -> bool:
+        """The operating point cannot be checked since the model was invalidated."""
+        return self.state is OpState.SUSPENDED
+
 
 @dataclass
 class OperatingPointTracker:
@@ -178,7 +202,12 @@ class OperatingPointTracker:
             self.reference, self.state = None, OpState.COMMISSIONING
 
     def observe(
-        self, means: OperatingPoint, *, steady: bool, end_ns: int | None = None
+        self,
+        means: OperatingPoint,
+        *,
+        steady: bool,
+        end_ns: int | None = None,
+        invalidated: bool = False,
     ) -> OpVerdict:
         """One judged window's means in; the check of this window out.
 
@@ -186,9 +215,15 @@ class OperatingPointTracker:
             means: the window's input and output means (model units).
             steady: the window is in steady state (no transient finding).
             end_ns: the window's last stamp (spaces the windows collected; None: no spacing).
+            invalidated: the window's dynamics invalidate the model (β > 1): without a
+                reference, its verdict; the commissioning is then suspended (module doc, 5).
         """
         if self.state is OpState.OFF:
             return OpVerdict(self.state, None, "operating-point check off")
+        if self.reference is None and invalidated:
+            self.state, self._pending, self._last_end = OpState.SUSPENDED, [], None
+        if self.state is OpState.SUSPENDED:
+            return OpVerdict(self.state, None, SUSPENDED_NOTE)
         if not steady:
             return OpVerdict(self.state, None, "not in steady state (outputs still drift)")
         if self.reference is None:

@@ -47,7 +47,12 @@ from twotank_validation.online.alarm import (
 from twotank_validation.online.aligner import Sample, SampleBlock
 from twotank_validation.online.channels import Channels, match_channels
 from twotank_validation.online.livediag import LiveDiagnosis
-from twotank_validation.online.op_tracker import OperatingPointTracker, OpPointConfig
+from twotank_validation.online.op_tracker import (
+    SUSPENDED_NOTE,
+    OperatingPointTracker,
+    OpPointConfig,
+    OpState,
+)
 from twotank_validation.online.recovery import Recovery, recover_span
 from twotank_validation.online.states import (
     QUALITY_OK,
@@ -224,8 +229,12 @@ class WindowReport:
             or each below 1 and together above); ``RaisedBy.NONE`` (``""``) when it is valid
             or not judged.
         operating_point: the reference's state (``commissioning``, ``given``,
-            ``commissioned``, ``moved by a setpoint change``, ``off``) and, after a colon,
-            why the window was not checked or what happened.
+            ``commissioned``, ``moved by a setpoint change``, ``suspended``, ``off``) and,
+            after a colon, why the window was not checked or what happened.
+        op_state: the reference's state typed (:class:`~.op_tracker.OpState`); None where no
+            tracker stands behind the report. ``SUSPENDED``: the model was invalidated before
+            a reference was set, the operating point goes unchecked, and the alarm stays at
+            least WARN.
         diagnosis: the live diagnosis in force at this window (the most likely effect behind
             the alarm, :mod:`~twotank_validation.online.livediag`); None before one is ready,
             while the alarm is not ERROR, and without a diagnoser.
@@ -266,6 +275,7 @@ class WindowReport:
     beta_total: float = math.nan
     raised_by: RaisedBy = RaisedBy.NONE
     operating_point: str = ""
+    op_state: OpState | None = None
     diagnosis: LiveDiagnosis | None = None
     quality: WindowQuality = QUALITY_OK
     findings: tuple[PeriodicityFinding, ...] = ()
@@ -313,6 +323,8 @@ def verdict_text(rep: WindowReport) -> str:
     verdict = f"INVALIDATED by the {rep.raised_by}" if rep.invalidated else "not invalidated"
     if rep.invalidated and rep.raised_by == RaisedBy.BOTH:
         verdict = "INVALIDATED by the dynamics and the operating point"
+    if rep.op_state is OpState.SUSPENDED:
+        verdict += f"; operating point not checked ({SUSPENDED_NOTE})"
     return f"beta {rep.beta:.3f} (margin {rep.margin:+.3f}){op}: {verdict}"
 
 
@@ -627,6 +639,7 @@ class WindowMonitor:
                 OperatingPoint(datum.u_bias, datum.y_bias),
                 steady=not datum.periodicity.transient_suspected,
                 end_ns=end_ns,
+                invalidated=res.beta > 1.0,
             )
             elapsed = time.perf_counter() - t0
             total = combined_beta(res.beta, op.beta) if op.check is not None else res.beta
@@ -637,6 +650,7 @@ class WindowMonitor:
                 invalidated=total > 1.0,
                 beta=total,
                 weight=self._weight,
+                unchecked=op.unchecked,
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
@@ -665,6 +679,7 @@ class WindowMonitor:
                     beta_total=total,
                     raised_by=raised_by(res.beta, op.beta, total),
                     operating_point=f"{op.state}: {op.note}" if op.note else str(op.state),
+                    op_state=op.state,
                     quality=judged_reason,
                     findings=res.findings,
                     input_leakage=res.input_leakage,
@@ -700,6 +715,7 @@ class WindowMonitor:
             w_min=np.zeros(0),
             compute_time_s=0.0,
             quality=quality,
+            op_state=self.operating_points[name].state,
         )
 
 

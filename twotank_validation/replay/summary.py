@@ -108,6 +108,7 @@ def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
         "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
         "raised_by": str(rep.raised_by),
         "operating_point": rep.operating_point,
+        "op_state": None if rep.op_state is None else str(rep.op_state),
         "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
     }
 

@@ -12,6 +12,7 @@ from twotank_validation import replay
 from twotank_validation.core.model import LFTModel
 from twotank_validation.errors import ExitCode, Interrupted, TwotankError, UsageError, interruption
 from twotank_validation.online import WindowReport
+from twotank_validation.online.op_tracker import SUSPENDED_NOTE, OpState
 from twotank_validation.online.validator_settings import ValidatorSettings
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
@@ -269,6 +270,8 @@ def window_row(name: str, w: Mapping[str, Any]) -> str:
     if w["raised_by"]:
         verdict += f" ({w['raised_by']})"
     extra = f"  ({w['reason']})" if w["reason"] else ""
+    if w["beta"] is not None and w.get("op_state") == OpState.SUSPENDED:
+        extra += f"  (operating point not checked: {SUSPENDED_NOTE})"
     extra += "".join(f"  (warning: {text})" for text in w["warnings"])
     if w["diagnosis"] is not None:
         extra += "  (diagnosis: {})".format(diagnosis_text(w["diagnosis"]))
