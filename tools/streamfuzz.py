@@ -55,7 +55,7 @@ HOSTILE_KINDS = (
 
 
 @cache
-def clean_record(n_periods: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def clean_record(n_periods: int = 6, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(stamps_ns, u, y)`` of the nominal rig: (n,), (n, 2), (n, 2), model units."""
     cfg = experiment.ExperimentConfig()
     exc = dataclasses.replace(

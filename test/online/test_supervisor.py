@@ -480,8 +480,7 @@ def test_false_transitions_settings_are_checked() -> None:
 @cache
 def rig_reports():
     """The validator's reports on the nominal rig (ts 0.8 s, period 256, a window every 64)."""
-    from test_monitor import rig_record  # noqa: PLC0415 (the same simulated rig data)
-
+    from tools.streamfuzz import clean_record as rig_record  # noqa: PLC0415 (same rig data)
     from twotank_validation.core.model import load_model  # noqa: PLC0415
     from twotank_validation.online import MonitorConfig, monitor_record  # noqa: PLC0415
 

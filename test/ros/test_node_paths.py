@@ -15,8 +15,8 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 from report_checks import assert_same_reports
 from sensor_msgs.msg import FluidPressure, Temperature
-from test_monitor import rig_record
 
+from tools.streamfuzz import clean_record as rig_record
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, MonitorConfig, WindowReport, monitor_record
 from twotank_validation.online import streams as itf

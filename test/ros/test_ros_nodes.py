@@ -177,7 +177,7 @@ class Harness:
 
 @cache
 def rig_record(n_periods: int):
-    from test_monitor import rig_record as record  # noqa: PLC0415 (same simulated rig data)
+    from tools.streamfuzz import clean_record as record  # noqa: PLC0415 (same rig data)
 
     return record(n_periods)
 

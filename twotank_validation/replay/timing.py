@@ -444,7 +444,7 @@ def resolve_timing(
     if over and ts_from != "stream rates":
         notes.append(
             f"ts {fmt_s(ts)} s spans several messages of "
-            + ", ".join(f"{name} (every {n}th kept)" for name, n in over.items())
+            + ", ".join(f"{name} (1 sample in {n} kept)" for name, n in over.items())
         )
     return Timing(
         ts_s=ts,
