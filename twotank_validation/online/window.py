@@ -823,6 +823,8 @@ def monitor_record(
     y: np.ndarray,
     config: MonitorConfig,
     models: Sequence[LFTModel],
+    *,
+    measured_inputs: Collection[str] = (),
 ) -> list[WindowReport]:
     """Offline: feed an already aligned record through the same monitor as the live node.
 
@@ -832,8 +834,9 @@ def monitor_record(
         y: (n, n_outputs) float.
         config: monitor settings.
         models: models.
+        measured_inputs: names of the inputs logged by a sensor (:class:`WindowMonitor`).
     """
-    mon = WindowMonitor(config, models)
+    mon = WindowMonitor(config, models, measured_inputs=measured_inputs)
     t0 = int(stamps_ns[0])
     ts_ns = round(config.ts_s * NS_PER_S)
     out: list[WindowReport] = []
