@@ -141,3 +141,37 @@ def test_input_noise_is_nan_where_the_gate_did_not_run() -> None:
     assert first.quality.state is WindowState.SETTLING
     assert math.isnan(first.input_noise)
     assert math.isnan(first.input_noise_effect)
+
+
+@pytest.mark.parametrize("kind", ["measured", "commanded"])
+def test_validate_a_logged_table_without_period(kind: str, tmp_path, capsys) -> None:
+    """The CLI on a CSV of noisy input readings: measured judges, commanded judges nothing."""
+    import json  # noqa: PLC0415
+
+    import pandas as pd  # noqa: PLC0415
+
+    from twotank_validation import cli  # noqa: PLC0415
+
+    stamps, _, logged, y = _noisy()
+    table = tmp_path / "rig.csv"
+    pd.DataFrame(
+        {"t": stamps / 1e9, "hot": logged[:, 0], "cold": logged[:, 1], "h": y[:, 0], "T": y[:, 1]}
+    ).to_csv(table, index=False)
+    extra = f",kind={kind}"
+    args = ["validate", str(table), "--model", "B", "--time", "t", "--quiet"]
+    args += ["--input", f"hot=column:hot{extra}", "--input", f"cold=column:cold{extra}"]
+    args += ["--output", "height=column:h", "--output", "temperature=column:T"]
+    out = tmp_path / "v.json"
+    code = cli.main([*args, "--json", str(out)])
+    err = capsys.readouterr().err
+    if kind == "commanded":
+        assert code == cli.EXIT_NOT_JUDGED, err
+        assert "the commands do not repeat" in err
+        return
+    assert code == cli.EXIT_OK, err
+    doc = json.loads(out.read_text())
+    assert doc["timing"]["period_samples"] == CONFIG.period_samples  # inferred, not given
+    windows = [w for w in doc["models"]["B"]["windows"] if w["beta"] is not None]
+    assert windows
+    assert all(w["input_noise"] == pytest.approx(NOISE, rel=0.2) for w in windows)
+    assert all(0.0 < w["input_noise_effect"] < 1.0 - w["beta"] for w in windows)
