@@ -20,7 +20,7 @@ from twotank_validation.core.model import load_model
 from twotank_validation.errors import ModelError
 from twotank_validation.online import AlarmConfig, MonitorConfig, monitor_record
 from twotank_validation.online.interface_map import InputKind, InterfaceMap
-from twotank_validation.online.interface_text import interface_map_from_text
+from twotank_validation.online.interface_text import input_texts, interface_map_from_text
 from twotank_validation.online.sources import InterfaceMapError
 from twotank_validation.online.states import WindowState
 
@@ -101,6 +101,7 @@ def test_the_map_marks_an_input_measured() -> None:
     text = interface_map_from_text(["hot=column:hot,kind=measured"], ["height=column:h"])
     assert text.measured_inputs == ("hot",)
     assert text.inputs == imap.inputs
+    assert interface_map_from_text(input_texts(imap), ["height=column:h"]) == imap
 
 
 @pytest.mark.parametrize(

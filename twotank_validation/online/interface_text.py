@@ -28,6 +28,7 @@ __all__ = [
     "TABLE_TEXT_FORM",
     "TEXT_FORM",
     "TIME_TEXT_FORM",
+    "input_texts",
     "interface_map_from_text",
     "source_from_text",
     "source_to_text",
@@ -201,6 +202,18 @@ def interface_map_from_text(
         "the interface map given as text (--input/--output, inputs/outputs)",
         tuple(kinds),
     )
+
+
+def input_texts(imap: InterfaceMap) -> list[str]:
+    """The text forms of a map's inputs, a measured one's with ``,kind=measured``.
+
+    :func:`interface_map_from_text` of these and the outputs' :func:`source_to_text` gives
+    the map's inputs and their kinds back.
+    """
+    return [
+        source_to_text(s) + (",kind=measured" if k is InputKind.MEASURED else "")
+        for s, k in zip(imap.inputs, imap.kinds, strict=True)
+    ]
 
 
 def _input_kind(text: Any, is_input: bool) -> tuple[Any, InputKind]:
