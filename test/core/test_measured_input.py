@@ -73,11 +73,14 @@ def test_measured_input_is_judged_with_beta_within_the_noise_effect(model: LFTMo
     shift = input_noise_shift(resp.p22, resp.p23, left, clean.bin_weights)
     assert 0.0 < abs(beta - beta0) <= shift
     # what the window reports (the noise estimated from the data, not known) is the expected
-    # shift: shift^2 is a sum of exponential variables (a complex Gaussian bin's power),
-    # whose standard deviation is the root sum of their squared means
+    # shift: shift^2 is a sum of terms a_n |N(n)|^2, exponential variables (a complex
+    # Gaussian bin's power) of standard deviation their mean; the estimate sums a_n
+    # sigma_n^2 with each sigma_n^2 a sample variance over the p periods (p - 1 complex
+    # degrees of freedom: relative standard deviation 1/sqrt(p - 1))
     effect = input_noise_effect(resp.p22, resp.p23, noisy.u_noise_std, clean.bin_weights)
     terms = clean.bin_weights[:, None] * (noise_gain(resp.p22, resp.p23) * noisy.u_noise_std) ** 2
-    spread = np.sqrt(np.sum(terms**2)) + 2 * 4 * se * effect**2  # + the estimate's own error
+    p = noisy.n_periods
+    spread = np.sqrt(np.sum(terms**2) * (1.0 + 1.0 / (p - 1)))
     assert abs(shift**2 - effect**2) <= 4 * spread
 
 
