@@ -611,7 +611,8 @@ def _doc_blocks(lang: str) -> list[str]:
 
 def test_doc_examples_are_the_maps_they_describe() -> None:
     # tables: test_tables.py; the real rig's log: the map file the block shows
-    default_block, rig_block, _table_block, benchmark_block = _doc_blocks("yaml")
+    default_block, rig_block, measured_block, _table_block, benchmark_block = _doc_blocks("yaml")
+    assert InterfaceMap.from_dict(yaml.safe_load(measured_block)).measured_inputs == ("force",)
     benchmark = REPO / "test" / "data" / "cascaded_tanks" / "estimation.map.yaml"
     assert InterfaceMap.from_dict(yaml.safe_load(benchmark_block)) == load_interface_map(benchmark)
     assert InterfaceMap.from_dict(yaml.safe_load(default_block)) == default_interface_map()

@@ -30,6 +30,10 @@ from twotank_validation.core.columns import centred, column_max_abs, column_mean
 from twotank_validation.errors import DatumError, DimensionError
 
 _INPUT_PERIODIC_RTOL = 1e-6
+MEASURED_INPUT_RTOL = 0.05
+"""Largest noise of a measured input (RMS of its period-to-period spread, relative to the
+input's RMS) that the periodicity gate tolerates: the noise's effect on β is reported
+(docs/theory.md, "Measured inputs"); a larger spread is a changed excitation, not noise."""
 _DRIFT_LIMIT = 0.05
 _DECAY_RATIO = 2.0
 
@@ -93,6 +97,9 @@ class PeriodicityReport:
             last period's input differs from the one before, sample by sample (zeros with
             one period); what the input's leakage is estimated from
             (:func:`input_leakage_transient`).
+        input_noise: (n_inputs,) float, each measured input's noise RMS estimated from the
+            period-to-period spread (:func:`input_noise_rms`), relative to its RMS; 0 for a
+            commanded input (its gate is strict), NaN with one period.
     """
 
     n_periods: int
@@ -104,6 +111,7 @@ class PeriodicityReport:
     transient_suspected: bool
     findings: tuple[PeriodicityFinding, ...] = ()
     last_change: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    input_noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def is_periodic(self) -> bool:
@@ -151,6 +159,10 @@ class Datum:
         periodicity: periodicity findings.
         y_centred: (n_samples, n_outputs) float, the de-biased outputs (what
             :attr:`noise_std` is estimated from, on first use).
+        u_noise_std: (n_bins, n_inputs) float, per-bin standard deviation of the noise left
+            in ``U(n)`` of a measured input (averaged over the periods, model units scaled
+            as ``u_bins``; :func:`noise_estimate` of the logged input at the harmonic bins
+            but DC, 0 elsewhere); 0 for a commanded input. Empty: every input commanded.
     """
 
     u_bins: np.ndarray
@@ -167,6 +179,7 @@ class Datum:
     u_max: np.ndarray
     periodicity: PeriodicityReport
     y_centred: np.ndarray = field(repr=False)
+    u_noise_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
 
     @cached_property
     def noise_std(self) -> np.ndarray:
@@ -256,13 +269,21 @@ def check_record(
     return u2, y2
 
 
-def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> PeriodicityReport:
+def assess_periodicity(
+    u: np.ndarray, y: np.ndarray, period_samples: int, measured: np.ndarray | None = None
+) -> PeriodicityReport:
     """Measure period-to-period variation and drift of a record of whole periods.
+
+    A commanded input is periodic when it repeats to 1e-6 of its RMS; a measured one
+    (``measured``) when its noise, the period-to-period spread (:func:`input_noise_rms`), is
+    at most :data:`MEASURED_INPUT_RTOL` of its RMS.
 
     Args:
         u: (n_samples, n_inputs) float, de-biased inputs.
         y: (n_samples, n_outputs) float, de-biased outputs.
         period_samples: samples per period.
+        measured: (n_inputs,) bool, the inputs that are measured (logged by a sensor); None:
+            every input commanded.
     """
     p = u.shape[0] // period_samples
     up = u.reshape(p, period_samples, -1)
@@ -274,7 +295,10 @@ def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> Per
     means = period_mean(yp)
     drift = np.abs(means[-1] - means[0]) / y_rms
     findings: list[PeriodicityFinding] = []
-    input_periodic = bool(np.all(u_var <= _INPUT_PERIODIC_RTOL))
+    meas = np.zeros(u.shape[1], bool) if measured is None else np.asarray(measured, bool)
+    noise = np.where(meas, input_noise_rms(u, period_samples) / u_rms, 0.0)
+    strict = np.all(u_var <= _INPUT_PERIODIC_RTOL, axis=0) if p >= 2 else np.ones(meas.size, bool)
+    input_periodic = bool(np.all(np.where(meas, ~(noise > MEASURED_INPUT_RTOL), strict)))
     if p < 2:
         findings.append(PeriodicityFinding.ONE_PERIOD)
     elif not input_periodic:
@@ -296,7 +320,41 @@ def assess_periodicity(u: np.ndarray, y: np.ndarray, period_samples: int) -> Per
         transient_suspected=transient,
         findings=tuple(findings),
         last_change=last,
+        input_noise=noise,
     )
+
+
+def input_noise_rms(u: np.ndarray, period_samples: int) -> np.ndarray:
+    """Noise RMS of each input from its period-to-period spread.
+
+    ``sigma^2 = mean_k var_r u_r(k)``: the unbiased variance over the ``p`` periods at each
+    sample of the period, averaged over the period; white noise of RMS ``sigma`` on a
+    periodic signal gives ``sigma`` (the periodic part cancels).
+
+    Args:
+        u: (n_samples, n_inputs) float, whole periods (model units).
+        period_samples: samples per period.
+
+    Returns:
+        (n_inputs,) float, model units; NaN with one period.
+    """
+    p = u.shape[0] // period_samples
+    if p < 2:
+        return np.full(u.shape[1], np.nan)
+    up = u.reshape(p, period_samples, -1)
+    return np.asarray(np.sqrt(np.mean(np.var(up, axis=0, ddof=1), axis=0)))
+
+
+def period_average(x: np.ndarray, period_samples: int) -> np.ndarray:
+    """A record replaced by its mean period, repeated: (n_samples, n_channels) float.
+
+    Its DFT over the record equals the record's at the harmonics of the period and is zero
+    elsewhere: the average over the periods the DFT over whole periods already takes,
+    without the noise at the other bins (docs/theory.md, "Measured inputs").
+    """
+    p = x.shape[0] // period_samples
+    mean = x.reshape(p, period_samples, -1).mean(axis=0)
+    return np.tile(mean, (p, 1))
 
 
 def scaled_dft(x: np.ndarray, convention: NormConvention) -> np.ndarray:
@@ -357,8 +415,12 @@ def make_datum(
     ts_s: float,
     period_samples: int,
     convention: NormConvention | str = NormConvention.POWER,
+    measured: np.ndarray | None = None,
 ) -> Datum:
     """Build a :class:`Datum` from raw samples.
+
+    A measured input (``measured``) is replaced by its average over the periods
+    (:func:`period_average`) and the noise left in it is estimated (``u_noise_std``).
 
     Args:
         u: (n_samples, n_inputs) float, inputs in model units.
@@ -366,6 +428,8 @@ def make_datum(
         ts_s: sample period in seconds.
         period_samples: excitation period in samples; ``n_samples`` must be a multiple.
         convention: ``"power"`` (default) or ``"energy"``.
+        measured: (n_inputs,) bool, the inputs logged by a sensor (noisy), not commanded;
+            None: every input commanded.
 
     Raises:
         DatumError: see :func:`check_record`; a non-positive sample period.
@@ -380,6 +444,17 @@ def make_datum(
     yc = centred(y2, y_bias)
     n = u2.shape[0]
     theta = 2.0 * np.pi * np.arange(n // 2 + 1) / n
+    meas = None if measured is None else np.asarray(measured, bool).reshape(-1)
+    if meas is not None and meas.size != uc.shape[1]:
+        raise DimensionError(f"measured marks {meas.size} inputs but u has {uc.shape[1]}")
+    periodicity = assess_periodicity(uc, yc, int(period_samples), meas)
+    u_noise = np.zeros((0, 0))
+    if meas is not None and meas.any():
+        u_noise = np.where(meas, np.nan_to_num(noise_estimate(uc, period_samples, conv)), 0.0)
+        u_noise[0] = 0.0  # the mean, noise included, is removed as the bias
+        if n // period_samples < 2:
+            u_noise[:, meas] = np.nan
+        uc = np.where(meas, period_average(uc, int(period_samples)), uc)
     return Datum(
         u_bins=scaled_dft(uc, conv),
         y_bins=scaled_dft(yc, conv),
@@ -393,8 +468,9 @@ def make_datum(
         u_bias=u_bias,
         y_bias=y_bias,
         u_max=column_max_abs(uc),
-        periodicity=assess_periodicity(uc, yc, int(period_samples)),
+        periodicity=periodicity,
         y_centred=yc,
+        u_noise_std=u_noise,
     )
 
 

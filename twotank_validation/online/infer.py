@@ -11,7 +11,10 @@ functions are pure and take plain arrays:
 * :func:`infer_excitation_period`: the smallest shift under which the commands repeat, from
   the excitation's first sample on. Every shift's mean squared difference is computed at once
   with FFT correlations (masked for lost samples); the few shifts that come out near zero are
-  then checked sample by sample to the window gate's own tolerance.
+  then checked sample by sample to the window gate's own tolerance. A measured input (a
+  sensor's reading, the interface map's ``kind: measured``) repeats only within its noise:
+  for it the shift is the first dip of the mean squared difference (a local minimum) within
+  twice the squared noise the window gate tolerates (``MEASURED_INPUT_RTOL``).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from twotank_validation.core.datum import MEASURED_INPUT_RTOL
 from twotank_validation.defaults import NS_PER_S
 
 MIN_PERIOD_SAMPLES = 4
@@ -108,18 +112,24 @@ def _correlate(a: np.ndarray, b: np.ndarray, n_fft: int) -> np.ndarray:
     return np.fft.irfft(np.conj(fa) * fb, n_fft, axis=0)[: len(a)].sum(axis=1)
 
 
-def infer_excitation_period(u: np.ndarray, rtol: float = 1e-6) -> int | None:
+def infer_excitation_period(
+    u: np.ndarray, rtol: float = 1e-6, measured: np.ndarray | None = None
+) -> int | None:
     """The smallest shift (samples) under which the commands repeat.
 
     Only the part from the excitation's start on is used: the first sample that differs from
     the first row (a record that starts with the inputs held still), or the whole record. A
-    shift counts when, over every pair of samples it lines up (both present), no input
-    changes by more than ``rtol`` times its RMS, and at least one whole period is compared.
+    shift counts when, over every pair of samples it lines up (both present), no commanded
+    input changes by more than ``rtol`` times its RMS, every measured input's mean squared
+    change is a local minimum over the shifts and at most ``2 MEASURED_INPUT_RTOL^2`` times
+    its mean square (two copies of its noise), and at least one whole period is compared.
 
     Args:
-        u: (n, m) float, commands on the sample grid (NaN: not received).
+        u: (n, m) float, inputs on the sample grid (NaN: not received).
         rtol: tolerance relative to each input's RMS (the window gate's
             ``input_periodic_rtol``).
+        measured: (m,) bool, the inputs read by a sensor (repeating within their noise);
+            None: every input commanded.
 
     Returns:
         The period in samples, or None when the commands do not repeat within the record.
@@ -142,26 +152,41 @@ def infer_excitation_period(u: np.ndarray, rtol: float = 1e-6) -> int | None:
     rms = np.sqrt(np.nansum(zc**2, axis=0) / np.maximum(mask.sum(axis=0), 1.0))
     scale = np.where(rms > 0, rms, 1.0)
     zs = zc / scale
-    # sum over aligned valid pairs of (z[k] - z[k+p])^2, by FFT correlations
+    meas = np.zeros(x.shape[1], bool) if measured is None else np.asarray(measured, bool)
     n_fft = 1 << (2 * n - 1).bit_length()
+    pairs = _correlate(mask, mask, n_fft)
+    shifts = np.arange(n)
+    usable = (shifts >= MIN_PERIOD_SAMPLES) & (shifts <= n // 2) & (pairs >= 0.5 * shifts)
+    candidate = usable.copy()
+    if not meas.all():
+        candidate &= _msd(zs[:, ~meas], mask[:, ~meas], n_fft) < _CANDIDATE_RTOL
+    if meas.any():
+        noisy = _msd(zs[:, meas], mask[:, meas], n_fft)
+        dip = np.zeros(n, bool)
+        dip[1:-1] = (noisy[1:-1] < noisy[:-2]) & (noisy[1:-1] <= noisy[2:])
+        candidate &= dip & (noisy <= 2.0 * MEASURED_INPUT_RTOL**2)
+    for p in np.flatnonzero(candidate):
+        a, b = z[:-p, ~meas], z[p:, ~meas]
+        both = np.all(np.isfinite(a) & np.isfinite(b), axis=1)
+        if np.count_nonzero(both) < p:
+            continue
+        change = np.max(np.abs(a[both] - b[both]), axis=0, initial=0.0)
+        if np.all(change <= rtol * np.maximum(rms[~meas], 1e-12)):
+            return int(p)
+    return None
+
+
+def _msd(zs: np.ndarray, mask: np.ndarray, n_fft: int) -> np.ndarray:
+    """(n,) mean over aligned valid pairs (all columns) of ``(z[k] - z[k+p])^2``, every shift.
+
+    By FFT correlations; ``zs`` (n, m) scaled to unit RMS and zero where not valid, ``mask``
+    (n, m) 1 where valid.
+    """
     sq = zs**2
     diff2 = (
         _correlate(sq, mask, n_fft) + _correlate(mask, sq, n_fft) - 2 * _correlate(zs, zs, n_fft)
     )
-    pairs = _correlate(mask, mask, n_fft)
-    shifts = np.arange(n)
-    usable = (shifts >= MIN_PERIOD_SAMPLES) & (shifts <= n // 2) & (pairs >= 0.5 * shifts)
-    msd = np.full(n, np.inf)
-    msd[usable] = diff2[usable] / np.maximum(pairs[usable], 1.0) / x.shape[1]
-    for p in np.flatnonzero(msd < _CANDIDATE_RTOL):
-        a, b = z[:-p], z[p:]
-        both = np.all(np.isfinite(a) & np.isfinite(b), axis=1)
-        if np.count_nonzero(both) < p:
-            continue
-        change = np.max(np.abs(a[both] - b[both]), axis=0)
-        if np.all(change <= rtol * np.maximum(rms, 1e-12)):
-            return int(p)
-    return None
+    return np.asarray(diff2 / np.maximum(_correlate(mask, mask, n_fft), 1.0))
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,9 @@ from twotank_validation.online.extraction import (
     raw_value,
     source_stamp_ns,
 )
-from twotank_validation.online.interface_map import InterfaceMap, load_interface_map
+from twotank_validation.online.interface_map import InputKind, InterfaceMap, load_interface_map
 from twotank_validation.online.interface_text import (
+    input_texts,
     interface_map_from_text,
     source_from_text,
     source_to_text,
@@ -45,6 +46,7 @@ from twotank_validation.online.interface_text import (
 from twotank_validation.online.sources import InterfaceMapError, Source, TimeColumn, convert
 
 __all__ = [
+    "InputKind",
     "InterfaceMap",
     "InterfaceMapError",
     "Source",
@@ -52,6 +54,7 @@ __all__ = [
     "check_message",
     "convert",
     "extract",
+    "input_texts",
     "interface_map_from_text",
     "load_interface_map",
     "raw_value",

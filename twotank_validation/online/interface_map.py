@@ -13,6 +13,7 @@ system) or all-column (a table, stamped by its
 from __future__ import annotations
 
 import dataclasses
+import enum
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final, NamedTuple
@@ -32,6 +33,7 @@ __all__ = [
     "INPUT",
     "OUTPUT",
     "Binding",
+    "InputKind",
     "InterfaceMap",
     "TopicSources",
     "load_interface_map",
@@ -47,6 +49,32 @@ _KEYS: Final = ("name", "topic", "type", "field", "stamp", "offset", "scale", "c
 _REQUIRED: Final = ("name", "topic", "type", "field")
 _BAG_KEYS: Final = ("topic", "type", "field", "stamp")  # keys a table's source cannot have
 _TIME_KEYS: Final = ("column", "unit", "step_s")
+_KIND_KEY: Final = "kind"  # an input's key only
+
+
+class InputKind(enum.StrEnum):
+    """What an input's source carries: the command sent, or a sensor's reading of the input."""
+
+    COMMANDED = "commanded"
+    """The command sent (default): it repeats exactly from period to period."""
+    MEASURED = "measured"
+    """Logged by a sensor (a flow meter, a force cell): it repeats only within its noise."""
+
+    @classmethod
+    def parse(cls, value: Any, where: str) -> InputKind:
+        """The kind named by ``value``.
+
+        Raises:
+            InterfaceMapError: ``value`` names no kind (the message starts with ``where``).
+        """
+        try:
+            return cls(value)
+        except ValueError:
+            raise InterfaceMapError(
+                f"{where}: {value!r} is not an input kind; use 'commanded' (the command sent, "
+                "repeating exactly; the default) or 'measured' (a sensor's reading of the "
+                "input, repeating within its noise)"
+            ) from None
 
 
 # --------------------------------------------------------------------------- the map
@@ -81,6 +109,8 @@ class InterfaceMap:
             ``TimeColumn()``, the column found by name, unit ``auto``). None for a bag's map.
         label: What the map is called in messages (``"the interface map rig.yaml"``, ``"the
             two-tank interface"``); not part of the map's value.
+        input_kinds: One :class:`InputKind` per input (empty: every input commanded); YAML
+            key ``kind`` of an input.
 
     Raises:
         InterfaceMapError: If either is empty or not made of :class:`Source`, a name is used
@@ -93,6 +123,7 @@ class InterfaceMap:
     outputs: tuple[Source, ...]
     time: TimeColumn | None = None
     label: str = dataclasses.field(default="the interface map", compare=False)
+    input_kinds: tuple[InputKind, ...] = ()
 
     def __post_init__(self) -> None:
         for role in ("inputs", "outputs"):
@@ -101,6 +132,15 @@ class InterfaceMap:
                 raise InterfaceMapError(f"{role}: expected a sequence of Source, found {value!r}")
             object.__setattr__(self, role, tuple(value))
         _check_sources(self.inputs, self.outputs)
+        kinds = tuple(InputKind.parse(k, "input_kinds") for k in self.input_kinds)
+        if kinds and len(kinds) != len(self.inputs):
+            raise InterfaceMapError(
+                f"input_kinds: {len(kinds)} kinds for {len(self.inputs)} inputs; give one per "
+                "input (or none: every input commanded)"
+            )
+        object.__setattr__(
+            self, "input_kinds", () if all(k is InputKind.COMMANDED for k in kinds) else kinds
+        )
         if self.time is not None and not isinstance(self.time, TimeColumn):
             raise InterfaceMapError(f"time: expected a TimeColumn, found {self.time!r}")
         if self.is_table and self.time is None:
@@ -122,7 +162,8 @@ class InterfaceMap:
                 ``name``, ``topic``, ``type``, ``field`` (required), ``stamp``, ``offset``,
                 ``scale`` (optional: ``header``, 0, 1); for a table, ``name`` and ``column``
                 (required), ``offset``, ``scale``, and the map's optional ``time``: a column
-                name or ``{column: ..., unit: ...}`` (:class:`TimeColumn`).
+                name or ``{column: ..., unit: ...}`` (:class:`TimeColumn`). An input may say
+                ``kind: commanded`` (default) or ``kind: measured`` (:class:`InputKind`).
             source: Label of the document in error messages (the file name).
 
         Raises:
@@ -142,6 +183,7 @@ class InterfaceMap:
                 "(a table's time column)]"
             )
         lists: dict[str, tuple[Source, ...]] = {}
+        kinds: list[InputKind] = []
         for role in ("inputs", "outputs"):
             if role not in doc:
                 raise InterfaceMapError(f"{source}: missing key '{role}' (a list of sources)")
@@ -150,19 +192,41 @@ class InterfaceMap:
                 raise InterfaceMapError(
                     f"{source}: {role}: expected a non-empty list of sources, found {entries!r}"
                 )
-            lists[role] = tuple(
-                _source_from_mapping(e, source, f"{role}[{i}]") for i, e in enumerate(entries)
-            )
+            sources = []
+            for i, node in enumerate(entries):
+                where = f"{role}[{i}]"
+                entry = node
+                if isinstance(entry, Mapping) and _KIND_KEY in entry:
+                    if role == "outputs":
+                        raise InterfaceMapError(
+                            f"{source}: {where}.kind: only an input has a kind ('commanded' or "
+                            "'measured'); an output is always measured: drop 'kind'"
+                        )
+                    kinds.append(InputKind.parse(entry[_KIND_KEY], f"{source}: {where}.kind"))
+                    entry = {k: v for k, v in entry.items() if k != _KIND_KEY}
+                elif role == "inputs":
+                    kinds.append(InputKind.COMMANDED)
+                sources.append(_source_from_mapping(entry, source, where))
+            lists[role] = tuple(sources)
         time = _time_from_node(doc["time"], source) if "time" in doc else None
         try:
-            return cls(lists["inputs"], lists["outputs"], time, f"the interface map {source}")
+            return cls(
+                lists["inputs"],
+                lists["outputs"],
+                time,
+                f"the interface map {source}",
+                tuple(kinds),
+            )
         except InterfaceMapError as err:
             raise InterfaceMapError(f"{source}: {err}") from None
 
     def to_dict(self) -> dict[str, Any]:
         """The YAML document of the map (:meth:`from_dict` of it gives an equal map)."""
         doc: dict[str, Any] = {
-            "inputs": [s.to_dict() for s in self.inputs],
+            "inputs": [
+                s.to_dict() | ({_KIND_KEY: str(k)} if k is InputKind.MEASURED else {})
+                for s, k in zip(self.inputs, self.kinds, strict=True)
+            ],
             "outputs": [s.to_dict() for s in self.outputs],
         }
         if self.time is not None:
@@ -179,6 +243,18 @@ class InterfaceMap:
     def sources(self) -> tuple[Source, ...]:
         """Every source: the inputs in the order of ``u``, then the outputs (order of ``y``)."""
         return self.inputs + self.outputs
+
+    @property
+    def kinds(self) -> tuple[InputKind, ...]:
+        """Each input's kind, in the order of ``u`` (commanded where none was given)."""
+        return self.input_kinds or (InputKind.COMMANDED,) * len(self.inputs)
+
+    @property
+    def measured_inputs(self) -> tuple[str, ...]:
+        """Names of the measured inputs (:attr:`InputKind.MEASURED`), in the order of ``u``."""
+        return tuple(
+            s.name for s, k in zip(self.inputs, self.kinds, strict=True) if k is InputKind.MEASURED
+        )
 
     @property
     def input_names(self) -> tuple[str, ...]:

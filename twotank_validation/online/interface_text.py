@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Final
 
-from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.interface_map import InputKind, InterfaceMap
 from twotank_validation.online.sources import (
     _MSGTYPE,
     STAMP_HEADER,
@@ -28,6 +28,7 @@ __all__ = [
     "TABLE_TEXT_FORM",
     "TEXT_FORM",
     "TIME_TEXT_FORM",
+    "input_texts",
     "interface_map_from_text",
     "source_from_text",
     "source_to_text",
@@ -35,7 +36,10 @@ __all__ = [
 ]
 
 TEXT_FORM: Final = "NAME=TOPIC:TYPE:FIELD[,scale=S][,offset=O][,stamp=header|receive]"
-"""The grammar of :func:`source_from_text` for a bag's source, as shown in error messages."""
+"""The grammar of :func:`source_from_text` for a bag's source, as shown in error messages.
+
+An input of :func:`interface_map_from_text` may add ``,kind=commanded|measured`` (either
+form; :class:`~twotank_validation.online.interface_map.InputKind`)."""
 TABLE_TEXT_FORM: Final = "NAME=column:COLUMN[,scale=S][,offset=O]"
 """The grammar of :func:`source_from_text` for a table's source (a column)."""
 TIME_TEXT_FORM: Final = "COLUMN[,unit=auto|s|ms|us|ns|iso]"
@@ -179,17 +183,57 @@ def interface_map_from_text(
             and :class:`InterfaceMap`.
     """
     lists: dict[str, list[Source]] = {"inputs": [], "outputs": []}
+    kinds: list[InputKind] = []
     for role, texts in (("inputs", inputs), ("outputs", outputs)):
         if isinstance(texts, str):
             raise InterfaceMapError(f"{role}: expected a list of {TEXT_FORM}, found one string")
         for i, text in enumerate(texts):
             try:
-                lists[role].append(source_from_text(text))
+                plain, kind = _input_kind(text, role == "inputs")
+                lists[role].append(source_from_text(plain))
             except InterfaceMapError as err:
                 raise InterfaceMapError(f"{role}[{i}]: {err}") from None
+            if role == "inputs":
+                kinds.append(kind)
     return InterfaceMap(
         tuple(lists["inputs"]),
         tuple(lists["outputs"]),
         time_column_from_text(time) if time is not None else None,
         "the interface map given as text (--input/--output, inputs/outputs)",
+        tuple(kinds),
     )
+
+
+def input_texts(imap: InterfaceMap) -> list[str]:
+    """The text forms of a map's inputs, a measured one's with ``,kind=measured``.
+
+    :func:`interface_map_from_text` of these and the outputs' :func:`source_to_text` gives
+    the map's inputs and their kinds back.
+    """
+    return [
+        source_to_text(s) + (",kind=measured" if k is InputKind.MEASURED else "")
+        for s, k in zip(imap.inputs, imap.kinds, strict=True)
+    ]
+
+
+def _input_kind(text: Any, is_input: bool) -> tuple[Any, InputKind]:
+    """An input's text without its ``kind=commanded|measured`` option, and the kind.
+
+    Raises:
+        InterfaceMapError: a bad kind, a kind given twice, or a kind on an output.
+    """
+    if not isinstance(text, str):
+        return text, InputKind.COMMANDED
+    head, *options = text.split(",")
+    marked = [o for o in options if o.partition("=")[0].strip() == "kind"]
+    if not marked:
+        return text, InputKind.COMMANDED
+    if not is_input:
+        raise InterfaceMapError(
+            f"source {text!r}: only an input has a kind (commanded or measured); an output is "
+            "always measured: drop 'kind='"
+        )
+    if len(marked) > 1:
+        raise InterfaceMapError(f"source {text!r}: option 'kind' is given twice")
+    kind = InputKind.parse(marked[0].partition("=")[2].strip(), f"source {text!r}: kind")
+    return ",".join([head, *(o for o in options if o not in marked)]), kind

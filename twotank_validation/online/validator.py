@@ -176,7 +176,9 @@ class OnlineValidator:
                 "each input topic the same N"
             )
         cmd_over = in_rates.pop()
-        self._monitor = WindowMonitor(config, models, self.channels)
+        self._monitor = WindowMonitor(
+            config, models, self.channels, measured_inputs=imap.measured_inputs
+        )
         self._aligner = SampleAligner(
             config.ts_s,
             n_in,

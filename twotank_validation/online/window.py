@@ -10,14 +10,22 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from twotank_validation.core import fast
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
-from twotank_validation.core.datum import Datum, NormConvention, PeriodicityFinding, make_datum
+from twotank_validation.core.datum import (
+    MEASURED_INPUT_RTOL,
+    Datum,
+    NormConvention,
+    PeriodicityFinding,
+    input_noise_rms,
+    make_datum,
+)
+from twotank_validation.core.measured import input_noise_effect
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
 from twotank_validation.core.validate import (
@@ -249,7 +257,17 @@ class WindowReport:
         input_change: what the input periodicity gate measured: the largest change of an
             input from one period to the next over the window and its settling periods,
             relative to that input's RMS (``input_periodic_rtol`` bounds it); NaN where the
-            gate did not run (unusable samples, settling).
+            gate did not run (unusable samples, settling). Commanded inputs only (a
+            measured input's change is its noise: :attr:`input_noise`).
+        input_noise: the largest noise of a measured input (the interface map's ``kind:
+            measured``), the RMS of its period-to-period spread over the window and its
+            settling periods relative to its RMS (``MEASURED_INPUT_RTOL`` bounds it); 0
+            without measured inputs, NaN where the gate did not run.
+        input_noise_effect: how far the noise left in the measured inputs (averaged over
+            the window's periods) may move β, through the nominal and the noise channels
+            (:func:`~twotank_validation.core.measured.input_noise_effect`, docs/theory.md);
+            0 without measured inputs, NaN when not judged. A warning is given where it
+            reaches ``|1 - β|``.
     """
 
     model: str
@@ -281,6 +299,8 @@ class WindowReport:
     findings: tuple[PeriodicityFinding, ...] = ()
     input_leakage: float = math.nan
     input_change: float = math.nan
+    input_noise: float = math.nan
+    input_noise_effect: float = math.nan
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
@@ -337,9 +357,13 @@ class WindowMonitor:
         channels: the samples' channels and each model's place among them, matched by name
             (:func:`~twotank_validation.online.channels.match_channels`); default: the first
             model's inputs and outputs, which every model must then name.
+        measured_inputs: names of the inputs logged by a sensor (the interface map's
+            ``kind: measured``): their gate tolerates their own noise and the datum averages
+            them over the periods (docs/theory.md, "Measured inputs").
 
     Raises:
-        ModelError: no model, or a model without noise channels.
+        ModelError: no model, a model without noise channels, or a measured input that is
+            not one of the inputs.
         ChannelError: a model's channels do not match the samples' by name.
     """
 
@@ -348,6 +372,7 @@ class WindowMonitor:
         config: MonitorConfig,
         models: Sequence[LFTModel],
         channels: Channels | None = None,
+        measured_inputs: Collection[str] = (),
     ) -> None:
         if not models:
             raise ModelError("the monitor needs at least one model")
@@ -363,6 +388,13 @@ class WindowMonitor:
             )
         self.channels = channels
         nu, ny = channels.n_inputs, channels.n_outputs
+        unknown = sorted(set(measured_inputs) - set(channels.input_names))
+        if unknown:
+            raise ModelError(
+                f"measured inputs {unknown} are not among the inputs "
+                f"{list(channels.input_names)}: mark an input of the interface map measured"
+            )
+        self._measured = np.array([n in measured_inputs for n in channels.input_names], bool)
         for m in self.models:
             if m.nw == 0:
                 raise ModelError(
@@ -375,6 +407,12 @@ class WindowMonitor:
         self._output_names = channels.output_names
         self._signal_names = (*channels.input_names, *channels.output_names)
         self._select = {m.name: channels.models[m.name] for m in self.models}
+        self._measured_of = {  # per model, in its own input order; None: all commanded
+            m.name: self._measured[list(self._select[m.name].inputs)]
+            if self._measured.any()
+            else None
+            for m in self.models
+        }
         cap = self._cap = config.span_samples
         self._period = config.period_samples
         self._hop = config.hop
@@ -531,10 +569,13 @@ class WindowMonitor:
             rtol=cfg.input_periodic_rtol,
         )
 
-    def _quality(self, rec: Recovery, flags: list[str | None]) -> tuple[str, WindowQuality, float]:
-        """Whether the span can be judged: text, typed state and the input change measured.
+    def _quality(
+        self, rec: Recovery, flags: list[str | None]
+    ) -> tuple[str, WindowQuality, float, float]:
+        """Whether the span can be judged: text, typed state and what the input gate measured.
 
-        The state is ``OK`` or why not; the measure is ``WindowReport.input_change``.
+        The state is ``OK`` or why not; the measures are ``WindowReport.input_change`` and
+        ``WindowReport.input_noise``.
         """
         cfg = self.config
         L = cfg.period_samples
@@ -548,8 +589,8 @@ class WindowMonitor:
                 WindowState.UNUSABLE_SAMPLES, SampleFlag.of(bad[0] if bad else None)
             )
             if cfg.max_recovered_fraction <= 0.0:
-                return head + first, unusable, math.nan
-            return f"{head}: {rec.reason}{first}", unusable, math.nan
+                return head + first, unusable, math.nan, math.nan
+            return f"{head}: {rec.reason}{first}", unusable, math.nan, math.nan
         u = rec.u
         if self._count < cfg.span_samples:
             return (
@@ -559,21 +600,24 @@ class WindowMonitor:
                 ),
                 WindowQuality(WindowState.SETTLING),
                 math.nan,
+                math.nan,
             )
         rms = np.sqrt(column_mean(centred(u, column_mean(u)) ** 2))
         change = column_max_abs(u[L:] - u[:-L]) if span > L else np.zeros(self.n_inputs)
-        relative = change / np.maximum(rms, 1e-12)
+        meas = self._measured
+        relative = np.where(meas, 0.0, change / np.maximum(rms, 1e-12))
         measured = float(np.max(relative)) if relative.size else 0.0
-        if np.any(change > cfg.input_periodic_rtol * np.maximum(rms, 1e-12)):
-            j = int(np.argmax(relative))
+        noise = np.zeros(self.n_inputs)
+        if meas.any() and span >= 2 * L:
+            whole = u[span % L :]
+            noise = np.where(meas, input_noise_rms(whole, L) / np.maximum(rms, 1e-12), 0.0)
+        noise_max = float(np.max(noise)) if noise.size else 0.0
+        if np.any(relative > cfg.input_periodic_rtol) or noise_max > MEASURED_INPUT_RTOL:
             return (
-                (
-                    f"input not periodic: input {j} changes by {change[j]:.3g} from one period "
-                    "to the next (excitation started or changed; waiting for the plant to "
-                    "settle)"
-                ),
+                _not_periodic_text(relative > cfg.input_periodic_rtol, change, noise),
                 WindowQuality(WindowState.INPUT_NOT_PERIODIC),
                 measured,
+                noise_max,
             )
         win_u = u[-cfg.window_samples :]
         win_rms = np.sqrt(column_mean(centred(win_u, column_mean(win_u)) ** 2))
@@ -585,8 +629,9 @@ class WindowMonitor:
                 ),
                 WindowQuality(WindowState.TOO_LITTLE_EXCITATION),
                 measured,
+                noise_max,
             )
-        return "ok", QUALITY_OK, measured
+        return "ok", QUALITY_OK, measured, noise_max
 
     def _evaluate(self) -> list[WindowReport]:
         cfg = self.config
@@ -595,7 +640,7 @@ class WindowMonitor:
         u_span, y_span, stamps, flags = self._ordered(min(self._count, cfg.span_samples))
         start_ns, end_ns = int(stamps[-n]), int(stamps[-1])
         rec = self._recovered(u_span, y_span, flags)
-        quality, reason, input_change = self._quality(rec, flags)
+        quality, reason, input_change, input_noise = self._quality(rec, flags)
         u, y = rec.u[-n:], rec.y[-n:]
         judged_quality, judged_reason = "ok", QUALITY_OK
         if rec.recovered.any():
@@ -619,6 +664,7 @@ class WindowMonitor:
                         ts_s=cfg.ts_s,
                         period_samples=cfg.period_samples,
                         convention=cfg.convention,
+                        measured=self._measured_of[model.name],
                     )
                 except TwotankError as err:
                     data[key] = (
@@ -628,7 +674,9 @@ class WindowMonitor:
             datum = data.get(key, (quality, reason))
             if isinstance(datum, tuple):
                 unjudged = self._unjudged(model.name, start_ns, end_ns, *datum)
-                reports.append(replace(unjudged, input_change=input_change))
+                reports.append(
+                    replace(unjudged, input_change=input_change, input_noise=input_noise)
+                )
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()
@@ -654,6 +702,11 @@ class WindowMonitor:
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
+            resp = self._responses[model.name]
+            noise_effect = input_noise_effect(
+                resp.p22, resp.p23, datum.u_noise_std, datum.bin_weights
+            )
+            warnings = res.warnings + measured_input_warning(noise_effect, res.beta)
             reports.append(
                 WindowReport(
                     model=model.name,
@@ -662,7 +715,7 @@ class WindowMonitor:
                     n_periods=cfg.periods_per_window,
                     n_samples=n,
                     judged=True,
-                    data_quality=with_warnings(judged_quality, res.warnings),
+                    data_quality=with_warnings(judged_quality, warnings),
                     beta=res.beta,
                     beta_lower=res.beta if general else math.nan,
                     beta_upper=res.beta_upper if general else math.nan,
@@ -674,7 +727,7 @@ class WindowMonitor:
                     freqs_hz=res.freqs_hz,
                     w_min=res.w_min,
                     compute_time_s=elapsed,
-                    warnings=res.warnings,
+                    warnings=warnings,
                     beta_op=op.beta,
                     beta_total=total,
                     raised_by=raised_by(res.beta, op.beta, total),
@@ -684,6 +737,8 @@ class WindowMonitor:
                     findings=res.findings,
                     input_leakage=res.input_leakage,
                     input_change=input_change,
+                    input_noise=input_noise,
+                    input_noise_effect=noise_effect,
                 )
             )
         return reports
@@ -719,6 +774,41 @@ class WindowMonitor:
         )
 
 
+def _not_periodic_text(moved: np.ndarray, change: np.ndarray, noise: np.ndarray) -> str:
+    """Why the input gate refused a window, in words.
+
+    A commanded input moved, or a measured one's period-to-period spread is more than noise
+    (:data:`MEASURED_INPUT_RTOL`).
+    """
+    if moved.any():
+        j = int(np.argmax(np.where(moved, change, -np.inf)))
+        return (
+            f"input not periodic: input {j} changes by {change[j]:.3g} from one period to the "
+            "next (excitation started or changed; waiting for the plant to settle)"
+        )
+    j = int(np.argmax(noise))
+    return (
+        f"input not periodic: measured input {j} varies from period to period by "
+        f"{noise[j]:.3g} of its RMS, more than noise may ({MEASURED_INPUT_RTOL:g}): the "
+        "excitation changed (waiting for it to repeat)"
+    )
+
+
+def measured_input_warning(effect: float, beta: float) -> tuple[str, ...]:
+    """The warning for a measured input's noise that may decide the verdict, if it may.
+
+    ``effect`` (:func:`~twotank_validation.core.measured.input_noise_effect`) at least β's
+    distance from 1: one sentence with what to do; otherwise nothing.
+    """
+    if not effect >= abs(1.0 - beta):
+        return ()
+    return (
+        f"the measured inputs' noise may move beta by {effect:.3g}, as far as its distance "
+        "from 1: the verdict is not settled; record more periods (the noise left falls as "
+        "1/sqrt(periods)) or a quieter input sensor",
+    )
+
+
 def with_warnings(quality: str, warnings: Sequence[str]) -> str:
     """A judged window's ``data_quality``: ``quality`` and ``"; warning: <text>"`` per warning.
 
@@ -733,6 +823,8 @@ def monitor_record(
     y: np.ndarray,
     config: MonitorConfig,
     models: Sequence[LFTModel],
+    *,
+    measured_inputs: Collection[str] = (),
 ) -> list[WindowReport]:
     """Offline: feed an already aligned record through the same monitor as the live node.
 
@@ -742,8 +834,9 @@ def monitor_record(
         y: (n, n_outputs) float.
         config: monitor settings.
         models: models.
+        measured_inputs: names of the inputs logged by a sensor (:class:`WindowMonitor`).
     """
-    mon = WindowMonitor(config, models)
+    mon = WindowMonitor(config, models, measured_inputs=measured_inputs)
     t0 = int(stamps_ns[0])
     ts_ns = round(config.ts_s * NS_PER_S)
     out: list[WindowReport] = []

@@ -104,6 +104,10 @@ def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
         "warnings": list(rep.warnings),
         "input_leakage": rep.input_leakage if math.isfinite(rep.input_leakage) else None,
         "input_change": rep.input_change if math.isfinite(rep.input_change) else None,
+        "input_noise": rep.input_noise if math.isfinite(rep.input_noise) else None,
+        "input_noise_effect": (
+            rep.input_noise_effect if math.isfinite(rep.input_noise_effect) else None
+        ),
         "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
         "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
         "raised_by": str(rep.raised_by),

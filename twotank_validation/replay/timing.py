@@ -25,7 +25,7 @@ from twotank_validation.online.infer import (
     infer_sample_period,
     supported_rate,
 )
-from twotank_validation.online.interface_map import InterfaceMap
+from twotank_validation.online.interface_map import InputKind, InterfaceMap
 from twotank_validation.online.sources import STAMP_HEADER, InterfaceMapError, Source
 from twotank_validation.replay.config import ReplayConfig
 from twotank_validation.replay.feed import BATCH, converted
@@ -150,6 +150,18 @@ def _command_record(
     return _topic_record(bag, topic, sources)
 
 
+def _measured_commands(imap: InterfaceMap, table: bool) -> np.ndarray:
+    """(m,) bool: which of the command record's inputs are measured (:func:`_command_record`)."""
+    topic = imap.inputs[0].topic
+    return np.array(
+        [
+            kind is InputKind.MEASURED
+            for src, kind in zip(imap.inputs, imap.kinds, strict=True)
+            if table or src.topic == topic
+        ]
+    )
+
+
 def _topic_record(
     bag: bag_reader.BagReader,
     topic: str,
@@ -263,7 +275,8 @@ def resolve_timing(
     record: tuple[np.ndarray, np.ndarray] | None
     rec = path if isinstance(path, Recording) else None
     where = path.given if isinstance(path, Recording) else path
-    if is_table_input(path, cfg):
+    is_table = is_table_input(path, cfg)
+    if is_table:
         if rec is not None and rec.table is not None:
             table = rec.table
         else:
@@ -380,7 +393,9 @@ def resolve_timing(
     grid_ts = data_ts if data_ts is not None else ts
     if record is not None:
         u = grid_samples(record[0], record[1], grid_ts)
-        data_period = infer_excitation_period(u, cfg.monitor.input_periodic_rtol)
+        data_period = infer_excitation_period(
+            u, cfg.monitor.input_periodic_rtol, _measured_commands(imap, is_table)
+        )
 
     def in_steps(n: int, step_s: float) -> int | None:
         """``n`` samples of ``step_s`` in samples of ``ts``, if a whole number."""

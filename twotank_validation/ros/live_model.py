@@ -38,7 +38,7 @@ from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.online import WindowReport
 from twotank_validation.online import streams as itf
 from twotank_validation.online.channels import ChannelError, match_channels
-from twotank_validation.online.interface import InterfaceMap, source_to_text
+from twotank_validation.online.interface import InterfaceMap, input_texts, source_to_text
 from twotank_validation.ros.live import LiveResult, _RecordingValidator, spin_until, wait_worker
 from twotank_validation.ros.model_plant_node import (
     MODEL_PLANT_PARAMS,
@@ -199,7 +199,7 @@ def run_model_live(
         params = {
             "ts_s": config.ts_s,
             "period_samples": config.period_samples,
-            "inputs": [source_to_text(s) for s in imap.inputs],
+            "inputs": input_texts(imap),
             "outputs": [source_to_text(s) for s in imap.outputs],
             "diagnosis": False,
             **config.validator,
