@@ -183,3 +183,37 @@ def test_leakage_bound_flagged_only_where_it_exceeds_the_outputs_lines(
     assert (summary["leakage_bound"] == [None]) is vacuous  # left out of the report there
     assert ("leakage_note" in summary) is vacuous
     assert not any("leakage" in w for w in res.warnings)  # β does not use the bound
+
+
+# --- the command line's / node's band: the monitor's setting ------------------------------------
+
+
+def test_the_monitors_band_setting_replaces_the_models_and_reaches_the_window() -> None:
+    """``--band`` (the node's ``band``) replaces each model's own; a window's β is validate()'s
+    over that band, and ``beta_outside`` reports the rest."""
+    from tools import streamfuzz  # noqa: PLC0415
+    from twotank_validation import online  # noqa: PLC0415
+    from twotank_validation.core.model import load_model  # noqa: PLC0415
+    from twotank_validation.online import AlarmConfig  # noqa: PLC0415
+
+    base = online.MonitorConfig(
+        ts_s=0.8, period_samples=256, hop_samples=256, alarm=AlarmConfig(debounce="count")
+    )
+    banded_b = dataclasses.replace(load_model("B"), band=Band(0.0, 0.05))
+    assert base.banded(banded_b) is banded_b  # no --band: the file's band
+    assert online.MonitorConfig(band="all").banded(banded_b).band is None
+    with pytest.raises(ValueError, match="band"):
+        online.MonitorConfig(band="low")
+    cfg = dataclasses.replace(base, band="0.01:0.2")
+    stamps, u, y = streamfuzz.clean_record(6, 0)
+    reports = [r for r in online.monitor_record(stamps, u, y, cfg, [load_model("B")]) if r.judged]
+    assert reports
+    last = reports[-1]
+    n = cfg.window_samples
+    datum = make_datum(u[-n:], y[-n:], ts_s=0.8, period_samples=256)
+    ref = validate(datum, dataclasses.replace(load_model("B"), band=Band(0.01, 0.2)))
+    assert last.beta == ref.beta
+    assert last.beta_outside == ref.beta_outside
+    assert last.beta_outside > 0.0
+    plain = online.monitor_record(stamps, u, y, base, [load_model("B")])
+    assert all(math.isnan(r.beta_outside) for r in plain)  # no band: nothing outside

@@ -101,6 +101,8 @@ def parse_band(value: Any) -> Band | None:
             lo = float(parts[0]) if parts[0] else 0.0
             hi = float(parts[1]) if parts[1] else math.inf
             return Band(lo, hi, excited)
+    except ModelError:
+        raise
     except (TypeError, ValueError) as err:
         raise ModelError(f"band {value!r} not understood ({err}): use {forms}") from err
     raise ModelError(f"band {value!r} not understood: use {forms}")

@@ -91,8 +91,14 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
 
 
 def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
-    """A report's entry in the JSON's ``windows`` (times in s from ``start_ns``)."""
-    return {
+    """A report's entry in the JSON's ``windows`` (times in s from ``start_ns``).
+
+    ``beta_outside`` (β over the bins outside the model's band; null where infinite) only
+    in a judged window of a model with a band.
+    """
+    b_out = rep.beta_outside
+    outside = {} if math.isnan(b_out) else {"beta_outside": b_out if math.isfinite(b_out) else None}
+    return outside | {
         "start": (rep.start_ns - start_ns) / NS_PER_S,
         "end": (rep.end_ns - start_ns) / NS_PER_S,
         "beta": rep.beta if rep.judged and math.isfinite(rep.beta) else None,
