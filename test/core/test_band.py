@@ -215,5 +215,13 @@ def test_the_monitors_band_setting_replaces_the_models_and_reaches_the_window() 
     assert last.beta == ref.beta
     assert last.beta_outside == ref.beta_outside
     assert last.beta_outside > 0.0
+    assert last.lines_outside == ref.lines_outside
+    assert last.lines_outside[0][1] == max(s for _, s in ref.lines_outside)
+    from twotank_validation.replay.summary import window_entry  # noqa: PLC0415
+
+    entry = window_entry(last, 0)
+    assert entry["beta_outside"] == ref.beta_outside
+    assert entry["lines_outside"] == [list(p) for p in ref.lines_outside]
     plain = online.monitor_record(stamps, u, y, base, [load_model("B")])
     assert all(math.isnan(r.beta_outside) for r in plain)  # no band: nothing outside
+    assert "beta_outside" not in window_entry(plain[-1], 0)  # the JSON as without bands

@@ -279,7 +279,8 @@ class BetaResult:
         w_min: (n_bins,) float, lower bound on min ||W(n)|| per bin.
         beta: ``sqrt(sum_n weight_n w_min(n)^2)``.
         beta_upper: the same from the witness.
-        warnings, findings, input_leakage, beta_outside: as :class:`ValidationResult`'s.
+        warnings, findings, input_leakage, beta_outside, lines_outside: as
+            :class:`ValidationResult`'s.
     """
 
     method: str
@@ -291,6 +292,7 @@ class BetaResult:
     findings: tuple[PeriodicityFinding, ...] = ()
     input_leakage: float = 0.0
     beta_outside: float = 0.0
+    lines_outside: tuple[tuple[float, float], ...] = ()
 
     @property
     def margin(self) -> float:
@@ -328,6 +330,7 @@ def validate_beta(
             res.findings,
             res.input_leakage,
             res.beta_outside,
+            res.lines_outside,
         )
     assert route.structure is not None
     lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
@@ -344,6 +347,7 @@ def validate_beta(
         caveats.findings,
         caveats.input_leakage,
         0.0 if mask is None else masked_beta(lower, datum.bin_weights, ~mask),
+        () if mask is None else outside_lines(lower, datum.bin_weights, datum.freqs_hz, mask),
     )
 
 

@@ -279,6 +279,8 @@ class WindowReport:
             gate did not run (unusable samples, settling).
         beta_outside: the same total as ``beta`` over the bins outside the model's band
             (``ValidationResult.beta_outside``); NaN without a band and when not judged.
+        lines_outside: the bins outside the band that carry most of it, ``(Hz, share)``
+            (``ValidationResult.lines_outside``); empty without a band.
     """
 
     model: str
@@ -311,6 +313,7 @@ class WindowReport:
     input_leakage: float = math.nan
     input_change: float = math.nan
     beta_outside: float = math.nan
+    lines_outside: tuple[tuple[float, float], ...] = ()
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
@@ -715,6 +718,7 @@ class WindowMonitor:
                     input_leakage=res.input_leakage,
                     input_change=input_change,
                     beta_outside=math.nan if model.band is None else res.beta_outside,
+                    lines_outside=res.lines_outside,
                 )
             )
         return reports
