@@ -95,6 +95,9 @@ def test_a_mains_line_outside_the_band_moves_only_beta_outside() -> None:
     assert hum.beta == pytest.approx(clean.beta, rel=1e-9, abs=1e-12)
     assert hum.beta < 1.0 < hum.beta_outside  # the line would invalidate over every bin
     assert hum.lines_outside[0][0] == pytest.approx(mains)
+    # which lines outside carry power: the mains line repeats far above its noise
+    assert hum.periodic_outside[0][0] == pytest.approx(mains)
+    assert all(f != pytest.approx(mains) for f, _ in clean.periodic_outside)
     unbanded = validate(d_mains, dataclasses.replace(model, band=None))
     assert unbanded.beta > 1.0  # what the band takes off the verdict
     # the alarm's path (validate_beta) counts the same bins

@@ -193,3 +193,43 @@ def outside_lines(
         if s > 0.0 or math.isnan(s):
             out.append((float(freqs_hz[n]), s))
     return tuple(out)
+
+
+PERIODIC_RATIO = 5.0
+"""A harmonic bin holds a periodic line where some output's ``|Y_i(n)|`` exceeds this many
+times its period-to-period noise standard deviation (``Datum.noise_std``)."""
+
+
+def periodic_lines(
+    y_bins: np.ndarray,
+    noise_std: np.ndarray,
+    freqs_hz: np.ndarray,
+    mask: np.ndarray,
+    top: int = 5,
+) -> tuple[tuple[float, float], ...]:
+    """The periodic lines outside the band: harmonic bins whose output stands above its noise.
+
+    A line that repeats from period to period has ``|Y_i(n)|`` far above the spread of
+    its period-by-period DFT (``noise_std``, finite at the harmonic bins of a record of two
+    or more periods only); outside the excited lines it is a disturbance or nonlinear
+    distortion, not noise (docs/theory.md §11).
+
+    Args:
+        y_bins: (n_bins, ny) complex, the outputs' scaled DFT.
+        noise_std: (n_bins, ny) float, per-bin noise standard deviation (NaN: not estimable).
+        freqs_hz: (n_bins,) float.
+        mask: (n_bins,) bool, the band.
+        top: most lines returned.
+
+    Returns:
+        Up to ``top`` pairs ``(Hz, largest |Y_i(n)| / noise_std_i(n))`` outside the band with
+        the ratio above :data:`PERIODIC_RATIO`, largest first (DC left out).
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.abs(y_bins) / noise_std
+    ratio = np.where(np.isnan(ratio), 0.0, ratio).max(axis=1) if ratio.size else ratio
+    outside = ~np.asarray(mask, dtype=bool)
+    outside[0] = False
+    idx = np.flatnonzero(outside & (ratio > PERIODIC_RATIO))
+    order = idx[np.argsort(-ratio[idx], kind="stable")][:top]
+    return tuple((float(freqs_hz[n]), float(ratio[n])) for n in order)

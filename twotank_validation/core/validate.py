@@ -11,7 +11,13 @@ from typing import Any
 import numpy as np
 
 from twotank_validation.core import fast, lti, solvers
-from twotank_validation.core.band import Band, band_mask, masked_beta, outside_lines
+from twotank_validation.core.band import (
+    Band,
+    band_mask,
+    masked_beta,
+    outside_lines,
+    periodic_lines,
+)
 from twotank_validation.core.columns import column_mean
 from twotank_validation.core.datum import (
     Datum,
@@ -74,6 +80,10 @@ class ValidationResult:
             with no band): how much of the data the model set is not claimed to explain.
         lines_outside: up to five ``(Hz, sqrt(weight) min||W(n)||)`` pairs, the bins outside
             the band that carry most of ``beta_outside``.
+        periodic_outside: up to five ``(Hz, |Y|/noise std)`` pairs, the harmonic bins outside
+            the band where an output repeats far above its period-to-period noise
+            (:func:`~twotank_validation.core.band.periodic_lines`): a disturbance or
+            nonlinear distortion, not noise.
         leakage_exceeds_data: (ny,) bool, outputs whose leakage bound exceeds the largest
             ``|Y_i(n)|`` over the bins: there the bound says nothing, and :meth:`summary`
             leaves it out (``None``) with :data:`LEAKAGE_NOTE`. Not a warning: β does not
@@ -105,6 +115,7 @@ class ValidationResult:
     band_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     beta_outside: float = 0.0
     lines_outside: tuple[tuple[float, float], ...] = ()
+    periodic_outside: tuple[tuple[float, float], ...] = ()
     leakage_exceeds_data: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
@@ -155,6 +166,7 @@ class ValidationResult:
             out["band_bins"] = int(np.sum(self.band_mask))
             out["beta_outside"] = self.beta_outside
             out["lines_outside"] = [list(p) for p in self.lines_outside]
+            out["periodic_outside"] = [list(p) for p in self.periodic_outside]
         return out
 
 
@@ -476,6 +488,9 @@ def validate(
         lines_outside=()
         if mask is None
         else outside_lines(sol.lower, datum.bin_weights, datum.freqs_hz, mask),
+        periodic_outside=()
+        if mask is None
+        else periodic_lines(datum.y_bins, datum.noise_std, datum.freqs_hz, mask),
         leakage_exceeds_data=leakage_exceeds_data(leak, datum.y_bins),
     )
 
