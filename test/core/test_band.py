@@ -228,3 +228,21 @@ def test_the_monitors_band_setting_replaces_the_models_and_reaches_the_window() 
     plain = online.monitor_record(stamps, u, y, base, [load_model("B")])
     assert all(math.isnan(r.beta_outside) for r in plain)  # no band: nothing outside
     assert "beta_outside" not in window_entry(plain[-1], 0)  # the JSON as without bands
+
+
+@pytest.mark.parametrize("n_periods", [2, 8])
+def test_noise_alone_is_listed_as_a_periodic_line_at_the_rate_derived(n_periods: int) -> None:
+    """(1 + 25/(p-1))^-(p-1) per bin for Gaussian noise (docs/theory.md §11)."""
+    from twotank_validation.core.band import periodic_lines  # noqa: PLC0415
+
+    rng = np.random.default_rng(n_periods)
+    period, records = 64, 200
+    listed = 0
+    for _ in range(records):
+        u = np.tile(rng.normal(size=period), n_periods)
+        d = make_datum(u, rng.normal(size=u.size), ts_s=1.0, period_samples=period)
+        none = np.zeros(d.freqs_hz.size, dtype=bool)
+        listed += len(periodic_lines(d.y_bins, d.noise_std, d.freqs_hz, none, top=10**6))
+    bins = records * (period // 2)  # harmonic bins 1..L/2
+    rate = (1 + 25 / (n_periods - 1)) ** -(n_periods - 1)
+    assert listed / bins == pytest.approx(rate, abs=4 * math.sqrt(rate / bins) + 1e-4)
