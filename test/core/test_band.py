@@ -246,3 +246,18 @@ def test_noise_alone_is_listed_as_a_periodic_line_at_the_rate_derived(n_periods:
     bins = records * (period // 2)  # harmonic bins 1..L/2
     rate = (1 + 25 / (n_periods - 1)) ** -(n_periods - 1)
     assert listed / bins == pytest.approx(rate, abs=4 * math.sqrt(rate / bins) + 1e-4)
+
+
+def test_band_option_replaces_the_files_band_in_the_model_and_its_document() -> None:
+    """``calibrate``/``diagnose --band``: the model judged and the file written claim it."""
+    from twotank_validation.usecases.reading import LoadedModel, banded  # noqa: PLC0415
+
+    doc = {**SIMO, "band": "excited"}
+    loaded = LoadedModel(model_from_dict(doc), doc, "test")
+    assert banded(loaded, "") is loaded
+    narrow = banded(loaded, "0.1:0.5")
+    assert narrow.model.band == Band(0.1, 0.5)
+    assert model_from_dict(narrow.document).band == Band(0.1, 0.5)  # the document round-trips
+    everything = banded(loaded, "all")
+    assert everything.model.band is None
+    assert "band" not in everything.document
