@@ -35,6 +35,7 @@ import numpy as np
 import yaml
 
 from twotank_validation.core import lti
+from twotank_validation.core.band import Band, parse_band
 from twotank_validation.core.control_lti import from_control, is_control_system
 from twotank_validation.core.lti import StateSpace
 from twotank_validation.errors import DimensionError, ModelError, ModelFileError
@@ -228,6 +229,8 @@ class LFTModel:
         generalized: user-supplied P as a state space ``[v; w; u] -> [z; y]``.
         description: free text.
         operating_point: output values around which the model holds (model units).
+        band: the frequencies the model set is claimed over (:class:`~twotank_validation.
+            core.band.Band`); ``None``: every bin up to Nyquist.
     """
 
     name: str
@@ -242,6 +245,7 @@ class LFTModel:
     generalized: StateSpace | None = None
     description: str = ""
     operating_point: Mapping[str, float] = field(default_factory=dict)
+    band: Band | None = None
     cache: dict[object, Any] = field(default_factory=dict, compare=False, repr=False)
     """Memo of derived quantities (e.g. pulse-response moments per sample period)."""
 
@@ -504,6 +508,13 @@ def _names(node: Any, source: str, key: str) -> tuple[str, ...]:
     return tuple(node)
 
 
+def _band(node: Any, source: str) -> Band | None:
+    try:
+        return parse_band(node)
+    except ModelError as err:
+        raise _err(source, "band", str(err)) from err
+
+
 def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
     """Build a model from a parsed YAML document (schema in docs/models.md).
 
@@ -514,7 +525,7 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
     if not isinstance(doc, Mapping):
         raise _err(source, "top level", f"expected a mapping, found {type(doc).__name__}")
     allowed = {"name", "description", "inputs", "outputs", "operating_point", "nominal",
-               "perturbations", "noise", "generalized_plant", "derivation"}  # fmt: skip
+               "perturbations", "noise", "generalized_plant", "derivation", "band"}  # fmt: skip
     _check_keys(doc, allowed, source, "top level")
     for key in ("name", "inputs", "outputs"):
         if key not in doc:
@@ -546,6 +557,7 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
         "output_names": outputs,
         "description": str(doc.get("description", "")),
         "operating_point": op_values,
+        "band": _band(doc.get("band"), source),
     }
     if "generalized_plant" in doc:
         if "nominal" in doc or "perturbations" in doc or "noise" in doc:

@@ -5,12 +5,19 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from twotank_validation.core import fast, lti, solvers
+from twotank_validation.core.band import (
+    Band,
+    band_mask,
+    masked_beta,
+    outside_lines,
+    periodic_lines,
+)
 from twotank_validation.core.columns import column_mean
 from twotank_validation.core.datum import (
     Datum,
@@ -28,6 +35,11 @@ from twotank_validation.defaults import METHODS, Method
 from twotank_validation.errors import DimensionError, ModelError
 
 _PULSE_DECAY = 1e-12
+LEAKAGE_NOTE = (
+    "leakage bound left out (null) where it exceeds the largest output line |Y_i(n)|: Ljung's "
+    "worst case over input histories says nothing about these data there; the periodicity "
+    "findings judge the leakage instead (a transient, an input that does not repeat)"
+)
 
 
 @dataclass(frozen=True)
@@ -62,6 +74,20 @@ class ValidationResult:
         findings: the periodicity findings among the warnings, typed (:class:`Caveats`).
         input_leakage: how far the input's change from period to period may move β
             (:func:`input_leakage`; 0 for a periodic input).
+        band: the model's validation band (``None``: every bin).
+        band_mask: (n_bins,) bool, the bins β counts (all with no band).
+        beta_outside: the same total over the bins outside the band, in units of w (0
+            with no band): how much of the data the model set is not claimed to explain.
+        lines_outside: up to five ``(Hz, sqrt(weight) min||W(n)||)`` pairs, the bins outside
+            the band that carry most of ``beta_outside``.
+        periodic_outside: up to five ``(Hz, |Y|/noise std)`` pairs, the harmonic bins outside
+            the band where an output repeats far above its period-to-period noise
+            (:func:`~twotank_validation.core.band.periodic_lines`): a disturbance or
+            nonlinear distortion, not noise.
+        leakage_exceeds_data: (ny,) bool, outputs whose leakage bound exceeds the largest
+            ``|Y_i(n)|`` over the bins: there the bound says nothing, and :meth:`summary`
+            leaves it out (``None``) with :data:`LEAKAGE_NOTE`. Not a warning: β does not
+            use the bound, so the verdict is no weaker for it.
     """
 
     model_name: str
@@ -85,6 +111,12 @@ class ValidationResult:
     warnings: tuple[str, ...] = ()
     findings: tuple[PeriodicityFinding, ...] = ()
     input_leakage: float = 0.0
+    band: Band | None = None
+    band_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    beta_outside: float = 0.0
+    lines_outside: tuple[tuple[float, float], ...] = ()
+    periodic_outside: tuple[tuple[float, float], ...] = ()
+    leakage_exceeds_data: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def invalidated(self) -> bool:
@@ -105,8 +137,8 @@ class ValidationResult:
         return inverse_dft(self.solution.v, self.n_samples, self.convention)
 
     def summary(self) -> dict[str, Any]:
-        """JSON-serialisable numbers."""
-        return {
+        """JSON-serialisable numbers (the band's entries only where the model has a band)."""
+        out: dict[str, Any] = {
             "model": self.model_name,
             "beta": self.beta,
             "beta_upper": self.beta_upper,
@@ -122,6 +154,20 @@ class ValidationResult:
             "leakage_bound": self.leakage.tolist(),
             "compute_time_s": self.compute_time_s,
         }
+        if np.any(self.leakage_exceeds_data):  # the bound says nothing there: left out
+            out["leakage_bound"] = [
+                None if over else float(b)
+                for b, over in zip(self.leakage, self.leakage_exceeds_data, strict=True)
+            ]
+            out["leakage_exceeds_data"] = self.leakage_exceeds_data.tolist()
+            out["leakage_note"] = LEAKAGE_NOTE
+        if self.band is not None:
+            out["band"] = self.band.to_dict()
+            out["band_bins"] = int(np.sum(self.band_mask))
+            out["beta_outside"] = self.beta_outside
+            out["lines_outside"] = [list(p) for p in self.lines_outside]
+            out["periodic_outside"] = [list(p) for p in self.periodic_outside]
+        return out
 
 
 def inverse_dft(values: np.ndarray, n_samples: int, convention: NormConvention) -> np.ndarray:
@@ -245,7 +291,8 @@ class BetaResult:
         w_min: (n_bins,) float, lower bound on min ||W(n)|| per bin.
         beta: ``sqrt(sum_n weight_n w_min(n)^2)``.
         beta_upper: the same from the witness.
-        warnings, findings, input_leakage: as :class:`ValidationResult`'s.
+        warnings, findings, input_leakage, beta_outside, lines_outside: as
+            :class:`ValidationResult`'s.
     """
 
     method: str
@@ -256,6 +303,8 @@ class BetaResult:
     warnings: tuple[str, ...] = ()
     findings: tuple[PeriodicityFinding, ...] = ()
     input_leakage: float = 0.0
+    beta_outside: float = 0.0
+    lines_outside: tuple[tuple[float, float], ...] = ()
 
     @property
     def margin(self) -> float:
@@ -264,7 +313,12 @@ class BetaResult:
 
 
 def validate_beta(
-    datum: Datum, model: LFTModel, *, method: str = "auto", response: PlantResponse | None = None
+    datum: Datum,
+    model: LFTModel,
+    *,
+    method: str = "auto",
+    response: PlantResponse | None = None,
+    command_bins: np.ndarray | None = None,
 ) -> BetaResult:
     """β of :func:`validate` without the witness, the output error and the leakage bound.
 
@@ -277,7 +331,7 @@ def validate_beta(
     resp = response if response is not None else model.response(datum.theta, datum.ts_s)
     route = _route(resp, method)
     if route.method != Method.CLOSED_FORM or route.refused:
-        res = validate(datum, model, method=method, response=resp)
+        res = validate(datum, model, method=method, response=resp, command_bins=command_bins)
         return BetaResult(
             res.method,
             res.freqs_hz,
@@ -287,11 +341,14 @@ def validate_beta(
             res.warnings,
             res.findings,
             res.input_leakage,
+            res.beta_outside,
+            res.lines_outside,
         )
     assert route.structure is not None
     lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
-    beta = total_beta(lower, datum.bin_weights)
-    caveats = result_caveats(datum, model, beta, resp)
+    mask = validation_band(datum, model, command_bins)
+    beta = masked_beta(lower, datum.bin_weights, mask)
+    caveats = result_caveats(datum, model, beta, resp, mask)
     return BetaResult(
         Method.CLOSED_FORM.value,
         datum.freqs_hz,
@@ -301,7 +358,42 @@ def validate_beta(
         caveats.texts,
         caveats.findings,
         caveats.input_leakage,
+        0.0 if mask is None else masked_beta(lower, datum.bin_weights, ~mask),
+        () if mask is None else outside_lines(lower, datum.bin_weights, datum.freqs_hz, mask),
     )
+
+
+def validation_band(
+    datum: Datum, model: LFTModel, command_bins: np.ndarray | None = None
+) -> np.ndarray | None:
+    """(n_bins,) bool, the bins of ``datum`` in the model's band; ``None`` without a band.
+
+    Args:
+        datum: the datum.
+        model: the model (its ``band``).
+        command_bins: (n_bins, n_inputs) complex, the command's scaled DFT where it differs
+            from the datum's inputs (a measured input); default the datum's ``u_bins``.
+    """
+    if model.band is None:
+        return None
+    cmd = datum.u_bins if command_bins is None else command_bins
+    return band_mask(datum.freqs_hz, model.band, cmd, datum.n_periods)
+
+
+def leakage_exceeds_data(leak: np.ndarray, y_bins: np.ndarray) -> np.ndarray:
+    """(ny,) bool: outputs whose leakage bound exceeds the largest ``|Y_i(n)|`` over the bins.
+
+    The bound on ``|R_i(n)|`` is the same at every bin; where it is larger than every line of
+    the output it bounds, it says nothing about the data (Ljung's bound takes the worst
+    input history, ``max|u|`` for the whole change, and ``sum_k k |p(k)|`` grows with the
+    nominal's slowest time constant in samples).
+
+    Args:
+        leak: (ny,) float, the bound (:func:`~twotank_validation.core.datum.leakage_bound`).
+        y_bins: (n_bins, ny) complex, the outputs' scaled DFT.
+    """
+    top = np.max(np.abs(y_bins), axis=0) if y_bins.shape[0] else np.zeros(y_bins.shape[1])
+    return np.asarray(leak > top, dtype=bool)
 
 
 def validate(
@@ -311,6 +403,7 @@ def validate(
     method: str = "auto",
     progress: Callable[[int], None] | None = None,
     response: PlantResponse | None = None,
+    command_bins: np.ndarray | None = None,
 ) -> ValidationResult:
     """Solve Problem 3 at every bin and total it into beta.
 
@@ -327,6 +420,11 @@ def validate(
         progress: per-bin progress callback (SDP path; the fast path reports all bins at
             the end).
         response: P at ``datum.theta`` if already evaluated (saves the evaluation).
+        command_bins: (n_bins, n_inputs) complex, the command's scaled DFT where it differs
+            from the datum's inputs (for the model's band ``excited``; default ``u_bins``).
+
+    Problem 3 is solved at every bin; β totals the bins of the model's band
+    (:func:`validation_band`; every bin without one) and ``beta_outside`` the rest.
 
     Raises:
         DimensionError: model and datum channels differ.
@@ -358,8 +456,10 @@ def validate(
     leak = leakage_bound(
         pulse_moment(model, datum.ts_s), datum.u_max, datum.n_samples, datum.convention
     )
-    beta = total_beta(sol.lower, datum.bin_weights)
-    caveats = result_caveats(datum, model, beta, resp)
+    mask = validation_band(datum, model, command_bins)
+    beta = masked_beta(sol.lower, datum.bin_weights, mask)
+    caveats = result_caveats(datum, model, beta, resp, mask)
+    everywhere = np.ones(datum.freqs_hz.size, dtype=bool)
     return ValidationResult(
         model_name=model.name,
         convention=datum.convention,
@@ -371,7 +471,7 @@ def validate(
         w_min=sol.lower,
         w_upper=sol.upper,
         beta=beta,
-        beta_upper=total_beta(sol.upper, datum.bin_weights),
+        beta_upper=masked_beta(sol.upper, datum.bin_weights, mask),
         solution=sol,
         error=error,
         leakage=leak,
@@ -382,6 +482,16 @@ def validate(
         warnings=caveats.texts,
         findings=caveats.findings,
         input_leakage=caveats.input_leakage,
+        band=model.band,
+        band_mask=everywhere if mask is None else mask,
+        beta_outside=0.0 if mask is None else masked_beta(sol.lower, datum.bin_weights, ~mask),
+        lines_outside=()
+        if mask is None
+        else outside_lines(sol.lower, datum.bin_weights, datum.freqs_hz, mask),
+        periodic_outside=()
+        if mask is None
+        else periodic_lines(datum.y_bins, datum.noise_std, datum.freqs_hz, mask),
+        leakage_exceeds_data=leakage_exceeds_data(leak, datum.y_bins),
     )
 
 
@@ -409,7 +519,11 @@ class Caveats:
 
 
 def result_caveats(
-    datum: Datum, model: LFTModel, beta: float, response: PlantResponse | None = None
+    datum: Datum,
+    model: LFTModel,
+    beta: float,
+    response: PlantResponse | None = None,
+    mask: np.ndarray | None = None,
 ) -> Caveats:
     """What makes a verdict on this datum weaker than it looks: typed, and in words.
 
@@ -423,6 +537,7 @@ def result_caveats(
         model: the model.
         beta: the result's β.
         response: P at the datum's bins, if already evaluated.
+        mask: (n_bins,) bool, the bins of the model's band (``None``: every bin).
     """
     per = datum.periodicity
     rho = 0.0 if per.input_periodic else input_leakage(datum, model, response)
@@ -447,6 +562,11 @@ def result_caveats(
             "the inputs do not move (largest deviation from their mean "
             f"{float(np.max(datum.u_max)):.3g}): nothing excites the plant, so the datum tests "
             "only the noise model; record with the excitation on"
+        )
+    if mask is not None and not np.any(mask):
+        out.append(
+            f"the band ({model.band.text if model.band else 'none'}) holds no bin of this "
+            "record: beta is 0 because nothing was judged; widen the band or excite it"
         )
     if model.nw == 0:
         out.append(

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from twotank_validation.core import fast
+from twotank_validation.core.band import Band, parse_band
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
 from twotank_validation.core.datum import (
     MEASURED_INPUT_RTOL,
@@ -99,6 +100,10 @@ class MonitorConfig:
             judges overlapping windows more often and a fault is seen sooner. The alarm's
             window counts are scaled to the hop so that they weigh the same span of data
             (:func:`evidence_alarm`).
+        band: the frequencies every model is claimed over, replacing the models' own
+            (:func:`~twotank_validation.core.band.parse_band`): ``""`` each model's file's
+            band (every bin without one), ``"all"`` every bin, ``"excited"``, ``"LO:HI"`` or
+            ``"excited:LO:HI"`` (Hz).
     """
 
     ts_s: float = setting(TS_S, "sample period of the data (s)", unit="s", low=1e-3, high=60.0)
@@ -164,9 +169,20 @@ class MonitorConfig:
         cli_help="samples between judged (overlapping) windows, dividing the period; 0: a "
         "quarter period",
     )
+    band: str = setting(
+        "",
+        "frequencies the models are claimed over (beta and the alarm count these bins): empty "
+        "for each model file's band (every bin without one), all, excited (the command's "
+        "excited lines), LO:HI in Hz, or excited:LO:HI",
+        unit="Hz",
+        option="--band",
+        cli_help="frequencies the models are claimed over: all, excited, LO:HI (Hz) or "
+        "excited:LO:HI; default: each model file's band, else every bin",
+    )
 
     def __post_init__(self) -> None:
         check_settings(self)
+        self.band_of()  # a band that does not parse fails here, naming the forms
         if not (
             self.hop_samples == 0
             or (
@@ -179,6 +195,17 @@ class MonitorConfig:
                 f"{self.period_samples // 4} for a quarter period), or be 0 for the default; "
                 f"found {self.hop_samples}"
             )
+
+    def band_of(self, model: LFTModel | None = None) -> Band | None:
+        """The band ``model`` is judged over: :attr:`band` where given, else the model's own."""
+        if not self.band:
+            return model.band if model is not None else None
+        return parse_band(self.band)
+
+    def banded(self, model: LFTModel) -> LFTModel:
+        """``model`` with the band it is judged over (itself where that is its own)."""
+        band = self.band_of(model)
+        return model if band == model.band else replace(model, band=band)
 
     @property
     def window_samples(self) -> int:
@@ -268,6 +295,10 @@ class WindowReport:
             (:func:`~twotank_validation.core.measured.input_noise_effect`, docs/theory.md);
             0 without measured inputs, NaN when not judged. A warning is given where it
             reaches ``|1 - β|``.
+        beta_outside: the same total as ``beta`` over the bins outside the model's band
+            (``ValidationResult.beta_outside``); NaN without a band and when not judged.
+        lines_outside: the bins outside the band that carry most of it, ``(Hz, share)``
+            (``ValidationResult.lines_outside``); empty without a band.
     """
 
     model: str
@@ -301,6 +332,8 @@ class WindowReport:
     input_change: float = math.nan
     input_noise: float = math.nan
     input_noise_effect: float = math.nan
+    beta_outside: float = math.nan
+    lines_outside: tuple[tuple[float, float], ...] = ()
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
@@ -377,7 +410,7 @@ class WindowMonitor:
         if not models:
             raise ModelError("the monitor needs at least one model")
         self.config = config
-        self.models = tuple(models)
+        self.models = tuple(config.banded(m) for m in models)
         if channels is None:
             first = self.models[0]
             channels = match_channels(
@@ -739,6 +772,8 @@ class WindowMonitor:
                     input_change=input_change,
                     input_noise=input_noise,
                     input_noise_effect=noise_effect,
+                    beta_outside=math.nan if model.band is None else res.beta_outside,
+                    lines_outside=res.lines_outside,
                 )
             )
         return reports

@@ -75,6 +75,10 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
             and (entry["beta_max"] is None or rep.beta > entry["beta_max"])
         ):
             entry["beta_max"] = rep.beta
+        if not math.isnan(rep.beta_outside):  # a band: the largest β outside it (inf: null)
+            prev = entry.get("beta_outside_max", 0.0)
+            top = math.inf if prev is None else max(prev, rep.beta_outside)
+            entry["beta_outside_max"] = top if math.isfinite(top) else None
         if rep.alarm is Alarm.ERROR and entry["first_alarm"] is None:
             entry["first_alarm"] = sec(rep.end_ns)
     return {
@@ -91,8 +95,24 @@ def summary_json(result: ReplayResult, model_names: Sequence[str] = ()) -> dict[
 
 
 def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
-    """A report's entry in the JSON's ``windows`` (times in s from ``start_ns``)."""
-    return {
+    """A report's entry in the JSON's ``windows`` (times in s from ``start_ns``).
+
+    ``beta_outside`` (β over the bins outside the model's band; null where infinite) and
+    ``lines_outside`` (``[Hz, share]`` of the bins that carry most of it) only in a judged
+    window of a model with a band.
+    """
+    b_out = rep.beta_outside
+    outside = (
+        {}
+        if math.isnan(b_out)
+        else {
+            "beta_outside": b_out if math.isfinite(b_out) else None,
+            "lines_outside": [
+                [hz, share if math.isfinite(share) else None] for hz, share in rep.lines_outside
+            ],
+        }
+    )
+    return outside | {
         "start": (rep.start_ns - start_ns) / NS_PER_S,
         "end": (rep.end_ns - start_ns) / NS_PER_S,
         "beta": rep.beta if rep.judged and math.isfinite(rep.beta) else None,

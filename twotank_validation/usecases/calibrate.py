@@ -32,6 +32,7 @@ from twotank_validation.usecases.outcome import (
 from twotank_validation.usecases.reading import (
     LoadedModel,
     ReadSettings,
+    banded,
     load,
     open_recording,
     timed_config,
@@ -99,7 +100,7 @@ class CalibrateJob:
             )
 
     def _run(self, tell: Teller, progress: Progress | None, show: Show | None) -> Outcome:
-        loaded = load(self.model)
+        loaded = banded(load(self.model), self.read.monitor.band)
         name = loaded.model.name
         blocks = list(self.blocks) if self.blocks is not None else None
         cb.choose_blocks(loaded.model, blocks)  # an unknown block is an error before the replay

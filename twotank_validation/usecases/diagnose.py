@@ -39,6 +39,7 @@ from twotank_validation.usecases.outcome import (
 from twotank_validation.usecases.reading import (
     LoadedModel,
     ReadSettings,
+    banded,
     load,
     model_names,
     open_recording,
@@ -110,7 +111,7 @@ class DiagnoseJob:
         """
         tell = Teller(say)
         try:
-            loaded = load(self.model)
+            loaded = banded(load(self.model), self.read.monitor.band)
             with open_recording(self.read, self.recording) as opened:
                 cfg, timing = timed_config(self.read, opened, tell)
                 windows, findings, replayed = replay.windows_with_findings(

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from twotank_validation import replay
 from twotank_validation.bags import BagEmptyError
+from twotank_validation.core.band import parse_band
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online.channels import match_channels
@@ -140,6 +141,24 @@ def load(source: str | Path) -> LoadedModel:
     """
     doc, label = load_model_document(source)
     return LoadedModel(model_from_dict(doc, label), doc, label)
+
+
+def banded(loaded: LoadedModel, band: str) -> LoadedModel:
+    """``loaded`` with ``band`` (``--band``) in place of its file's band, model and document.
+
+    ``band`` empty: ``loaded`` as it is. The document carries the band too, so that a model
+    file written from it (``calibrate``) claims the band it was calibrated over.
+
+    Raises:
+        ModelError: a band that does not parse.
+    """
+    if not band:
+        return loaded
+    parsed = parse_band(band)
+    doc = {k: v for k, v in loaded.document.items() if k != "band"}
+    if parsed is not None:
+        doc["band"] = parsed.to_dict()
+    return LoadedModel(dataclasses.replace(loaded.model, band=parsed), doc, loaded.source)
 
 
 def model_names(sources: Sequence[str], read: ReadSettings | None = None) -> list[str]:

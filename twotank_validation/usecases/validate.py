@@ -286,9 +286,17 @@ def model_lines(summary: Mapping[str, Any]) -> list[str]:
         first = "none" if entry["first_alarm"] is None else f"{entry['first_alarm']:.1f} s"
         lines.append(
             f"model {name}: {entry['judged']} of {entry['judged'] + entry['not_judged']} "
-            f"window(s) judged, beta_max {bmax}, first alarm {first}"
+            f"window(s) judged, beta_max {bmax}, first alarm {first}" + _outside_text(entry)
         )
     return lines
+
+
+def _outside_text(entry: Mapping[str, Any]) -> str:
+    """``, beta outside the band up to X`` where the model has a band (empty otherwise)."""
+    if "beta_outside_max" not in entry:
+        return ""
+    top = entry["beta_outside_max"]
+    return f" (beta outside the band up to {'inf' if top is None else f'{top:.3f}'})"
 
 
 def windows_text(summary: Mapping[str, Any]) -> list[str]:
