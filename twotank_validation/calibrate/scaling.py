@@ -155,6 +155,16 @@ class WindowProblem:
         """The window's beta with the block's weight times ``factor``."""
         return total_beta(self.bin_lower(block, factor), self.datum.bin_weights)
 
+    def beta_joint(self, blocks: Sequence[Block], factors: Sequence[float]) -> float:
+        """The window's beta with each block's weight times its factor (the rest as stated)."""
+        p = self.response.p.copy()
+        for block, f in zip(blocks, factors, strict=True):
+            p[:, :, block.columns] *= f
+        resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
+                             self.response.ny)  # fmt: skip
+        sol = solve_bins(resp, self.datum.u_bins, self.datum.y_bins, method=self.method)
+        return total_beta(sol.lower, self.datum.bin_weights)
+
 
 def window_scaling(problem: WindowProblem, block: Block) -> float:
     """The smallest factor ``s`` on the block's weight for which the window's beta is <= 1.
