@@ -11,13 +11,21 @@ solver, independently of the calibration's plant-column scaling and search.
 from __future__ import annotations
 
 import copy
+import json
 import math
 
 import numpy as np
 import pytest
 
 from twotank_validation import experiment
-from twotank_validation.calibrate import WindowProblem, choose_blocks, window_scaling
+from twotank_validation.calibrate import (
+    CalibrationConfig,
+    WindowProblem,
+    calibrate,
+    calibration_text,
+    choose_blocks,
+    window_scaling,
+)
 from twotank_validation.calibrate.joint import common_scaling, joint_scaling
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model_document, model_from_dict
@@ -102,3 +110,31 @@ def test_joint_factors_against_a_brute_force_grid(case):
             ):
                 best = obj
     assert best <= 1.21 * 1.21 * joint.objective
+
+
+def test_calibrate_together_writes_the_joint_factors(case):
+    """``calibrate`` with ``together``: the file's weights are the stated ones times the fit
+    windows' joint factors times the margin (read back from the document), the held-out
+    window is valid with them, and the text and JSON say so."""
+    doc, datums, _, _ = case
+    ws = experiment.diagnosis_windows(experiment.ExperimentConfig(rig=RIG), 2)
+    cal = calibrate(ws, doc, CalibrationConfig(together=True), blocks=BLOCKS)
+    assert cal.joint is not None
+    assert cal.document is not None
+    assert all(math.isinf(b.scaling) for b in cal.blocks)  # alone: no answer
+    written = cal.joint.written
+    assert written is not None
+    for i, f in enumerate(written):
+        got = cal.document["perturbations"][i]["weight"]["tf"]["num"]
+        want = doc["perturbations"][i]["weight"]["tf"]["num"]
+        assert np.allclose(np.asarray(got) / np.asarray(want), f, rtol=1e-12)
+        assert f == pytest.approx(1.2 * cal.joint.fit.factors[i], rel=1e-12)
+    assert _feasible(doc, datums[1:], written)  # the held-out window
+    assert cal.judged.held_out.tolist() == [False, True]
+    assert np.all(cal.judged.beta_after <= 1.0)
+    assert np.all(cal.judged.beta > 1.0)
+    out = json.loads(json.dumps(cal.to_json()))
+    assert out["joint"]["written"] == dict(zip(BLOCKS, written, strict=True))
+    text = calibration_text(cal)
+    assert "the common factor" in text
+    assert "joint factors" in text

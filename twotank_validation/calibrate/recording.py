@@ -110,6 +110,8 @@ def calibration_text(cal: Calibration, model_file: str | None = None) -> str:
                 )
         if b.note:
             lines.append(f"    {b.note}")
+    if cal.joint is not None:
+        lines += cal.joint.text()
     j = cal.judged
     for held, label in ((False, "fit"), (True, "held-out")):
         sel = j.held_out == held
