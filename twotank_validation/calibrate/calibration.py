@@ -394,7 +394,7 @@ def calibrate(
     ts = all_d[0].ts_s
     problems = [WindowProblem.of(d, model, cfg.method) for d in all_d]
     window_beta = np.array([p.beta(chosen[0], 1.0) for p in problems])
-    scalings = {b.name: tuple(window_scaling(p, b) for p in problems) for b in chosen}
+    scalings = {b.name: _scalings(problems, b) for b in chosen}
     current = copy.deepcopy(dict(doc))
     current_model = model
     results: list[BlockCalibration] = []
@@ -402,7 +402,11 @@ def calibrate(
     extrapolated: dict[str, dict[str, float]] = {}
     joint = None
     if cfg.together:
-        fit_p = [WindowProblem.of(d, model, cfg.method) for d in fit_d]
+        fit_p = (
+            problems[: len(fit_d)]
+            if len(windows) > 1
+            else [WindowProblem.of(d, model, cfg.method) for d in fit_d]
+        )
         joint = JointCalibration(joint_scaling(problems, chosen), joint_scaling(fit_p, chosen),
                                  cfg.margin)  # fmt: skip
         results, changed = _write_joint(joint, chosen, current, scalings, source)
@@ -426,7 +430,10 @@ def calibrate(
             # a noise weight's per-bin requirement is the periodogram of one noise draw (a
             # weight covering its scatter would be several times the noise's RMS), and only
             # scalar weights are fitted: these blocks are scaled uniformly
-            fit_scaling = max(window_scaling(p, block_now) for p in fit_p)
+            if current_model is model and len(windows) > 1:  # the fit windows lead `windows`
+                fit_scaling = max(scalings[block.name][: len(fit_w)])
+            else:
+                fit_scaling = max(window_scaling(p, block_now) for p in fit_p)
             if math.isfinite(fit_scaling):
                 factor = fit_scaling * cfg.margin
                 node = _weight_node(current, block)
@@ -501,6 +508,14 @@ def calibrate(
         extrapolated=extrapolated,
         joint=joint,
     )
+
+
+def _scalings(problems: Sequence[WindowProblem], block: Block) -> tuple[float, ...]:
+    """The block's factor alone on each window (each window's search starts at the last's)."""
+    out: list[float] = []
+    for p in problems:
+        out.append(window_scaling(p, block, out[-1] if out else None))
+    return tuple(out)
 
 
 def _band(problems: Sequence[WindowProblem], chosen: Sequence[Block], floor: float) -> list[float]:
