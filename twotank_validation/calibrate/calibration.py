@@ -492,7 +492,10 @@ def calibrate(
     judged = Judged(
         start_s=np.array([w.start_s for w in (*fit_w, *held_w)]),
         held_out=np.array([False] * len(fit_d) + [True] * len(held_d)),
-        beta=np.array([validate(d, model, method=cfg.method).beta for d in judged_d]),
+        # several windows: the judged ones are `windows` in order, whose beta is known
+        beta=window_beta.copy()
+        if len(windows) > 1
+        else np.array([validate(d, model, method=cfg.method).beta for d in judged_d]),
         beta_after=np.array([validate(d, after_model, method=cfg.method).beta for d in judged_d]),
     )
     return Calibration(

@@ -31,9 +31,9 @@ S_MAX = 1e6
 """Largest scaling tried: a block that needs more cannot explain the data alone."""
 S_MIN = 1e-9
 """Smallest scaling told apart from zero."""
-_BISECTIONS = 40
+_BISECTIONS = 24
 """Bisection steps of the per-bin search (in log scale, from a bracket of ratio 4: about
-1e-12 relative)."""
+1e-7 relative)."""
 
 
 class CalibrationError(DatumError):
