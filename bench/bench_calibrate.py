@@ -19,7 +19,8 @@ Prints the medians over the repeats and their ratio against the goal (20 validat
 ``--case full-block``: a 1 x 3 plant (``test/data/models/one_by_three.yaml`` with one full
 3 x 3 output-multiplicative block, weight 0.05 I, and its noise) on 4 windows of 16,384
 samples (2 periods of 8192, a multisine on 1498 lines, the true plant's output gains off by
-up to 10 %, sensor noise). Times, in the same run: validating the 4 windows (``validate``),
+up to 10 %, sensor noise; ``--input-noise R`` adds noise of RMS R to the input as recorded, so that
+every bin is driven, as with a measured input). Times, in the same run: validating the 4 windows (``validate``),
 calibrating the block (``calibrate``), and the same calibration through the fast path's
 previous bin classification (``--before COMMIT``'s ``core/fast/forms.py``, loaded from git),
 where every bin with the block's weight at zero fell back to the per-bin SDP (run
@@ -57,7 +58,7 @@ from twotank_validation.sim import scenario as sc
 GOAL = 20.0  # calibration in validations' worth of time
 
 
-def _full_block_case() -> tuple[dict, list[Window]]:
+def _full_block_case(input_noise: float = 0.0) -> tuple[dict, list[Window]]:
     """The 1 x 3 model with a full 3 x 3 block and 4 windows of 16,384 samples (module doc)."""
     root = Path(__file__).resolve().parent.parent
     doc = yaml.safe_load((root / "test/data/models/one_by_three.yaml").read_text())
@@ -81,6 +82,7 @@ def _full_block_case() -> tuple[dict, list[Window]]:
     sys = lti.discretise(model_from_dict(true, "true").nominal, ts)
     _, y, _ = scipy.signal.dlsim((sys.a, sys.b, sys.c, sys.d, ts), u)
     y = y + 0.005 * rng.standard_normal(y.shape)
+    u = u + input_noise * rng.standard_normal(u.shape)  # a measured input: every bin driven
     n = 2 * period
     windows = [
         Window(u[(i + 1) * n : (i + 2) * n], y[(i + 1) * n : (i + 2) * n], ts, period,
@@ -108,7 +110,7 @@ def _previous_classify(commit: str) -> object:
 
 def full_block(args: argparse.Namespace) -> None:
     """The full 3 x 3 block case (module doc)."""
-    doc, windows = _full_block_case()
+    doc, windows = _full_block_case(args.input_noise)
     model = model_from_dict(doc, "one_by_three_full")
     datums = [make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=w.period_samples) for w in windows]
     [validate(d, model) for d in datums]  # load the compiled kernel first
@@ -166,6 +168,12 @@ def main() -> None:
     parser.add_argument("--keep", help="write the bag here instead of a temporary folder")
     parser.add_argument("--before", default="3c53088", help="full-block: the commit compared")
     parser.add_argument("--before-repeats", type=int, default=1)
+    parser.add_argument(
+        "--input-noise",
+        type=float,
+        default=0.0,
+        help="full-block: noise (RMS, the input's RMS is 1) on the input as measured",
+    )
     args = parser.parse_args()
     if args.case == "full-block":
         full_block(args)
