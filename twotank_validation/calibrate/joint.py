@@ -185,7 +185,8 @@ def joint_scaling(
             objective,
             best,
             method="Nelder-Mead",
-            options={"xatol": xatol, "fatol": xatol, "initial_simplex": simplex},
+            # fatol relative to the common factor's objective (factors may be far from 1)
+            options={"xatol": xatol, "fatol": xatol * n * common**2, "initial_simplex": simplex},
         )
         x = point(np.asarray(res.x, dtype=float))
         # coordinate pass: lower each factor alone to its own root (Pareto-minimal)
