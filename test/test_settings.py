@@ -75,6 +75,7 @@ NOT_SETTINGS_OPTIONS = {
     "--block": "calibrate: the blocks",
     "--margin": "calibrate's own setting (CalibrationConfig)",
     "--max-order": "calibrate's own setting (CalibrationConfig)",
+    "--together": "calibrate's own setting (CalibrationConfig)",
     "--duration": "live: the simulated run",
     "--fault": "live: the simulated plant",
     "--seed": "live, demo: the simulation",

@@ -352,6 +352,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         blocks=tuple(args.block) if args.block else None,
         margin=args.margin,
         max_order=args.max_order,
+        together=args.together,
         json_path=args.json,
         report_dir=args.report,
         out_model=args.out_model,

@@ -333,6 +333,12 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
         help="a perturbation or noise block to calibrate, by its name (repeat, in order); "
         "default: every block",
     )
+    parser.add_argument(
+        "--together",
+        action="store_true",
+        help="scale the chosen blocks (--block, default all) together: the common factor and "
+        "the smallest per-block factors that explain every window (written uniformly)",
+    )
     parser.add_argument("--json", help="write the calibration as JSON to this file")
     parser.add_argument("--report", help="write the figures (beta, weights) to this folder")
     parser.add_argument("--out-model", help="write the calibrated model (YAML) to this file")

@@ -249,6 +249,24 @@ def test_calibrate_command_on_a_bag(tmp_path: Path, capsys):
     doc, source = load_model_document("A")
     cal, _ = calibrate_recording(bag, doc, blocks=[TEMP], source=source)
     assert cal.blocks[0].scaling == pytest.approx(block["scaling"], rel=1e-9)
+    # --together: both output blocks scaled as one problem; text, JSON, figures, model file
+    joint_json, joint_model = tmp_path / "j.json", tmp_path / "a_joint.yaml"
+    code = cli.main(
+        ["calibrate", str(bag), "--model", "A", "--together", "--block", "height_multiplicative",
+         "--block", TEMP, "--json", str(joint_json), "--report", str(tmp_path / "jrep"),
+         "--out-model", str(joint_model), "--quiet"]
+    )  # fmt: skip
+    assert code == cli.EXIT_OK
+    joint = json.loads(joint_json.read_text())["joint"]
+    assert joint["blocks"] == ["height_multiplicative", TEMP]
+    written = joint["written"]
+    new = load_model_document(str(joint_model))[0]
+    for i, name in enumerate(joint["blocks"]):
+        num = new["perturbations"][i]["weight"]["tf"]["num"]
+        stated = doc["perturbations"][i]["weight"]["tf"]["num"]
+        assert np.allclose(np.asarray(num) / np.asarray(stated), written[name], rtol=1e-9)
+    assert (tmp_path / "jrep" / "calibration_weights.png").stat().st_size > 0
+    assert "the common factor" in capsys.readouterr().out
 
 
 def test_calibrate_command_reports_problems(tmp_path: Path, capsys):

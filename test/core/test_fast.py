@@ -519,3 +519,32 @@ def test_warm_up_loads_the_kernel_only_for_structures_the_fast_path_takes() -> N
     assert not fast.warm_up(PlantResponse(p, big, 2, 1, 2))
     coupled, _, _ = random_window(3, ((1, 1),), 2, 2, 2, coupled=True)
     assert not fast.warm_up(coupled)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("factor", [0.0, 1e-200])
+def test_a_block_with_zero_or_tiny_weight_stays_on_the_fast_path(
+    compiled: bool, factor: float
+) -> None:
+    """A full 3x3 block whose weight is 0 (or 1e-200): its v enters nothing, the bins are the
+    least-norm w of the nominal (closed form here), none falls back to the per-bin SDP; with
+    a second, live block, it meets the cvxpy reference (with the block's columns 0: cvxpy
+    itself is unreliable on entries of 1e-200) as every fast answer must."""
+    resp, u, y = random_window(23, ((3, 3),), 3, 3, 1, coupled=False, n_bins=12)
+    p = resp.p.copy()
+    p[:, :, :3] *= factor
+    dead = PlantResponse(p, resp.blocks, 3, 1, 3)
+    res = fast.solve_fast(dead, u, y, compiled=compiled)
+    assert res.stats.n_fallback == 0
+    ref0 = unperturbed(dead, u, y)
+    assert np.all(np.abs(res.solutions.lower - ref0) <= 1e-9 * np.maximum(ref0, 1e-3))
+    resp2, u2, y2 = random_window(29, ((3, 3), (1, 1)), 3, 3, 1, coupled=False)
+    p2 = resp2.p.copy()
+    p2[:, :, :3] *= factor
+    two = PlantResponse(p2, resp2.blocks, 3, 1, 3)
+    res2 = fast.solve_fast(two, u2, y2, compiled=compiled)
+    assert res2.stats.n_fallback == 0
+    p2[:, :, :3] = 0.0  # the reference: cvxpy on the plant without the block's effect
+    ref = solvers.solve_sdp(PlantResponse(p2, resp2.blocks, 3, 1, 3), u2, y2)
+    compared = compare_with_reference(PlantResponse(p2, resp2.blocks, 3, 1, 3), u2, y2, res2, ref)
+    assert compared.sum() >= 6

@@ -10,6 +10,8 @@ Modules (each imports only those above it):
 
 * :mod:`~twotank_validation.calibrate.scaling`: the blocks of a model, the uniform scaling
   per window and the per-bin requirement, with the window solver; :class:`CalibrationError`.
+* :mod:`~twotank_validation.calibrate.joint`: several blocks scaled together (a common factor,
+  and the smallest set of per-block factors that explains every window).
 * :mod:`~twotank_validation.calibrate.weightfit`: the stable, minimum-phase weight fit.
 * :mod:`~twotank_validation.calibrate.calibration`: :func:`calibrate` and its result.
 * :mod:`~twotank_validation.calibrate.recording`: :func:`calibrate_recording` (a bag or table
@@ -27,6 +29,7 @@ from twotank_validation.calibrate.calibration import (
     calibrate,
     model_of,
 )
+from twotank_validation.calibrate.joint import JointScaling, common_scaling, joint_scaling
 from twotank_validation.calibrate.recording import (
     calibrate_recording,
     calibration_text,
@@ -53,6 +56,7 @@ __all__ = [
     "CalibrationConfig",
     "CalibrationError",
     "FittedWeight",
+    "JointScaling",
     "Judged",
     "WindowProblem",
     "bin_requirement",
@@ -60,7 +64,9 @@ __all__ = [
     "calibrate_recording",
     "calibration_text",
     "choose_blocks",
+    "common_scaling",
     "fit_weight",
+    "joint_scaling",
     "model_blocks",
     "model_of",
     "window_scaling",

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation.calibrate.joint import JointScaling, joint_scaling
 from twotank_validation.calibrate.scaling import (
     Block,
     CalibrationError,
@@ -60,6 +61,10 @@ class CalibrationConfig:
             are not excited (as the diagnosis), in (0, 1).
         method: the window solver's route (``"auto"``, ``"closed_form"``, ``"fast"``,
             ``"sdp"``), as :func:`~twotank_validation.core.validate.validate`.
+        together: scale the chosen blocks together (:mod:`~.joint`): the common factor and
+            the joint factors, each weight written as the stated one times its joint factor
+            on the fit windows times the margin (no shape is fitted); False: one block after
+            the other, as :func:`calibrate` describes.
     """
 
     margin: float = 1.2
@@ -67,6 +72,7 @@ class CalibrationConfig:
     order_tolerance_db: float = 1.0
     excitation_floor: float = 1e-4
     method: str = "auto"
+    together: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.margin) and self.margin >= 1.0):
@@ -154,6 +160,76 @@ class BlockCalibration:
 
 
 @dataclass(frozen=True)
+class JointCalibration:
+    """The chosen blocks scaled together (``CalibrationConfig.together``).
+
+    Attributes:
+        every: on every judged window: the common factor and the joint factors.
+        fit: the same on the fit windows (what is written, times the margin).
+        margin: the calibration's margin.
+    """
+
+    every: JointScaling
+    fit: JointScaling
+    margin: float
+
+    @property
+    def written(self) -> tuple[float, ...] | None:
+        """The factors written (fit joint factors times the margin), None if not finite."""
+        if not all(math.isfinite(f) for f in self.fit.factors):
+            return None
+        return tuple(self.margin * f for f in self.fit.factors)
+
+    def text(self) -> list[str]:
+        """The joint answer in words (a few lines)."""
+        e = self.every
+        names = ", ".join(e.names)
+        if math.isinf(e.common):
+            return [
+                f"together ({names}): no factor up to 1e6 on all of them explains every "
+                "window (the error is on a block not chosen)"
+            ]
+        pairs = ", ".join(f"{n} {f:.4g}" for n, f in zip(e.names, e.factors, strict=True))
+        lines = [
+            f"together ({names}): every window is explained with {e.common:.4g} × every "
+            "stated weight (the common factor)",
+            f"  joint factors (the smallest sum of squares that explains every window): {pairs}",
+        ]
+        if (w := self.written) is not None:
+            lines.append(
+                "  written: "
+                + ", ".join(f"{n} {f:.4g}" for n, f in zip(e.names, w, strict=True))
+                + f" × the stated weight (the fit windows' joint factors × the margin "
+                f"{self.margin:g})"
+            )
+        return lines
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-serialisable numbers (``inf`` as None)."""
+
+        def num(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        def one(j: JointScaling) -> dict[str, Any]:
+            return {
+                "common": num(j.common),
+                "window_common": [num(x) for x in j.window_common],
+                "factors": dict(zip(j.names, (num(f) for f in j.factors), strict=True)),
+                "sum_of_squares": num(j.objective),
+            }
+
+        w = self.written
+        return {
+            "blocks": list(self.every.names),
+            "every_window": one(self.every),
+            "fit_windows": one(self.fit),
+            "margin": self.margin,
+            "written": None if w is None else dict(zip(self.every.names, w, strict=True)),
+            "text": self.text(),
+        }
+
+
+@dataclass(frozen=True)
 class Judged:
     """A model judged on windows.
 
@@ -196,6 +272,7 @@ class Calibration:
     document: dict[str, Any] | None
     source: str = "model"
     extrapolated: dict[str, dict[str, float]] = field(default_factory=dict)
+    joint: JointCalibration | None = None
 
     def to_json(self, model_file: str | None = None) -> dict[str, Any]:
         """JSON-serialisable numbers (``inf`` as None)."""
@@ -252,6 +329,7 @@ class Calibration:
                     strict=True,
                 )
             ],
+            "joint": None if self.joint is None else self.joint.to_json(),
             "model_file": model_file,
             "failure": None,
         }
@@ -316,13 +394,25 @@ def calibrate(
     ts = all_d[0].ts_s
     problems = [WindowProblem.of(d, model, cfg.method) for d in all_d]
     window_beta = np.array([p.beta(chosen[0], 1.0) for p in problems])
-    scalings = {b.name: tuple(window_scaling(p, b) for p in problems) for b in chosen}
+    scalings = {b.name: _scalings(problems, b) for b in chosen}
     current = copy.deepcopy(dict(doc))
     current_model = model
     results: list[BlockCalibration] = []
     band: list[float] = []
     extrapolated: dict[str, dict[str, float]] = {}
-    for block in chosen:
+    joint = None
+    if cfg.together:
+        fit_p = (
+            problems[: len(fit_d)]
+            if len(windows) > 1
+            else [WindowProblem.of(d, model, cfg.method) for d in fit_d]
+        )
+        joint = JointCalibration(joint_scaling(problems, chosen), joint_scaling(fit_p, chosen),
+                                 cfg.margin)  # fmt: skip
+        results, changed = _write_joint(joint, chosen, current, scalings, source)
+        current_model = changed or model
+        band = _band(fit_p, chosen, cfg.excitation_floor)
+    for block in chosen if not cfg.together else ():
         fit_p = [WindowProblem.of(d, current_model, cfg.method) for d in fit_d]
         block_now = next(b for b in choose_blocks(current_model, [block.name]))
         theta, required = _requirement(fit_p, block_now, cfg.excitation_floor)
@@ -340,7 +430,10 @@ def calibrate(
             # a noise weight's per-bin requirement is the periodogram of one noise draw (a
             # weight covering its scatter would be several times the noise's RMS), and only
             # scalar weights are fitted: these blocks are scaled uniformly
-            fit_scaling = max(window_scaling(p, block_now) for p in fit_p)
+            if current_model is model and len(windows) > 1:  # the fit windows lead `windows`
+                fit_scaling = max(scalings[block.name][: len(fit_w)])
+            else:
+                fit_scaling = max(window_scaling(p, block_now) for p in fit_p)
             if math.isfinite(fit_scaling):
                 factor = fit_scaling * cfg.margin
                 node = _weight_node(current, block)
@@ -399,7 +492,10 @@ def calibrate(
     judged = Judged(
         start_s=np.array([w.start_s for w in (*fit_w, *held_w)]),
         held_out=np.array([False] * len(fit_d) + [True] * len(held_d)),
-        beta=np.array([validate(d, model, method=cfg.method).beta for d in judged_d]),
+        # several windows: the judged ones are `windows` in order, whose beta is known
+        beta=window_beta.copy()
+        if len(windows) > 1
+        else np.array([validate(d, model, method=cfg.method).beta for d in judged_d]),
         beta_after=np.array([validate(d, after_model, method=cfg.method).beta for d in judged_d]),
     )
     return Calibration(
@@ -413,7 +509,75 @@ def calibrate(
         document=document,
         source=source,
         extrapolated=extrapolated,
+        joint=joint,
     )
+
+
+def _scalings(problems: Sequence[WindowProblem], block: Block) -> tuple[float, ...]:
+    """The block's factor alone on each window (each window's search starts at the last's)."""
+    out: list[float] = []
+    for p in problems:
+        out.append(window_scaling(p, block, out[-1] if out else None))
+    return tuple(out)
+
+
+def _band(problems: Sequence[WindowProblem], chosen: Sequence[Block], floor: float) -> list[float]:
+    """The lowest and highest active bin (theta) of the chosen perturbations (empty: none)."""
+    theta = [
+        p.datum.theta[active_bins(p, b, floor)] for p in problems for b in chosen if not b.is_noise
+    ]
+    both = np.concatenate(theta) if theta else np.zeros(0)
+    return [float(both.min()), float(both.max())] if both.size else []
+
+
+def _write_joint(
+    joint: JointCalibration,
+    chosen: Sequence[Block],
+    current: dict[str, Any],
+    scalings: Mapping[str, tuple[float, ...]],
+    source: str,
+) -> tuple[list[BlockCalibration], LFTModel | None]:
+    """Each chosen weight times its written joint factor in ``current`` (edited in place).
+
+    Returns:
+        The blocks' entries (the factor alone, the joint factor as ``fit_scaling``, no per-bin
+        picture) and the calibrated model (None when nothing could be written).
+    """
+    written = joint.written
+    results = []
+    empty = np.zeros(0)
+    for block, fit_f in zip(chosen, joint.fit.factors, strict=True):
+        if written is None:
+            note = "scaled together: no joint factors explain the fit windows; left as it is"
+        elif block.weight is None:
+            note = "scaled together: a block of a generalised plant has no weight to replace"
+        else:
+            factor = fit_f * joint.margin
+            node = _weight_node(current, block)
+            node["weight"] = scaled_node(node["weight"], factor)
+            note = (
+                f"written: {factor:.4g} × the stated weight = {fit_f:.4g} (its joint factor on "
+                f"the fit windows, the chosen blocks scaled together) × the margin "
+                f"{joint.margin:g}"
+            )
+        results.append(
+            BlockCalibration(
+                block.name,
+                block.kind,
+                max(scalings[block.name]),
+                scalings[block.name],
+                empty,
+                empty,
+                empty,
+                empty,
+                None,
+                note,
+                fit_f if written is not None else None,
+                joint.margin,
+            )
+        )
+    changed = written is not None and any(b.weight is not None for b in chosen)
+    return results, (model_from_dict(current, f"{source} (calibrated)") if changed else None)
 
 
 def _requirement(

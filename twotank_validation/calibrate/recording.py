@@ -88,8 +88,13 @@ def calibration_text(cal: Calibration, model_file: str | None = None) -> str:
         "this band are extrapolated, the data say nothing there",
         "factor: what a block's stated weight is multiplied by; alone: the smallest for which "
         "no window is invalidated, the other blocks as stated; written: the factor in the new "
-        "model file, found in order (the blocks above as calibrated, so it may be below the "
-        "factor alone) times the margin",
+        + (
+            "model file, the block's joint factor (the chosen blocks scaled together) times "
+            "the margin"
+            if cal.joint is not None
+            else "model file, found in order (the blocks above as calibrated, so it may be "
+            "below the factor alone) times the margin"
+        ),
     ]
     for b in cal.blocks:
         lines.append("  " + b.used_text())
@@ -110,6 +115,8 @@ def calibration_text(cal: Calibration, model_file: str | None = None) -> str:
                 )
         if b.note:
             lines.append(f"    {b.note}")
+    if cal.joint is not None:
+        lines += cal.joint.text()
     j = cal.judged
     for held, label in ((False, "fit"), (True, "held-out")):
         sel = j.held_out == held

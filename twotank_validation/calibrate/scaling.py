@@ -31,9 +31,9 @@ S_MAX = 1e6
 """Largest scaling tried: a block that needs more cannot explain the data alone."""
 S_MIN = 1e-9
 """Smallest scaling told apart from zero."""
-_BISECTIONS = 40
+_BISECTIONS = 24
 """Bisection steps of the per-bin search (in log scale, from a bracket of ratio 4: about
-1e-12 relative)."""
+1e-7 relative)."""
 
 
 class CalibrationError(DatumError):
@@ -141,13 +141,15 @@ class WindowProblem:
             factor: a scalar, or (k,) one factor per bin of ``bins``.
             bins: (k,) bin indices; None: every bin.
         """
-        idx = np.arange(self.datum.theta.size) if bins is None else bins
-        p = self.response.p[idx].copy()
+        d = self.datum
+        # fancy indexing copies already; every bin: one copy, no index
+        p = self.response.p.copy() if bins is None else self.response.p[bins]
+        u, y = (d.u_bins, d.y_bins) if bins is None else (d.u_bins[bins], d.y_bins[bins])
         f = np.asarray(factor, dtype=float)
         p[:, :, block.columns] *= f[:, None, None] if f.ndim else f
         resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
                              self.response.ny)  # fmt: skip
-        sol = solve_bins(resp, self.datum.u_bins[idx], self.datum.y_bins[idx], method=self.method)
+        sol = solve_bins(resp, u, y, method=self.method)
         lower: np.ndarray = sol.lower
         return lower
 
@@ -155,22 +157,38 @@ class WindowProblem:
         """The window's beta with the block's weight times ``factor``."""
         return total_beta(self.bin_lower(block, factor), self.datum.bin_weights)
 
+    def beta_joint(self, blocks: Sequence[Block], factors: Sequence[float]) -> float:
+        """The window's beta with each block's weight times its factor (the rest as stated)."""
+        p = self.response.p.copy()
+        for block, f in zip(blocks, factors, strict=True):
+            p[:, :, block.columns] *= f
+        resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
+                             self.response.ny)  # fmt: skip
+        sol = solve_bins(resp, self.datum.u_bins, self.datum.y_bins, method=self.method)
+        return total_beta(sol.lower, self.datum.bin_weights)
 
-def window_scaling(problem: WindowProblem, block: Block) -> float:
+
+def window_scaling(problem: WindowProblem, block: Block, guess: float | None = None) -> float:
     """The smallest factor ``s`` on the block's weight for which the window's beta is <= 1.
 
     0 when the window needs none of the block (beta <= 1 without it, or below ``S_MIN``);
     ``inf`` when even ``S_MAX`` leaves beta > 1 (the block alone cannot explain the window).
     The root of ``log beta(s)`` is found by ``scipy.optimize.brentq`` in ``log s`` to a
-    relative 1e-6 after bracketing by factors of 4 from ``s = 1``.
+    relative 1e-6 after bracketing by factors of 4 from ``s = 1``; with a ``guess`` (another
+    window's factor), first in ``[guess / 1.05, guess * 1.05]`` if that brackets it (beta
+    is monotone, so a root there is the root, and fewer evaluations).
     """
-    if problem.beta(block, 0.0) <= 1.0:
-        return 0.0
 
     def f(x: float) -> float:
         b = problem.beta(block, math.exp(x))
         return min(math.log(b), 50.0) if b > 0.0 else -50.0
 
+    if guess is not None and S_MIN < guess < S_MAX:
+        g_lo, g_hi = math.log(guess / 1.05), math.log(guess * 1.05)
+        if f(g_lo) > 0.0 and f(g_hi) <= 0.0:
+            return math.exp(float(scipy.optimize.brentq(f, g_lo, g_hi, xtol=1e-6)))
+    if problem.beta(block, 0.0) <= 1.0:
+        return 0.0
     hi = 1.0
     while f(math.log(hi)) > 0.0:
         hi *= 4.0

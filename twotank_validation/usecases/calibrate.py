@@ -50,6 +50,7 @@ class CalibrateJob:
         blocks: the perturbation or noise blocks to calibrate, by name, in order; None: all.
         margin: the new weights cover this times the requirement.
         max_order: largest order of a fitted weight.
+        together: scale the blocks together (the common factor and the joint factors).
         json_path: write the calibration JSON here (None: not written).
         report_dir: write the figures here (None: none).
         out_model: write the calibrated model (YAML) here (None: not written).
@@ -61,6 +62,7 @@ class CalibrateJob:
     blocks: tuple[str, ...] | None = None
     margin: float = 1.2
     max_order: int = 2
+    together: bool = False
     json_path: str | None = None
     report_dir: str | None = None
     out_model: str | None = None
@@ -104,7 +106,9 @@ class CalibrateJob:
         name = loaded.model.name
         blocks = list(self.blocks) if self.blocks is not None else None
         cb.choose_blocks(loaded.model, blocks)  # an unknown block is an error before the replay
-        config = cb.CalibrationConfig(margin=self.margin, max_order=self.max_order)
+        config = cb.CalibrationConfig(
+            margin=self.margin, max_order=self.max_order, together=self.together
+        )
         try:
             with open_recording(self.read, self.recording) as recording:
                 cfg, timing = timed_config(self.read, recording, tell)

@@ -28,6 +28,9 @@ from twotank_validation.core.fast.rules import NEGLIGIBLE_Z, NOISE_GAIN, TINY, U
 from twotank_validation.core.model import BlockStructure
 
 _CONSISTENCY_RTOL = 1e-8  # as solvers._CONSISTENCY_RTOL
+TINY_WEIGHT = 1e-13
+"""A block whose columns of ``P`` are below this times those of all the unknowns has a tiny
+weight (forced where its effect is negligible too: :func:`_classify`)."""
 
 
 @dataclass(frozen=True)
@@ -118,6 +121,22 @@ def _classify(
             active[i] = ~((dep <= 1e-13 * p_norm) & (unexcited[i] | negligible[i]))
     else:  # z = P13 U everywhere: no dependence on v, w
         active = ~(unexcited | negligible)
+    # A block whose v_i enters nothing (its columns of P are exactly zero: a zero weight, as
+    # calibrate's probe at factor 0 makes) is forced too: v_i = 0 is then optimal. So is,
+    # where z = P13 U, a block with a tiny weight: its columns below TINY_WEIGHT times those
+    # of all the unknowns, and its largest effect on the outputs, ||P21_i||_F ||z_i||
+    # (||v_i|| <= ||z_i||), below NEGLIGIBLE_Z times ||Y - P23 U||: v_i = 0 then changes what
+    # w must explain by less than that fraction. Left active, such a block's dual optimum is
+    # d_i = 0 with a (near) singular Hessian (the hard case), and the bin fell back to the
+    # per-bin SDP.
+    r_norm = np.sqrt(_sq(r).sum(axis=0))
+    unknowns = np.sqrt(_sq(pt[:, :nx]).sum(axis=(0, 1)))
+    for i, vs in enumerate(blocks.v_slices):
+        active[i] &= np.any(pt[:, vs] != 0.0, axis=(0, 1))
+        if not coupled:
+            col = np.sqrt(_sq(pt[:, vs]).sum(axis=(0, 1)))
+            effect = np.sqrt(_sq(pt[nz:, vs]).sum(axis=(0, 1))) * drive[i]
+            active[i] &= ~((col <= TINY_WEIGHT * unknowns) & (effect <= NEGLIGIBLE_Z * r_norm))
     return _Window(zu=zu, r=r, active=active, drive=drive, x_scale=x_scale)
 
 
