@@ -209,3 +209,25 @@ def check(result: RunResult) -> None:
         )
     elif after[-1].alarm is not Alarm.OK:
         result.violations.append(f"B's alarm did not recover: {after[-1].alarm.name}")
+
+
+@cache
+def transient_record(n_periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(stamps_ns, u, y)`` of the rig with a start-up transient: (n,), (n, 2), (n, 2).
+
+    Started off its operating point (level 0.40, temperature 0.42 instead of 0.47, 0.5) with
+    the excitation on from the first sample; ts 0.8 s, period 256, model units.
+    """
+    cfg = experiment.ExperimentConfig()
+    exc = dataclasses.replace(
+        cfg.excitation,
+        ts_s=CONFIG.ts_s,
+        period_samples=CONFIG.period_samples,
+        settle_periods=0,
+        record_periods=n_periods,
+    )
+    u = excitation.excitation_commands(exc, rig.operating_point(cfg.rig).commands)
+    start = rig.operating_point(cfg.rig, height=0.40, temperature=0.42)
+    sim = simulator.simulate(cfg.rig, u, CONFIG.ts_s, op=start, seed=0, substeps=16)
+    stamps = np.arange(len(u), dtype=np.int64) * round(CONFIG.ts_s * 1e9)
+    return stamps, sim.commands, sim.measured

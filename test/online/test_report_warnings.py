@@ -22,6 +22,7 @@ import pytest
 import yaml
 
 from tools import streamfuzz
+from tools.streamfuzz import transient_record
 from twotank_validation import cli, experiment, replay
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import LFTModel, load_model, load_model_document, model_from_dict
@@ -30,7 +31,7 @@ from twotank_validation.errors import ModelError
 from twotank_validation.online import MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.online.streams import MEASUREMENTS, STREAM_KINDS
 from twotank_validation.online.window import with_warnings
-from twotank_validation.sim import excitation, rig, simulator
+from twotank_validation.sim import rig, simulator
 
 FAST = MonitorConfig(
     ts_s=0.8, period_samples=256, hop_samples=256
@@ -103,25 +104,6 @@ def assert_warnings_match_the_core(
         assert rep.data_quality == with_warnings("ok", res.warnings)
         assert rep.beta == res.beta or (math.isinf(rep.beta) and math.isinf(res.beta))
     return reports
-
-
-@cache
-def transient_record(n_periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rig started off its operating point (level 0.40, temperature 0.42 instead of
-    0.47, 0.5) with the excitation on from the first sample: a start-up transient."""
-    cfg = experiment.ExperimentConfig()
-    exc = dataclasses.replace(
-        cfg.excitation,
-        ts_s=FAST.ts_s,
-        period_samples=FAST.period_samples,
-        settle_periods=0,
-        record_periods=n_periods,
-    )
-    u = excitation.excitation_commands(exc, rig.operating_point(cfg.rig).commands)
-    start = rig.operating_point(cfg.rig, height=0.40, temperature=0.42)
-    sim = simulator.simulate(cfg.rig, u, FAST.ts_s, op=start, seed=0, substeps=16)
-    stamps = np.arange(len(u), dtype=np.int64) * round(FAST.ts_s * 1e9)
-    return stamps, sim.commands, sim.measured
 
 
 @cache

@@ -16,8 +16,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import FluidPressure, Temperature
-from test_report_warnings import transient_record
 
+from tools.streamfuzz import transient_record
 from twotank_validation.online import WindowReport
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
