@@ -52,6 +52,7 @@ from twotank_validation.diagnose.diagnosis import Diagnosis, diagnose
 from twotank_validation.diagnose.effects import Nominal, channel_time_constants
 from twotank_validation.diagnose.inputs import DiagnosisConfig, DiagnosisError, Window
 from twotank_validation.diagnose.kinds import EffectKind
+from twotank_validation.diagnose.level import shape_fit
 from twotank_validation.diagnose.steady import dc_gain
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.livediag import DiagnosisJob, LiveDiagnosis, WindowData
@@ -382,26 +383,7 @@ def _shape_fit(
     p_s = job.period_samples * job.ts_s
     taus = channel_time_constants(nominal, channel, job.ts_s)
     tau = max(taus) if taus else p_s / 10.0
-
-    def ramp(x: np.ndarray) -> np.ndarray:
-        return np.clip(x / p_s, 0.0, 1.0)
-
-    def settle(x: np.ndarray) -> np.ndarray:
-        def f(z: np.ndarray) -> np.ndarray:
-            z = np.maximum(z, 0.0)
-            return z - tau * (1.0 - np.exp(-z / tau))
-
-        return (f(x) - f(x - p_s)) / p_s
-
-    form = settle if shape == "settle" else ramp
-    best = (math.inf, math.nan, 0.0)
-    for t0 in np.arange(t[0] - p_s, t[-1], p_s / 10.0):
-        a = np.column_stack([np.ones_like(t), form(t - t0)])
-        coef, *_ = np.linalg.lstsq(a, dev, rcond=None)
-        rss = float(np.sum((a @ coef - dev) ** 2))
-        if rss < best[0]:
-            best = (rss, float(t0), float(coef[1]))
-    return best
+    return shape_fit(t, dev, p_s, tau, shape)
 
 
 def _step_or_settle(
