@@ -57,6 +57,17 @@ HOSTILE_KINDS = (
 @cache
 def clean_record(n_periods: int = 6, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(stamps_ns, u, y)`` of the nominal rig: (n,), (n, 2), (n, 2), model units."""
+    return _rig_record(n_periods, seed, None)
+
+
+def _rig_record(
+    n_periods: int, seed: int, start: rig.OperatingPoint | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(stamps_ns, u, y)`` of the excited rig: (n,), (n, 2), (n, 2), model units.
+
+    Excited from the first sample at ts 0.8 s, period 256, started at ``start`` (None: its
+    operating point).
+    """
     cfg = experiment.ExperimentConfig()
     exc = dataclasses.replace(
         cfg.excitation,
@@ -65,9 +76,8 @@ def clean_record(n_periods: int = 6, seed: int = 0) -> tuple[np.ndarray, np.ndar
         settle_periods=0,
         record_periods=n_periods,
     )
-    op = rig.operating_point(cfg.rig)
-    u = excitation.excitation_commands(exc, op.commands)
-    sim = simulator.simulate(cfg.rig, u, CONFIG.ts_s, seed=seed, substeps=16)
+    u = excitation.excitation_commands(exc, rig.operating_point(cfg.rig).commands)
+    sim = simulator.simulate(cfg.rig, u, CONFIG.ts_s, op=start, seed=seed, substeps=16)
     stamps = np.arange(len(u), dtype=np.int64) * round(CONFIG.ts_s * 1e9)
     return stamps, sim.commands, sim.measured
 
@@ -218,16 +228,5 @@ def transient_record(n_periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     Started off its operating point (level 0.40, temperature 0.42 instead of 0.47, 0.5) with
     the excitation on from the first sample; ts 0.8 s, period 256, model units.
     """
-    cfg = experiment.ExperimentConfig()
-    exc = dataclasses.replace(
-        cfg.excitation,
-        ts_s=CONFIG.ts_s,
-        period_samples=CONFIG.period_samples,
-        settle_periods=0,
-        record_periods=n_periods,
-    )
-    u = excitation.excitation_commands(exc, rig.operating_point(cfg.rig).commands)
-    start = rig.operating_point(cfg.rig, height=0.40, temperature=0.42)
-    sim = simulator.simulate(cfg.rig, u, CONFIG.ts_s, op=start, seed=0, substeps=16)
-    stamps = np.arange(len(u), dtype=np.int64) * round(CONFIG.ts_s * 1e9)
-    return stamps, sim.commands, sim.measured
+    start = rig.operating_point(experiment.ExperimentConfig().rig, height=0.40, temperature=0.42)
+    return _rig_record(n_periods, 0, start)
