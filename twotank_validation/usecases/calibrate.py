@@ -21,12 +21,12 @@ from twotank_validation.usecases.outcome import (
     Progress,
     Say,
     Show,
-    Status,
     Teller,
     exit_status,
     interrupted_document,
     interrupted_outcome,
     nothing_judged,
+    unreadable,
     write_json,
 )
 from twotank_validation.usecases.reading import (
@@ -94,12 +94,7 @@ class CalibrateJob:
         try:
             return self._run(tell, progress, show)
         except TwotankError as err:
-            return Outcome(
-                ExitCode.ERROR,
-                Status.UNREADABLE,
-                messages=tuple(tell.messages),
-                closing=(Message(Level.ERROR, str(err)),),
-            )
+            return unreadable(err, tell)
 
     def _run(self, tell: Teller, progress: Progress | None, show: Show | None) -> Outcome:
         loaded = banded(load(self.model), self.read.monitor.band)

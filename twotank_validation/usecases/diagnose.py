@@ -34,6 +34,7 @@ from twotank_validation.usecases.outcome import (
     interrupted_document,
     interrupted_outcome,
     nothing_judged,
+    unreadable,
     write_json,
 )
 from twotank_validation.usecases.reading import (
@@ -118,12 +119,7 @@ class DiagnoseJob:
                     opened, loaded.model, cfg, start=self.start, end=self.end, progress=progress
                 )
         except TwotankError as err:
-            return Outcome(
-                ExitCode.ERROR,
-                Status.UNREADABLE,
-                messages=tuple(tell.messages),
-                closing=(Message(Level.ERROR, str(err)),),
-            )
+            return unreadable(err, tell)
         except replay.ReplayInterrupted as stop:
             summary = replay.summary_json(stop.result, [loaded.model.name])
             return interrupted_outcome(

@@ -15,7 +15,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from twotank_validation.errors import ExitCode, Interrupted, UsageError
+from twotank_validation.errors import ExitCode, Interrupted, TwotankError, UsageError
 
 if TYPE_CHECKING:
     from twotank_validation.replay import Timing, Unjudged
@@ -147,6 +147,16 @@ def exit_status(
     if not complete:
         return ExitCode.INCOMPLETE, lines
     return (ExitCode.NOT_JUDGED if unjudged else ExitCode.OK), lines
+
+
+def unreadable(err: TwotankError, tell: Teller) -> Outcome:
+    """The outcome of a job whose model, recording or setting could not be used: ``err``."""
+    return Outcome(
+        ExitCode.ERROR,
+        Status.UNREADABLE,
+        messages=tuple(tell.messages),
+        closing=(Message(Level.ERROR, str(err)),),
+    )
 
 
 def write_json(path: str | Path, document: Mapping[str, Any]) -> None:

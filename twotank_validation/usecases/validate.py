@@ -26,6 +26,7 @@ from twotank_validation.usecases.outcome import (
     Teller,
     exit_status,
     nothing_judged,
+    unreadable,
     write_json,
 )
 from twotank_validation.usecases.reading import (
@@ -141,12 +142,7 @@ class ValidateJob:
                     recording, models, cfg, progress=progress, on_report=streamed
                 )
         except TwotankError as err:
-            return Outcome(
-                ExitCode.ERROR,
-                Status.UNREADABLE,
-                messages=tuple(tell.messages),
-                closing=(Message(Level.ERROR, str(err)),),
-            )
+            return unreadable(err, tell)
         except replay.ReplayInterrupted as stop:
             return self._finish(
                 stop.result, models=models, timing=timing, cfg=cfg, tell=tell, stop=stop
