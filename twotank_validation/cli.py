@@ -23,6 +23,7 @@ from twotank_validation.cli_common import (
     live_end,
     progress_wanted,
     report_dict,
+    stdout_to_devnull,
 )
 from twotank_validation.cli_common import loopback_only as _loopback_only
 from twotank_validation.cli_common import out as _out
@@ -582,12 +583,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"interrupted by {interrupted.name}", file=sys.stderr)
         return interrupted.exit_code
     except BrokenPipeError:
-        # the reader of stdout went away (`live | head -3`): stop quietly, with stdout on
-        # /dev/null so that the exit's flush does not fail again (the Python docs' recipe,
-        # "Note on SIGPIPE")
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        os.close(devnull)
+        stdout_to_devnull()  # the reader of stdout went away (`live | head -3`): stop quietly
         return ExitCode.BROKEN_PIPE
     finally:
         for sig, previous in handlers.items():

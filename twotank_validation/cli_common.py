@@ -33,6 +33,7 @@ __all__ = [
     "out",
     "progress_wanted",
     "report_dict",
+    "stdout_to_devnull",
 ]
 
 
@@ -45,9 +46,18 @@ def out(*parts: object) -> None:
     try:
         print(*parts, flush=True)
     except BrokenPipeError:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())  # later prints and the exit flush go nowhere
-        os.close(devnull)
+        stdout_to_devnull()
+
+
+def stdout_to_devnull() -> None:
+    """Point stdout at /dev/null once its reader went away (``| head``).
+
+    Later prints and the exit's flush then go nowhere instead of failing again (the Python
+    docs' recipe, "Note on SIGPIPE").
+    """
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def progress_wanted(quiet: bool = False) -> bool:
