@@ -219,12 +219,17 @@ def _cmd_live(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from twotank_validation.bags.scenario_bag import simulate_command  # noqa: PLC0415
+    from twotank_validation.sim.model_record import interface_map_path  # noqa: PLC0415
+    from twotank_validation.sim.scenario import load_scenario  # noqa: PLC0415
 
     wanted = progress_wanted(args.quiet)
     path = simulate_command(
         args.scenario, args.out, args.storage, progress=None if wanted else False
     )
-    print(f"wrote {path}")
+    if load_scenario(args.scenario).flow_meter_noise > 0.0:  # its map is beside the bag
+        print(f"wrote {path} and its interface map {interface_map_path(path)}")
+    else:
+        print(f"wrote {path}")
     return 0
 
 

@@ -4,6 +4,10 @@
 sample into a bag with the topics the validator subscribes to (``flow_cmd``, ``height``,
 ``temperature``), so that replaying the bag is the same experiment as running the nodes
 live; ``simulate_command`` is the ``simulate`` command line on top of it.
+
+A scenario with flow meters (``flow_meter_noise`` > 0) adds the topic ``flow_meter``
+(FlowCommand: the meters' readings of the flows) and writes beside the bag the interface map
+that reads the inputs from it as measured (``<out>.map.yaml``, :func:`metered_interface_map`).
 """
 
 from __future__ import annotations
@@ -25,13 +29,25 @@ from twotank_validation.bags.writer import (
     fluid_pressure,
     temperature_msg,
 )
-from twotank_validation.online.streams import FLOW_CMD, HEIGHT, STREAM_TYPES, TEMPERATURE
-from twotank_validation.sim.scenario import Scenario, ScenarioError, iter_scenario, load_scenario
+from twotank_validation.online.interface_map import InputKind, InterfaceMap
+from twotank_validation.online.sources import Source
+from twotank_validation.online.streams import (
+    FLOW_CMD,
+    FLOW_CMD_TYPE,
+    HEIGHT,
+    STREAM_TYPES,
+    TEMPERATURE,
+    two_tank_map,
+)
+from twotank_validation.sim.model_record import interface_map_path, write_interface_map
+from twotank_validation.sim.scenario import Scenario, ScenarioError, iter_metered, load_scenario
 
 __all__ = [
     "CUSTOM_DATA_KEY",
+    "FLOW_METER",
     "PROGRESS_MIN_SAMPLES",
     "TOPICS",
+    "metered_interface_map",
     "simulate_command",
     "write_scenario_bag",
 ]
@@ -42,8 +58,29 @@ TOPICS: Final = dict(STREAM_TYPES)
 PROGRESS_MIN_SAMPLES: Final = 20_000
 """``write_scenario_bag`` shows a progress bar above this many samples (stderr a TTY)."""
 
+FLOW_METER: Final = "flow_meter"
+"""Topic of the flow meters' readings (FlowCommand) in the bag of a scenario with meters."""
+
 CUSTOM_DATA_KEY: Final = "twotank_validation.scenario"
 """Key of the scenario (JSON of ``Scenario.to_dict()``) in a scenario bag's custom_data."""
+
+
+def metered_interface_map(scenario: Scenario, kind: InputKind = InputKind.MEASURED) -> InterfaceMap:
+    """The map of a metered scenario's bag: the inputs from :data:`FLOW_METER`, of ``kind``.
+
+    The outputs are the two-tank preset's (``two_tank_map(scenario.units)``); the inputs
+    ``hot`` and ``cold`` read the meters' FlowCommand fields of the same names, marked
+    ``kind`` (measured by default; commanded applies the strict periodicity gate).
+    """
+    preset = two_tank_map(scenario.units)
+    return InterfaceMap(
+        inputs=(
+            Source("hot", FLOW_METER, FLOW_CMD_TYPE, "hot"),
+            Source("cold", FLOW_METER, FLOW_CMD_TYPE, "cold"),
+        ),
+        outputs=preset.outputs,
+        input_kinds=(kind, kind),
+    )
 
 
 def write_scenario_bag(
@@ -58,9 +95,12 @@ def write_scenario_bag(
     Topics (:data:`TOPICS`): ``flow_cmd`` (FlowCommand, model units), ``height``
     (FluidPressure, Pa), ``temperature`` (Temperature, °C), one message each per sample, all
     three of sample k with header stamp and log time k ts_s (the validator holds commands and
-    matches measurements to the grid). The scenario is stored as JSON under
-    :data:`CUSTOM_DATA_KEY` in the bag's custom_data. If the run fails or is interrupted, the
-    bag directory (created here) is removed: a scenario bag is whole or absent.
+    matches measurements to the grid). With flow meters (``scenario.flow_meter_noise`` > 0)
+    also :data:`FLOW_METER` (FlowCommand, the meters' readings, :func:`iter_metered`) and the
+    map :func:`metered_interface_map` beside the bag (``<out>.map.yaml``). The scenario is
+    stored as JSON under :data:`CUSTOM_DATA_KEY` in the bag's custom_data. If the run fails
+    or is interrupted, the bag directory (created here) and its map are removed: a scenario
+    bag is whole or absent.
 
     Args:
         scenario: The scenario.
@@ -83,12 +123,18 @@ def write_scenario_bag(
     if progress is None:
         progress = n > PROGRESS_MIN_SAMPLES and sys.stderr.isatty()
     units = scenario.units
+    metered = scenario.flow_meter_noise > 0.0
+    map_path = interface_map_path(out)
+    if metered and (map_path.exists() or map_path.is_symlink()):
+        raise BagExistsError(f"{map_path} exists already; choose another --out")
     bag = BagWriter(out, storage)  # raises before anything is created
     try:
         with bag:
             bag.set_custom_data(CUSTOM_DATA_KEY, json.dumps(scenario.to_dict()))
             for topic, msgtype in TOPICS.items():
                 bag.add_topic(topic, msgtype)
+            if metered:
+                bag.add_topic(FLOW_METER, FLOW_CMD_TYPE)
             with tqdm(
                 total=n,
                 desc=f"bag {scenario.name}",
@@ -96,15 +142,19 @@ def write_scenario_bag(
                 disable=not progress,
                 mininterval=0.5,
             ) as bar:
-                for k, (stamp, hot, cold, height, temperature) in enumerate(
-                    iter_scenario(scenario)
+                for k, (stamp, hot, cold, height, temperature, hot_m, cold_m) in enumerate(
+                    iter_metered(scenario)
                 ):
                     bag.write(FLOW_CMD, stamp, flow_command(stamp, hot, cold))
+                    if metered:
+                        bag.write(FLOW_METER, stamp, flow_command(stamp, hot_m, cold_m))
                     bag.write(HEIGHT, stamp, fluid_pressure(stamp, height, units))
                     bag.write(TEMPERATURE, stamp, temperature_msg(stamp, temperature, units))
                     if k % 1000 == 999:
                         bar.update(1000)
                 bar.update(n - bar.n)
+        if metered:
+            write_interface_map(metered_interface_map(scenario), map_path)
     except BaseException:
         shutil.rmtree(bag.path, ignore_errors=True)
         raise

@@ -40,6 +40,8 @@ __all__ = [
     "ClosedLoop",
     "Scenario",
     "ScenarioError",
+    "flow_meter_readings",
+    "iter_metered",
     "iter_scenario",
     "load_scenario",
     "scenario_from_dict",
@@ -251,6 +253,14 @@ class Scenario:
             both): from that time on the valves are commanded around the equilibrium of the
             new level and temperature (:func:`parse_setpoint`); the excitation goes on.
         seed: Seed of the sensor noise, >= 0.
+        flow_meter_noise: Flow meters on both valves: each logs the flow the valve is
+            commanded to deliver over the sample plus white Gaussian noise of standard
+            deviation ``flow_meter_noise`` times that valve's excitation RMS (``rms_hot``,
+            ``rms_cold``), in [0, 0.05] (the measured-input gate's tolerance). The plant is
+            driven by the true flows; only the logged readings carry the noise
+            (:func:`iter_metered`, the bag's ``flow_meter`` topic). Drawn from a generator
+            of its own (``seed``, stream 1), so the sensor noise is the same with and
+            without the meters. 0 (default): no meters.
         units: Conversion of level and temperature to Pa and °C in the messages.
         closed_loop: The PI controller driving the valves (:class:`ClosedLoop`, or in YAML a
             mapping of its keys / ``true``); None: open loop, the excitation's commands go to
@@ -285,6 +295,7 @@ class Scenario:
     faults: tuple[str, ...] = ()
     setpoints: tuple[str, ...] = ()
     seed: int = 0
+    flow_meter_noise: float = 0.0
     units: RigUnits = field(default_factory=RigUnits)
     closed_loop: ClosedLoop | None = None
 
@@ -340,6 +351,11 @@ class Scenario:
         )
         for key in ("leak_per_level", "heat_loss_coeff"):
             put(self, key, _real(where, key, getattr(self, key), lo=0.0, hi=5.0))
+        put(
+            self,
+            "flow_meter_noise",
+            _real(where, "flow_meter_noise", self.flow_meter_noise, lo=0.0, hi=0.05),
+        )
         if not isinstance(self.units, RigUnits):
             raise ScenarioError(f"{where}: units={self.units!r} must be a RigUnits")
         put(self, "closed_loop", closed_loop_from(self.closed_loop, where))
@@ -500,6 +516,10 @@ class Scenario:
             )
             return excitation.excitation_period(cfg)
         return self.command_table() - self.operating_point().commands
+
+    def flow_meter_std(self) -> FloatArray:
+        """(2,) standard deviation of the [hot, cold] flow meters' noise (model units)."""
+        return self.flow_meter_noise * np.array([self.rms_hot, self.rms_cold])
 
     def fault_objects(self) -> tuple[Fault, ...]:
         """The faults, parsed."""
@@ -698,6 +718,48 @@ def iter_scenario(scenario: Scenario) -> Iterator[tuple[int, float, float, float
         height, temperature = sim.measure().tolist()
         sim.step((hot, cold))
         yield k * ts_ns, hot, cold, height, temperature
+
+
+METER_STREAM: Final = 1
+"""Spawn key of the flow meters' noise generator (the sensor noise uses the seed itself)."""
+
+_METER_CHUNK: Final = 4096
+"""Rows of meter noise drawn at a time (the same numbers as one draw of the whole run)."""
+
+
+def iter_metered(
+    scenario: Scenario,
+) -> Iterator[tuple[int, float, float, float, float, float, float]]:
+    """:func:`iter_scenario` with the flow meters' readings of each sample.
+
+    Yields:
+        ``(stamp_ns, hot, cold, height, temperature, hot_read, cold_read)``: those of
+        :func:`iter_scenario` and the readings ``hot + n_hot``, ``cold + n_cold``, the noise
+        white Gaussian of :meth:`Scenario.flow_meter_std`, drawn from
+        ``default_rng(SeedSequence(seed, spawn_key=(METER_STREAM,)))`` as one (n, 2) array
+        (in chunks; equal to the readings ``flow_meter_readings`` gives).
+    """
+    rng = np.random.default_rng(np.random.SeedSequence(scenario.seed, spawn_key=(METER_STREAM,)))
+    std_hot, std_cold = scenario.flow_meter_std().tolist()
+    noise: list[list[float]] = []
+    for k, (stamp, hot, cold, height, temperature) in enumerate(iter_scenario(scenario)):
+        j = k % _METER_CHUNK
+        if j == 0:
+            noise = rng.standard_normal((_METER_CHUNK, 2)).tolist()
+        n_hot, n_cold = noise[j]
+        yield stamp, hot, cold, height, temperature, hot + std_hot * n_hot, cold + std_cold * n_cold
+
+
+def flow_meter_readings(scenario: Scenario, commands: FloatArray) -> FloatArray:
+    """(n, 2) the flow meters' readings of the (n, 2) commands of ``simulate_scenario``.
+
+    The same numbers :func:`iter_metered` yields (model units).
+    """
+    rng = np.random.default_rng(np.random.SeedSequence(scenario.seed, spawn_key=(METER_STREAM,)))
+    n = len(commands)
+    chunks = -(-n // _METER_CHUNK)
+    noise = rng.standard_normal((chunks * _METER_CHUNK, 2))[:n]
+    return np.asarray(commands + scenario.flow_meter_std() * noise)
 
 
 def _iter_closed_loop(
