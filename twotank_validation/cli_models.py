@@ -22,6 +22,11 @@ __all__ = [
     "cmd_simulate_model",
 ]
 
+STRUCTURE_TS_S = 0.0025
+"""``simulate --structure``'s default sample period (400 Hz; as ``StructureConfig``)."""
+STRUCTURE_PERIOD = 1024
+"""``simulate --structure``'s default excitation period (samples; as ``StructureConfig``)."""
+
 SIM_NOISE_SCALE = 0.5
 """Default noise of a simulated model (``simulate --model``, ``live --plant-model``), as a
 fraction of what its noise weights admit: at 1 the noise alone uses the whole unit budget of
@@ -128,19 +133,32 @@ def add_simulate_model_options(
         "(--out ends in .csv); the interface map is written beside it (<out>.map.yaml, "
         "<stem>.map.yaml for a table); default: mcap",
     )
-    group.add_argument("--ts", type=float, default=TS_S, help="--model: sample period (s)")
     group.add_argument(
-        "--period", type=int, default=PERIOD_SAMPLES, help="--model: excitation period (samples)"
+        "--ts",
+        type=float,
+        default=None,
+        help=f"--model, --structure: sample period (s); default {TS_S:g} (--model), "
+        f"{STRUCTURE_TS_S:g} (--structure)",
     )
     group.add_argument(
-        "--periods", type=int, default=2, help="--model: periods recorded after settling"
+        "--period",
+        type=int,
+        default=None,
+        help=f"--model, --structure: excitation period (samples); default {PERIOD_SAMPLES} "
+        f"(--model), {STRUCTURE_PERIOD} (--structure)",
+    )
+    group.add_argument(
+        "--periods",
+        type=int,
+        default=2,
+        help="--model, --structure: periods recorded after settling",
     )
     group.add_argument(
         "--settle-periods",
         type=int,
         default=None,
-        help="--model: periods to let the transient die out first; default: as many as the "
-        "plant needs",
+        help="--model, --structure: periods to let the transient die out first; default: as "
+        "many as the plant needs (a structure's are not written)",
     )
     group.add_argument(
         "--member",
@@ -158,7 +176,7 @@ def add_simulate_model_options(
     group.add_argument(
         "--offset", type=float, default=0.0, help="--model: operating point of every input"
     )
-    group.add_argument("--seed", type=int, default=0, help="--model: excitation seed")
+    group.add_argument("--seed", type=int, default=0, help="--model, --structure: excitation seed")
     group.add_argument(
         "--noise-scale",
         type=float,
@@ -166,23 +184,43 @@ def add_simulate_model_options(
         help="--model: noise as a fraction of what the model's noise weights admit "
         f"(default {SIM_NOISE_SCALE}: at 1 the noise alone uses the whole unit budget of w)",
     )
-    group.add_argument("--noise-seed", type=int, default=0, help="--model: noise seed")
+    group.add_argument("--noise-seed", type=int, default=0, help="--model, --structure: noise seed")
+    group.add_argument(
+        "--structure",
+        type=float,
+        metavar="FORCE_RMS_N",
+        help="simulate the 3-mass chain with a cubic spring (docs/simulate.md) at this force "
+        "RMS (N) instead of a scenario or a model; --out ends in .csv: the table, its map "
+        "(the force kind: measured) and the linear model (<stem>.model.yaml) are written",
+    )
     sim.set_defaults(func=functools.partial(cmd_simulate_model, scenario=scenario))
 
 
 def cmd_simulate_model(
     args: argparse.Namespace, scenario: Callable[[argparse.Namespace], int]
 ) -> int:
-    """``simulate``: a scenario (``--scenario``) or any model (``--model``), exactly one."""
-    if (args.scenario is None) == (args.model is None):
+    """``simulate``: a scenario, any model or the structure (exactly one of the three)."""
+    chosen = (
+        ("--scenario", args.scenario),
+        ("--model", args.model),
+        ("--structure", args.structure),
+    )
+    given = [o for o, v in chosen if v is not None]
+    if len(given) != 1:
         raise UsageError(
-            "simulate needs exactly one of --scenario NAME (the two-tank rig) and --model FILE "
-            "(any model), found " + ("both" if args.scenario is not None else "neither")
+            "simulate needs exactly one of --scenario NAME (the two-tank rig), --model FILE "
+            "(any model) and --structure FORCE_RMS_N (the 3-mass chain), found "
+            + (" and ".join(given) if given else "none")
         )
     if args.scenario is not None:
-        if args.format is not None:
-            raise UsageError("--format is for --model; a scenario's bag takes --storage")
+        if args.format is not None or args.ts is not None or args.period is not None:
+            raise UsageError(
+                "--format, --ts and --period are for --model and --structure; a scenario's bag "
+                "takes --storage and its own settings"
+            )
         return scenario(args)
+    if args.structure is not None:
+        return _simulate_structure(args)
     if args.storage != "mcap":
         raise UsageError("--storage is for --scenario; with --model give --format")
     from twotank_validation.bags.model_bag import simulate_model_command  # noqa: PLC0415
@@ -192,8 +230,8 @@ def cmd_simulate_model(
         args.model,
         args.out,
         args.format or "mcap",
-        ts_s=args.ts,
-        period_samples=args.period,
+        ts_s=TS_S if args.ts is None else args.ts,
+        period_samples=PERIOD_SAMPLES if args.period is None else args.period,
         periods=args.periods,
         settle_periods=args.settle_periods,
         rms=args.rms,
@@ -205,4 +243,40 @@ def cmd_simulate_model(
         faults=tuple(args.fault or ()),
     )
     print(f"wrote {path} and its interface map {interface_map_path(path)}")
+    return 0
+
+
+def _simulate_structure(args: argparse.Namespace) -> int:
+    """``simulate --structure FORCE_RMS_N --out RUN.csv``: the chain's recording."""
+    other = [
+        o
+        for o, bad in (
+            ("--storage", args.storage != "mcap"),
+            ("--format", args.format not in (None, "csv")),
+            ("--member", args.member != "nominal"),
+            ("--fault", bool(args.fault)),
+            ("--rms", args.rms != 0.1),
+            ("--offset", args.offset != 0.0),
+            ("--noise-scale", args.noise_scale != SIM_NOISE_SCALE),
+        )
+        if bad
+    ]
+    if other:
+        raise UsageError(
+            f"{', '.join(other)}: not for --structure (its level is FORCE_RMS_N, its noise "
+            "fixed; it writes a CSV table)"
+        )
+    from twotank_validation.sim import structure  # noqa: PLC0415
+
+    cfg = structure.StructureConfig(
+        ts_s=STRUCTURE_TS_S if args.ts is None else args.ts,
+        period_samples=STRUCTURE_PERIOD if args.period is None else args.period,
+        periods=args.periods,
+        settle_periods=args.settle_periods,
+        force_rms_n=args.structure,
+        seed=args.seed,
+        noise_seed=args.noise_seed,
+    )
+    paths = structure.write_structure_recording(structure.simulate_structure(cfg), args.out)
+    print(f"wrote {paths[0]}, its interface map {paths[1]} and the linear model {paths[2]}")
     return 0
