@@ -179,8 +179,10 @@ def test_live_with_a_model_of_other_channels_is_exit_2_without_a_traceback() -> 
     ("args", "message"),
     [
         (["--scenario", "nominal", "--model", "X"], "exactly one of --scenario"),
-        ([], "exactly one of --scenario NAME (the two-tank rig) and --model FILE"),
-        (["--scenario", "nominal", "--format", "csv"], "--format is for --model"),
+        ([], "exactly one of --scenario NAME (the two-tank rig), --model FILE (any model) and"),
+        (["--structure", "1", "--model", "X"], "found --model and --structure"),
+        (["--scenario", "nominal", "--format", "csv"], "--format, --ts and --period are for"),
+        (["--scenario", "nominal", "--ts", "0.5"], "--format, --ts and --period are for"),
         (["--model", str(MODELS / "siso.yaml"), "--storage", "sqlite3"], "with --model give"),
         (
             ["--model", str(MODELS / "siso.yaml"), "--fault", "sensor_bias:level=1@2"],

@@ -7,7 +7,7 @@ lines, against the simulator at ``k_c = 0``; the model file against the same mat
 the recordings ``simulate --structure`` writes, judged by ``validate --band``: the nominal is
 not invalidated in the band at a low level and is at a high one, β grows with the level, and
 over every bin a middle level is already invalid where the band is not (the cubic spring's
-odd harmonics lie above the band).
+intermodulation lines fall outside the band too, the largest just below 2 Hz).
 """
 
 from __future__ import annotations
@@ -108,7 +108,8 @@ def test_beta_grows_with_the_level_and_the_band_keeps_the_distortion_out() -> No
     band = [b for b, _ in betas]
     assert band[0] < band[1] < 1.0 < band[2]
     assert band[1] > 2 * band[0]  # beyond the noise's scatter: the stiffened mode
-    # at 2 N the odd harmonics of the cubic spring above 15 Hz invalidate every bin's β
+    # at 2 N the cubic spring's intermodulation lines outside the band (the largest at 1.95,
+    # 1.56 and 0.78 Hz) invalidate every bin's β
     assert betas[1][1] > 1.0
 
 
