@@ -25,6 +25,7 @@ import yaml
 from twotank_validation import cli
 from twotank_validation.sim.model_record import interface_map_path
 from twotank_validation.sim.scenario import (
+    ScenarioError,
     flow_meter_readings,
     iter_metered,
     load_scenario,
@@ -123,3 +124,17 @@ def test_measured_flows_are_judged_within_the_noise_effect_and_commanded_ones_re
     refused = [w for w in windows if w["start"] in judged_before]
     assert refused
     assert all("input not periodic" in w["reason"] for w in refused), refused
+
+
+def test_bad_meter_noise_and_an_existing_map_are_clear_errors(
+    scenario_file: Path, tmp_path: Path, capsys
+) -> None:
+    with pytest.raises(ScenarioError, match=r"flow_meter_noise=0.1 must be <= 0.05"):
+        dataclasses.replace(load_scenario(scenario_file), flow_meter_noise=0.1)
+    out = tmp_path / "taken"
+    interface_map_path(out).write_text("mine")
+    code = cli.main(["simulate", "--scenario", str(scenario_file), "--out", str(out)])
+    assert code == cli.EXIT_ERROR
+    assert "exists already" in capsys.readouterr().err
+    assert not out.exists()
+    assert interface_map_path(out).read_text() == "mine"

@@ -741,6 +741,10 @@ def iter_metered(
     """
     rng = np.random.default_rng(np.random.SeedSequence(scenario.seed, spawn_key=(METER_STREAM,)))
     std_hot, std_cold = scenario.flow_meter_std().tolist()
+    if std_hot == std_cold == 0.0:  # no meters (or silent ones): the readings are the flows
+        for stamp, hot, cold, height, temperature in iter_scenario(scenario):
+            yield stamp, hot, cold, height, temperature, hot, cold
+        return
     noise: list[list[float]] = []
     for k, (stamp, hot, cold, height, temperature) in enumerate(iter_scenario(scenario)):
         j = k % _METER_CHUNK
