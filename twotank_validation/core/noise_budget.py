@@ -232,13 +232,15 @@ def noise_weights(
             "an output shows no noise over the bins counted (or the band holds none of its "
             "bins): its weight cannot be set from the data"
         )
+    # squares of the estimated variances, unbiased: E σ̂⁴ = σ⁴ (1 + 1/dof) for a gamma σ̂²
+    unbias = 1.0 / (1.0 + 1.0 / spread.dof)
     # the new window's noise: a b_n |E|²-term per bin, var a² (complex) or 2 a² (real bin)
     real = _real_bin(n_bins, n_samples)
-    rel_q = np.sum(np.where(real[:, None], 2.0, 1.0) * a**2, axis=0) / g_hat**2
+    rel_q = unbias * np.sum(np.where(real[:, None], 2.0, 1.0) * a**2, axis=0) / g_hat**2
     # the estimate's: the bins sharing a harmonic share its estimate, (p-1) dof per window
     per_harm = np.zeros((spread.harmonic_var.shape[0], ny))
     np.add.at(per_harm, spread.harmonic, a)
-    dof = g_hat**2 * spread.dof / np.sum(per_harm**2, axis=0)
+    dof = g_hat**2 * spread.dof / (unbias * np.sum(per_harm**2, axis=0))
     if np.any(dof <= 2.0):
         raise DatumError(
             f"the noise estimate has {float(dof.min()):.3g} degrees of freedom (at least 3 "
