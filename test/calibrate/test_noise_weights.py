@@ -28,8 +28,8 @@ from twotank_validation import cli
 from twotank_validation.calibrate import CalibrationError, noise_document, noise_from_data
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model, model_from_dict
-from twotank_validation.core.noise_budget import NOISE_BETA_WARN
-from twotank_validation.core.validate import noise_beta, validate
+from twotank_validation.core.noise_budget import NOISE_BETA_WARN, NOISE_WARN_CONFIDENCE
+from twotank_validation.core.validate import noise_beta, noise_beta_bounds, validate
 from twotank_validation.diagnose.inputs import Window
 from twotank_validation.sim import model_plant as mp
 from twotank_validation.sim.model_record import interface_map_path
@@ -103,13 +103,17 @@ def test_noise_beta_against_monte_carlo_and_closed_form() -> None:
     doc = yaml.safe_load((MODELS / "one_by_three.yaml").read_text())  # the stated weights
     nominal = _nominal_doc()
     scale = 0.6
-    estimates, brute = [], []
+    estimates, brute, lower = [], [], []
     for seed in range(40):
         u, y = _record(nominal, 300 + seed, 4, noise_scale=scale)
         d = make_datum(u, y, ts_s=TS_S, period_samples=PERIOD)
         estimates.append(validate(d, model_from_dict(nominal, "n")).noise_beta ** 2)
         brute.append(validate(d, model_from_dict(nominal, "n")).beta ** 2)
+        lower.append(noise_beta_bounds(d, model_from_dict(nominal, "n"))[1])
     est, mc = np.array(estimates), np.array(brute)
+    # the warning's lower bound (90 % confidence) is below the true value as often as it says
+    covered = int(np.sum(np.array(lower) <= scale))
+    assert covered >= scipy.stats.binom.ppf(0.001, est.size, NOISE_WARN_CONFIDENCE), covered
     se = math.hypot(est.std(ddof=1), mc.std(ddof=1)) / math.sqrt(est.size)
     assert abs(est.mean() - mc.mean()) < 4.0 * se, (est.mean(), mc.mean(), se)
     # the simulator's w has mean-square norm scale², all of it through the model's weights

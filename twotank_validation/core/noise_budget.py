@@ -28,8 +28,12 @@ from twotank_validation.errors import DatumError
 
 NOISE_BETA_WARN = 0.9
 """A window warns when the β its noise alone is expected to cost, under the model's noise
-weights, is above this (81 % of β² = 1): a β above 1 is then as likely the noise weights' as
-the model's (docs/theory.md §13)."""
+weights, is above this (81 % of β² = 1) with confidence :data:`NOISE_WARN_CONFIDENCE`: a β
+above 1 is then as likely the noise weights' as the model's (docs/theory.md §13)."""
+
+NOISE_WARN_CONFIDENCE = 0.9
+"""The warning needs the lower bound of this confidence (:func:`noise_beta_lower`) above
+:data:`NOISE_BETA_WARN`."""
 
 NOISE_QUANTILE = 0.99
 """Default probability that the noise alone costs at most the budget on a window."""
@@ -140,6 +144,38 @@ def expected_noise_beta(
     b = bin_weights if mask is None else np.where(mask, bin_weights, 0.0)
     total = float(np.sum(b[:, None] * var * gain2))
     return math.sqrt(total) if total >= 0.0 else math.nan
+
+
+def noise_beta_lower(
+    spread: NoiseSpread,
+    gain2: np.ndarray,
+    bin_weights: np.ndarray,
+    mask: np.ndarray | None = None,
+    confidence: float = 0.9,
+) -> float:
+    """A lower confidence bound on the noise-only β that :func:`expected_noise_beta` estimates.
+
+    The estimate ``Σ_m c_m σ̂_m²`` sums the harmonics' and outputs' estimates (each a gamma of
+    ``spread.dof`` complex degrees of freedom times its true value), taken as one gamma of
+    ``d = (Σ c_m σ_m²)² / Σ c_m² σ_m⁴ · dof`` degrees of freedom (its first two moments);
+    the bound is ``sqrt(estimate / G_conf)`` with ``G_conf`` the gamma's ``confidence``
+    quantile (mean 1). A window of few periods estimates its noise loosely: a warning on the
+    bound is not raised by the estimate's own scatter.
+
+    Returns:
+        The bound (units of ``||w||``); NaN where the estimate is.
+    """
+    b = bin_weights if mask is None else np.where(mask, bin_weights, 0.0)
+    a = b[:, None] * spread.var * gain2  # (n_bins, n_outputs): each output's own estimate
+    total = float(a.sum())
+    if not (math.isfinite(total) and total > 0.0):
+        return math.nan if not math.isfinite(total) else 0.0
+    per_harm = np.zeros(spread.harmonic_var.shape)
+    np.add.at(per_harm, spread.harmonic, a)
+    unbias = 1.0 / (1.0 + 1.0 / spread.dof)  # E σ̂⁴ = σ⁴ (1 + 1/dof)
+    d = total**2 * spread.dof / (unbias * float(np.sum(per_harm**2)))
+    top = float(scipy.stats.gamma.ppf(confidence, d, scale=1.0 / d))
+    return math.sqrt(total / top)
 
 
 def _real_bin(n_bins: int, n_samples: int) -> np.ndarray:
@@ -280,9 +316,11 @@ __all__ = [
     "NOISE_BETA_WARN",
     "NOISE_BUDGET",
     "NOISE_QUANTILE",
+    "NOISE_WARN_CONFIDENCE",
     "NoiseSpread",
     "NoiseWeights",
     "expected_noise_beta",
+    "noise_beta_lower",
     "noise_beta_quantile",
     "noise_gain2",
     "noise_spread",

@@ -33,7 +33,9 @@ from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.noise_budget import (
     NOISE_BETA_WARN,
+    NOISE_WARN_CONFIDENCE,
     expected_noise_beta,
+    noise_beta_lower,
     spread_of_std,
 )
 from twotank_validation.defaults import METHODS, Method
@@ -533,40 +535,60 @@ class Caveats:
     noise_beta: float = math.nan
 
 
+def noise_beta_bounds(
+    datum: Datum,
+    model: LFTModel,
+    response: PlantResponse | None = None,
+    mask: np.ndarray | None = None,
+) -> tuple[float, float]:
+    """The β the datum's noise alone is expected to cost under the model's noise weights.
+
+    ``sqrt(Σ_n b_n Σ_c σ_c(n)² |P22(n)⁺ e_c|²)`` over the band's bins, with ``σ_c(n)`` the
+    outputs' noise estimated from the period-to-period spread (``Datum.noise_std``, each bin
+    taking its nearest harmonic's; :mod:`~twotank_validation.core.noise_budget`,
+    docs/theory.md §13).
+
+    Returns:
+        ``(estimate, lower)``: the estimate and its lower bound at
+        :data:`~twotank_validation.core.noise_budget.NOISE_WARN_CONFIDENCE`; NaN with one
+        period (no spread) or without noise channels.
+    """
+    if datum.n_periods < 2 or model.nw == 0:
+        return math.nan, math.nan
+    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
+    if "noise_gain2" not in resp.memo:
+        if "noise_pinv" not in resp.memo:
+            resp.memo["noise_pinv"] = np.linalg.pinv(resp.p22)
+        resp.memo["noise_gain2"] = np.sum(np.abs(resp.memo["noise_pinv"]) ** 2, axis=1)
+    gain2 = resp.memo["noise_gain2"]
+    spread = spread_of_std([datum.noise_std], datum.n_periods)
+    return (
+        expected_noise_beta(spread.var, gain2, datum.bin_weights, mask),
+        noise_beta_lower(spread, gain2, datum.bin_weights, mask, NOISE_WARN_CONFIDENCE),
+    )
+
+
 def noise_beta(
     datum: Datum,
     model: LFTModel,
     response: PlantResponse | None = None,
     mask: np.ndarray | None = None,
 ) -> float:
-    """The β the datum's noise alone is expected to cost under the model's noise weights.
-
-    ``sqrt(Σ_n b_n Σ_c σ_c(n)² |P22(n)⁺ e_c|²)`` over the band's bins, with ``σ_c(n)`` the
-    outputs' noise estimated from the period-to-period spread (``Datum.noise_std``, each bin
-    taking its nearest harmonic's; :mod:`~twotank_validation.core.noise_budget`,
-    docs/theory.md §13). NaN with one period (no spread) or without noise channels.
-    """
-    if datum.n_periods < 2 or model.nw == 0:
-        return math.nan
-    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
-    if "noise_gain2" not in resp.memo:
-        if "noise_pinv" not in resp.memo:
-            resp.memo["noise_pinv"] = np.linalg.pinv(resp.p22)
-        resp.memo["noise_gain2"] = np.sum(np.abs(resp.memo["noise_pinv"]) ** 2, axis=1)
-    spread = spread_of_std([datum.noise_std], datum.n_periods)
-    return expected_noise_beta(spread.var, resp.memo["noise_gain2"], datum.bin_weights, mask)
+    """The estimate of :func:`noise_beta_bounds` alone."""
+    return noise_beta_bounds(datum, model, response, mask)[0]
 
 
-def noise_budget_warning(beta_noise: float) -> tuple[str, ...]:
+def noise_budget_warning(beta_noise: float, lower: float) -> tuple[str, ...]:
     """The warning for noise weights that alone use most of β's budget, if they do.
 
-    ``beta_noise`` (:func:`noise_beta`) above :data:`NOISE_BETA_WARN`: one sentence with
-    the fix; otherwise nothing.
+    ``lower`` (:func:`noise_beta_bounds`, the estimate ``beta_noise``'s lower bound) above
+    :data:`NOISE_BETA_WARN`: one sentence with the fix; otherwise nothing.
     """
-    if not beta_noise > NOISE_BETA_WARN:
+    if not lower > NOISE_BETA_WARN:
         return ()
     return (
-        f"the noise alone is expected to cost beta {beta_noise:.3g} under the model's noise "
+        f"the noise alone is expected to cost beta {beta_noise:.3g} (at least {lower:.3g}) "
+        "under the model's noise "
         f"weights (beta^2 {beta_noise**2:.2f} of its budget 1: the output channels share one "
         "unit-norm w): a beta near or above 1 may be the noise weights', not the model's; "
         "set them from the data (twotank-validation calibrate RECORDING --model MODEL "
@@ -635,8 +657,8 @@ def result_caveats(
             "(an output without a noise weight, or a weight that vanishes there); give every "
             "measured output a noise weight"
         )
-    beta_noise = noise_beta(datum, model, response, mask)
-    out.extend(noise_budget_warning(beta_noise))
+    beta_noise, lower = noise_beta_bounds(datum, model, response, mask)
+    out.extend(noise_budget_warning(beta_noise, lower))
     return Caveats(tuple(findings), rho, tuple(out), beta_noise)
 
 
