@@ -136,7 +136,9 @@ class NoiseCalibration:
         }
 
 
-def noise_document(doc: Mapping[str, Any], outputs: Sequence[str], gains: np.ndarray) -> dict:
+def noise_document(
+    doc: Mapping[str, Any], outputs: Sequence[str], gains: np.ndarray
+) -> dict[str, Any]:
     """The model file with flat noise weights ``gains`` (one per output, model order).
 
     Each noise block keeps its name and outputs, its weight becomes one gain per output; an

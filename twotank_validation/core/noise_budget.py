@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.special
 import scipy.stats
 
 from twotank_validation.core.datum import NormConvention, noise_estimate
@@ -146,6 +147,14 @@ def expected_noise_beta(
     return math.sqrt(total) if total >= 0.0 else math.nan
 
 
+def _per_harmonic(spread: NoiseSpread, a: np.ndarray) -> np.ndarray:
+    """(n_harmonics, n_outputs): the bins' terms ``a`` summed per harmonic they take."""
+    size = spread.harmonic_var.shape[0]
+    return np.stack(
+        [np.bincount(spread.harmonic, weights=col, minlength=size) for col in a.T], axis=1
+    )
+
+
 def noise_beta_lower(
     spread: NoiseSpread,
     gain2: np.ndarray,
@@ -170,11 +179,10 @@ def noise_beta_lower(
     total = float(a.sum())
     if not (math.isfinite(total) and total > 0.0):
         return math.nan if not math.isfinite(total) else 0.0
-    per_harm = np.zeros(spread.harmonic_var.shape)
-    np.add.at(per_harm, spread.harmonic, a)
+    per_harm = _per_harmonic(spread, a)
     unbias = 1.0 / (1.0 + 1.0 / spread.dof)  # E σ̂⁴ = σ⁴ (1 + 1/dof)
     d = total**2 * spread.dof / (unbias * float(np.sum(per_harm**2)))
-    top = float(scipy.stats.gamma.ppf(confidence, d, scale=1.0 / d))
+    top = float(scipy.special.gammaincinv(d, confidence)) / d  # the gamma's quantile, mean 1
     return math.sqrt(total / top)
 
 
@@ -274,8 +282,7 @@ def noise_weights(
     real = _real_bin(n_bins, n_samples)
     rel_q = unbias * np.sum(np.where(real[:, None], 2.0, 1.0) * a**2, axis=0) / g_hat**2
     # the estimate's: the bins sharing a harmonic share its estimate, (p-1) dof per window
-    per_harm = np.zeros((spread.harmonic_var.shape[0], ny))
-    np.add.at(per_harm, spread.harmonic, a)
+    per_harm = _per_harmonic(spread, a)
     dof = g_hat**2 * spread.dof / (unbias * np.sum(per_harm**2, axis=0))
     if np.any(dof <= 2.0):
         raise DatumError(
