@@ -362,6 +362,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         json_path=args.json,
         report_dir=args.report,
         out_model=args.out_model,
+        noise_from_data=args.noise_from_data,
+        noise_quantile=args.noise_quantile,
+        noise_budget=args.noise_budget,
     )
     bar = _ReplayBar(args.quiet)
     try:

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
+from twotank_validation.core.noise_budget import NOISE_BUDGET, NOISE_QUANTILE
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
 from twotank_validation.online import MonitorConfig, interface
@@ -346,3 +347,23 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
         "--margin", type=float, default=1.2, help="the new weights cover this x the requirement"
     )
     parser.add_argument("--max-order", type=int, default=2, help="largest order of a fitted weight")
+    parser.add_argument(
+        "--noise-from-data",
+        action="store_true",
+        help="set every output's noise weight from the period-to-period spread instead "
+        "(flat, the outputs sharing one unit-norm w: the noise alone costs beta <= "
+        "--noise-budget on --noise-quantile of windows; docs/calibrate.md)",
+    )
+    parser.add_argument(
+        "--noise-budget",
+        type=float,
+        default=NOISE_BUDGET,
+        help=f"with --noise-from-data: the beta the noise alone may cost (default {NOISE_BUDGET})",
+    )
+    parser.add_argument(
+        "--noise-quantile",
+        type=float,
+        default=NOISE_QUANTILE,
+        help="with --noise-from-data: the share of windows on which the noise alone costs at "
+        f"most --noise-budget (default {NOISE_QUANTILE})",
+    )

@@ -14,6 +14,8 @@ Modules (each imports only those above it):
   and the smallest set of per-block factors that explains every window).
 * :mod:`~twotank_validation.calibrate.weightfit`: the stable, minimum-phase weight fit.
 * :mod:`~twotank_validation.calibrate.calibration`: :func:`calibrate` and its result.
+* :mod:`~twotank_validation.calibrate.noise`: :func:`noise_from_data`, the noise weights set
+  from the period-to-period spread, the output channels sharing the one unit-norm ``w``.
 * :mod:`~twotank_validation.calibrate.recording`: :func:`calibrate_recording` (a bag or table
   read through the replay path) and the report (text and figures).
 """
@@ -30,6 +32,12 @@ from twotank_validation.calibrate.calibration import (
     model_of,
 )
 from twotank_validation.calibrate.joint import JointScaling, common_scaling, joint_scaling
+from twotank_validation.calibrate.noise import (
+    NoiseCalibration,
+    noise_document,
+    noise_from_data,
+    noise_model_of,
+)
 from twotank_validation.calibrate.recording import (
     calibrate_recording,
     calibration_text,
@@ -58,6 +66,7 @@ __all__ = [
     "FittedWeight",
     "JointScaling",
     "Judged",
+    "NoiseCalibration",
     "WindowProblem",
     "bin_requirement",
     "calibrate",
@@ -69,6 +78,9 @@ __all__ = [
     "joint_scaling",
     "model_blocks",
     "model_of",
+    "noise_document",
+    "noise_from_data",
+    "noise_model_of",
     "window_scaling",
     "write_calibration_report",
 ]

@@ -31,6 +31,13 @@ from twotank_validation.core.datum import (
 )
 from twotank_validation.core.datum import pulse_moment as datum_pulse_moment
 from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.noise_budget import (
+    NOISE_BETA_WARN,
+    NOISE_WARN_CONFIDENCE,
+    expected_noise_beta,
+    noise_beta_lower,
+    spread_of_std,
+)
 from twotank_validation.defaults import METHODS, Method
 from twotank_validation.errors import DimensionError, ModelError
 
@@ -88,6 +95,9 @@ class ValidationResult:
             ``|Y_i(n)|`` over the bins: there the bound says nothing, and :meth:`summary`
             leaves it out (``None``) with :data:`LEAKAGE_NOTE`. Not a warning: β does not
             use the bound, so the verdict is no weaker for it.
+        noise_beta: the β the datum's noise alone is expected to cost under the model's
+            noise weights, over the band (:func:`noise_beta`; NaN with one period); above
+            :data:`~twotank_validation.core.noise_budget.NOISE_BETA_WARN` it is a warning.
     """
 
     model_name: str
@@ -117,6 +127,7 @@ class ValidationResult:
     lines_outside: tuple[tuple[float, float], ...] = ()
     periodic_outside: tuple[tuple[float, float], ...] = ()
     leakage_exceeds_data: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    noise_beta: float = math.nan
 
     @property
     def invalidated(self) -> bool:
@@ -153,6 +164,7 @@ class ValidationResult:
             "fallback_bins": self.fallback_bins,
             "leakage_bound": self.leakage.tolist(),
             "compute_time_s": self.compute_time_s,
+            "noise_beta": self.noise_beta if math.isfinite(self.noise_beta) else None,
         }
         if np.any(self.leakage_exceeds_data):  # the bound says nothing there: left out
             out["leakage_bound"] = [
@@ -291,7 +303,7 @@ class BetaResult:
         w_min: (n_bins,) float, lower bound on min ||W(n)|| per bin.
         beta: ``sqrt(sum_n weight_n w_min(n)^2)``.
         beta_upper: the same from the witness.
-        warnings, findings, input_leakage, beta_outside, lines_outside: as
+        warnings, findings, input_leakage, beta_outside, lines_outside, noise_beta: as
             :class:`ValidationResult`'s.
     """
 
@@ -305,6 +317,7 @@ class BetaResult:
     input_leakage: float = 0.0
     beta_outside: float = 0.0
     lines_outside: tuple[tuple[float, float], ...] = ()
+    noise_beta: float = math.nan
 
     @property
     def margin(self) -> float:
@@ -343,6 +356,7 @@ def validate_beta(
             res.input_leakage,
             res.beta_outside,
             res.lines_outside,
+            res.noise_beta,
         )
     assert route.structure is not None
     lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
@@ -360,6 +374,7 @@ def validate_beta(
         caveats.input_leakage,
         0.0 if mask is None else masked_beta(lower, datum.bin_weights, ~mask),
         () if mask is None else outside_lines(lower, datum.bin_weights, datum.freqs_hz, mask),
+        caveats.noise_beta,
     )
 
 
@@ -492,6 +507,7 @@ def validate(
         if mask is None
         else periodic_lines(datum.y_bins, datum.noise_std, datum.freqs_hz, mask),
         leakage_exceeds_data=leakage_exceeds_data(leak, datum.y_bins),
+        noise_beta=caveats.noise_beta,
     )
 
 
@@ -516,6 +532,68 @@ class Caveats:
     findings: tuple[PeriodicityFinding, ...] = ()
     input_leakage: float = 0.0
     texts: tuple[str, ...] = ()
+    noise_beta: float = math.nan
+
+
+def noise_beta_bounds(
+    datum: Datum,
+    model: LFTModel,
+    response: PlantResponse | None = None,
+    mask: np.ndarray | None = None,
+) -> tuple[float, float]:
+    """The β the datum's noise alone is expected to cost under the model's noise weights.
+
+    ``sqrt(Σ_n b_n Σ_c σ_c(n)² |P22(n)⁺ e_c|²)`` over the band's bins, with ``σ_c(n)`` the
+    outputs' noise estimated from the period-to-period spread (``Datum.noise_std``, each bin
+    taking its nearest harmonic's; :mod:`~twotank_validation.core.noise_budget`,
+    docs/theory.md §13).
+
+    Returns:
+        ``(estimate, lower)``: the estimate and its lower bound at
+        :data:`~twotank_validation.core.noise_budget.NOISE_WARN_CONFIDENCE`; NaN with one
+        period (no spread) or without noise channels.
+    """
+    if datum.n_periods < 2 or model.nw == 0:
+        return math.nan, math.nan
+    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
+    if "noise_gain2" not in resp.memo:
+        if "noise_pinv" not in resp.memo:
+            resp.memo["noise_pinv"] = np.linalg.pinv(resp.p22)
+        resp.memo["noise_gain2"] = np.sum(np.abs(resp.memo["noise_pinv"]) ** 2, axis=1)
+    gain2 = resp.memo["noise_gain2"]
+    spread = spread_of_std([datum.noise_std], datum.n_periods)
+    return (
+        expected_noise_beta(spread.var, gain2, datum.bin_weights, mask),
+        noise_beta_lower(spread, gain2, datum.bin_weights, mask, NOISE_WARN_CONFIDENCE),
+    )
+
+
+def noise_beta(
+    datum: Datum,
+    model: LFTModel,
+    response: PlantResponse | None = None,
+    mask: np.ndarray | None = None,
+) -> float:
+    """The estimate of :func:`noise_beta_bounds` alone."""
+    return noise_beta_bounds(datum, model, response, mask)[0]
+
+
+def noise_budget_warning(beta_noise: float, lower: float) -> tuple[str, ...]:
+    """The warning for noise weights that alone use most of β's budget, if they do.
+
+    ``lower`` (:func:`noise_beta_bounds`, the estimate ``beta_noise``'s lower bound) above
+    :data:`NOISE_BETA_WARN`: one sentence with the fix; otherwise nothing.
+    """
+    if not lower > NOISE_BETA_WARN:
+        return ()
+    return (
+        f"the noise alone is expected to cost beta {beta_noise:.3g} (at least {lower:.3g}) "
+        "under the model's noise "
+        f"weights (beta^2 {beta_noise**2:.2f} of its budget 1: the output channels share one "
+        "unit-norm w): a beta near or above 1 may be the noise weights', not the model's; "
+        "set them from the data (twotank-validation calibrate RECORDING --model MODEL "
+        "--noise-from-data --out-model NEW.yaml)",
+    )
 
 
 def result_caveats(
@@ -579,7 +657,9 @@ def result_caveats(
             "(an output without a noise weight, or a weight that vanishes there); give every "
             "measured output a noise weight"
         )
-    return Caveats(tuple(findings), rho, tuple(out))
+    beta_noise, lower = noise_beta_bounds(datum, model, response, mask)
+    out.extend(noise_budget_warning(beta_noise, lower))
+    return Caveats(tuple(findings), rho, tuple(out), beta_noise)
 
 
 def result_warnings(

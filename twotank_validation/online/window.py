@@ -299,6 +299,10 @@ class WindowReport:
             (``ValidationResult.beta_outside``); NaN without a band and when not judged.
         lines_outside: the bins outside the band that carry most of it, ``(Hz, share)``
             (``ValidationResult.lines_outside``); empty without a band.
+        noise_beta: the β the window's noise alone is expected to cost under the model's
+            noise weights (``ValidationResult.noise_beta``, from the period-to-period
+            spread, docs/theory.md §13); NaN when not judged or with one period. A warning
+            is given above 0.9: the noise weights alone use most of β's budget.
     """
 
     model: str
@@ -334,6 +338,7 @@ class WindowReport:
     input_noise_effect: float = math.nan
     beta_outside: float = math.nan
     lines_outside: tuple[tuple[float, float], ...] = ()
+    noise_beta: float = math.nan
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
@@ -774,6 +779,7 @@ class WindowMonitor:
                     input_noise_effect=noise_effect,
                     beta_outside=math.nan if model.band is None else res.beta_outside,
                     lines_outside=res.lines_outside,
+                    noise_beta=res.noise_beta,
                 )
             )
         return reports

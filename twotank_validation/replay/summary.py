@@ -128,6 +128,7 @@ def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
         "input_noise_effect": (
             rep.input_noise_effect if math.isfinite(rep.input_noise_effect) else None
         ),
+        "noise_beta": rep.noise_beta if math.isfinite(rep.noise_beta) else None,
         "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
         "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
         "raised_by": str(rep.raised_by),

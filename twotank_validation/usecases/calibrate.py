@@ -10,8 +10,9 @@ import yaml
 from twotank_validation import calibrate as cb
 from twotank_validation import replay
 from twotank_validation.core.datum import NormConvention
+from twotank_validation.core.noise_budget import NOISE_BUDGET, NOISE_QUANTILE
 from twotank_validation.diagnose.inputs import Window
-from twotank_validation.errors import ExitCode, TwotankError, interruption
+from twotank_validation.errors import ExitCode, TwotankError, UsageError, interruption
 from twotank_validation.replay import Timing
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
@@ -54,6 +55,12 @@ class CalibrateJob:
         json_path: write the calibration JSON here (None: not written).
         report_dir: write the figures here (None: none).
         out_model: write the calibrated model (YAML) here (None: not written).
+        noise_from_data: set every output's noise weight from the windows' period-to-period
+            spread (:func:`~twotank_validation.calibrate.noise_from_data`) instead of
+            calibrating blocks; ``blocks`` and ``together`` must then be left unset.
+        noise_quantile: with ``noise_from_data``, the share of windows on which the noise
+            alone costs at most ``noise_budget``.
+        noise_budget: with ``noise_from_data``, the β the noise alone may cost.
     """
 
     recording: str
@@ -66,6 +73,9 @@ class CalibrateJob:
     json_path: str | None = None
     report_dir: str | None = None
     out_model: str | None = None
+    noise_from_data: bool = False
+    noise_quantile: float = NOISE_QUANTILE
+    noise_budget: float = NOISE_BUDGET
 
     def run(
         self,
@@ -100,6 +110,12 @@ class CalibrateJob:
         loaded = banded(load(self.model), self.read.monitor.band)
         name = loaded.model.name
         blocks = list(self.blocks) if self.blocks is not None else None
+        if self.noise_from_data and (blocks or self.together or self.report_dir):
+            raise UsageError(
+                "--noise-from-data sets the noise weights alone: leave out --block, "
+                "--together and --report (calibrate the perturbations on the written model "
+                "afterwards)"
+            )
         cb.choose_blocks(loaded.model, blocks)  # an unknown block is an error before the replay
         config = cb.CalibrationConfig(
             margin=self.margin, max_order=self.max_order, together=self.together
@@ -148,6 +164,43 @@ class CalibrateJob:
                 task="calibrated",
             )
 
+    def _noise(
+        self,
+        loaded: LoadedModel,
+        *,
+        windows: list[Window],
+        replayed: replay.ReplayResult,
+        timing: Timing,
+        tell: Teller,
+        text: list[str],
+    ) -> Outcome:
+        """The noise weights set from the windows' spread; the outcome (as :meth:`run`)."""
+        cal = cb.noise_from_data(
+            windows,
+            loaded.document,
+            quantile=self.noise_quantile,
+            budget=self.noise_budget,
+            source=loaded.source,
+            convention=NormConvention(self.read.monitor.convention),
+        )
+        model_file = None
+        if self.out_model:
+            Path(self.out_model).write_text(
+                "# Written by twotank-validation calibrate --noise-from-data; validate with "
+                "--model this file.\n" + yaml.safe_dump(cal.document, sort_keys=False, width=100)
+            )
+            model_file = str(self.out_model)
+        text.append(cal.text(model_file))
+        out = cal.to_json(model_file)
+        out["timing"] = timing.to_json()
+        if self.json_path:
+            write_json(self.json_path, out)
+        read = ExitCode.OK if replayed.complete else ExitCode.INCOMPLETE
+        summary = replay.summary_json(replayed, [loaded.model.name])
+        return Outcome(
+            read, STATUS_OF_CODE[read], out, summary, tuple(tell.messages), tuple(text), ()
+        )
+
     def _calibrate(
         self,
         loaded: LoadedModel,
@@ -175,6 +228,10 @@ class CalibrateJob:
         ]
         if show is not None:
             show(text[0])
+        if self.noise_from_data:
+            return self._noise(
+                loaded, windows=windows, replayed=replayed, timing=timing, tell=tell, text=text
+            )
         cal = cb.calibrate(
             windows,
             loaded.document,
