@@ -78,6 +78,21 @@ def test_exact_is_the_continuous_response_at_the_bins() -> None:
     np.testing.assert_allclose(up[:, 0, 0], np.conj(first_order(s[1:4])), rtol=0, atol=1e-12)
 
 
+def test_exact_evaluates_a_generalised_plant_at_the_bins() -> None:
+    """P = [[0, 1], [G, 1]] with G = K / (TAU s + 1) (one block, no noise column used)."""
+    doc = {
+        "name": "gp", "inputs": ["u"], "outputs": ["y"], "intersample": "exact",
+        "generalized_plant": {
+            "ss": {"A": [[-1 / TAU]], "B": [[0.0, 0.0, 1.0]], "C": [[0.0], [K / TAU]],
+                   "D": [[0.0, 0.0, 1.0], [1.0, 0.5, 0.0]]},
+            "blocks": [[1, 1]], "noise_inputs": 1,
+        },
+    }  # fmt: skip
+    p = model_from_dict(doc).response(THETA, TS)
+    np.testing.assert_allclose(p.p23[:, 0, 0], first_order(1j * OMEGA), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(p.p13[:, 0, 0], 1.0, atol=1e-12)
+
+
 def test_zoh_is_the_default_and_the_closed_form_of_a_held_input() -> None:
     default = model_from_dict(model_doc(None, DELAY))
     assert default.intersample is lti.Intersample.ZOH

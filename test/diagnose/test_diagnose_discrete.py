@@ -96,3 +96,19 @@ def test_the_catalogue_on_a_discrete_nominal() -> None:
     np.testing.assert_allclose(got[:, 0], g[:, 0] * np.exp(-2.5j * theta)[:, None], atol=1e-12)
     node = lag.apply(nom, np.array([t])).to_node()
     assert node["ss"]["dt_s"] == TS
+
+
+def test_a_lag_on_a_discrete_nominal_follows_the_models_hold() -> None:
+    """Under foh the lag is the triangle hold of 1 / (1 + T s) (closed form by partial
+    fractions: (z-1)^2/(zT) Z{1/(s^2 (s + 1/T))} / T), in series with the channel."""
+    nom = Nominal.from_document(doc("foh"), "fitted")
+    found, _ = catalogue(nom, ["y1", "y2"], period_s=PERIOD * TS, operating_point={})
+    lag = next(s for s in found if s.kind == "lag" and s.channel == 0)
+    theta = np.linspace(0.01, 3.0, 7)
+    z, t = np.exp(1j * theta), 0.7
+    alpha, pole = 1.0 / t, np.exp(-TS / t)
+    tri = 1 / alpha - (z - 1) / (alpha**2 * TS) + (z - 1) ** 2 / (alpha**2 * TS * (z - pole))
+    got = lag.apply(nom, np.array([t])).hold_response(theta, TS)
+    g = nom.hold_response(theta, TS)
+    np.testing.assert_allclose(got[:, 0], g[:, 0] * (tri / t)[:, None], atol=1e-12)
+    np.testing.assert_allclose(got[:, 1], g[:, 1], atol=1e-12)

@@ -649,9 +649,10 @@ def catalogue(
 def _discrete_skips() -> list[tuple[str, str]]:
     """The effects on named continuous states, each with why a discrete nominal has none."""
     why = (
-        "not applicable: the nominal is discrete-time, and a {} changes the rates of its "
-        "continuous mass and energy balances, which a discrete nominal's matrices "
-        "(exp(A Ts)) do not keep apart; give the nominal in continuous time with `states:`"
+        "not applicable: the nominal is discrete-time; a {} acts on the rates of named "
+        "continuous states (the mass and energy balances), which a discrete nominal's "
+        "matrices (exp(A Ts)) do not keep apart; give the nominal in continuous time with "
+        "`states:`"
     )
     return [
         (str(k), why.format(k.record.text))
