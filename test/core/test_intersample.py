@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 
 from twotank_validation import make_datum, validate
+from twotank_validation.calibrate import scaling
+from twotank_validation.calibrate.weightfit import fit_weight
 from twotank_validation.core import lti
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.errors import ModelFileError
@@ -121,6 +123,20 @@ def test_foh_is_the_triangle_hold_and_its_error_is_second_order() -> None:
     np.testing.assert_allclose(err_zoh, THETA[low] / 2.0, rtol=0.05)
     np.testing.assert_allclose(err_foh, THETA[low] ** 2 / 12.0, rtol=0.05)
     assert np.all(err_foh < 0.1 * err_zoh)
+
+
+def test_calibrate_reads_a_weight_as_the_model_does() -> None:
+    """The stated weight's gain and a fitted weight's magnitude, under exact: |W(j omega)|."""
+    m = model_from_dict(model_doc("exact"))
+    (block,) = [b for b in scaling.model_blocks(m) if not b.is_noise]
+    s = 1j * OMEGA[1:40]
+    w = np.abs((0.5 * s + 0.1) / (0.05 * s + 1.0))
+    np.testing.assert_allclose(scaling.weight_gain(block, THETA[1:40], TS), w, rtol=1e-12)
+    fitted = fit_weight(THETA[1:40], w, TS, margin=1.0, max_order=1, intersample=m.intersample)
+    tf = fitted.to_node()["tf"]
+    mine = np.abs(np.polyval(tf["num"], s) / np.polyval(tf["den"], s))
+    np.testing.assert_allclose(fitted.magnitude, mine, rtol=1e-12)
+    assert np.all(fitted.magnitude >= w * (1 - 1e-9))
 
 
 def test_a_bad_intersample_is_named() -> None:

@@ -471,7 +471,8 @@ def channel_time_constants(nom: Nominal, ch: int, min_s: float) -> list[float]:
     """
     lam, vec = np.linalg.eig(nom.a)
     if nom.dt_s is not None:  # the continuous rate of a discrete pole: log(z) / dt
-        lam = np.log(lam.astype(complex)) / nom.dt_s
+        z = lam.astype(complex)  # a pole at 0 (a pure delay): rate -inf, no time constant
+        lam = np.where(z == 0, -np.inf, np.log(np.where(z == 0, 1.0, z)) / nom.dt_s)
     left = np.linalg.inv(vec)
     seen = np.abs(nom.c[ch] @ vec) * np.linalg.norm(left @ nom.b, axis=1)
     scale = float(np.max(seen, initial=0.0))
