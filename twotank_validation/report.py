@@ -15,7 +15,6 @@ mpl.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse, load_model
 from twotank_validation.core.validate import ValidationResult, inverse_dft
@@ -176,8 +175,7 @@ def plot_nyquist(
     view = nyquist_view(model, d, res)
     excited = np.flatnonzero(_excited_mask(d))
     theta = np.linspace(d.theta[excited[0]], d.theta[excited[-1]], 600)
-    nominal = model.nominal_discrete(d.ts_s)
-    g = lti.frequency_response(nominal, theta)[:, view.output, view.input]
+    g = model.response(theta, d.ts_s).p23[:, view.output, view.input]
     shown = excited[np.linspace(0, len(excited) - 1, min(n_discs, len(excited))).astype(int)]
     p = model.response(d.theta[shown], d.ts_s)
     ins, outs = model.input_names[view.input], model.output_names[view.output]

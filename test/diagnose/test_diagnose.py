@@ -146,7 +146,7 @@ def test_leak_and_heat_loss_need_named_states():
     assert all("states" in why for _, why in skipped)
 
 
-def test_generalized_and_discrete_models_are_refused():
+def test_generalized_models_are_refused_and_discrete_tanks_lose_their_balances():
     gp = {
         "name": "G",
         "inputs": ["u"],
@@ -162,8 +162,12 @@ def test_generalized_and_discrete_models_are_refused():
     doc, _ = load_model_document("B")
     ss = dict(doc["nominal"]["ss"], dt_s=0.1, A=np.eye(4).tolist())
     ss["A"] = (0.5 * np.eye(4)).tolist()
-    with pytest.raises(DiagnosisError, match="discrete-time"):
-        Nominal.from_document(dict(doc, nominal={"ss": ss}))
+    nom = Nominal.from_document(dict(doc, nominal={"ss": ss}))
+    assert nom.dt_s == 0.1  # a discrete nominal is diagnosed; its tank effects do not apply
+    found, skipped = catalogue(nom, ["height", "temperature"], period_s=204.8,
+                               operating_point={"height": 0.47, "temperature": 0.5})  # fmt: skip
+    assert {"leak", "heat_loss", "hot_supply"} <= {k for k, why in skipped if "discrete" in why}
+    assert not {"leak", "heat_loss", "hot_supply"} & {str(s.kind) for s in found}
 
 
 def test_split_windows():

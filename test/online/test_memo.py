@@ -59,7 +59,7 @@ def other_a():
 
 def fresh(cfg, stamps, u, y, make_models):
     """The reference: a monitor of models loaded anew, the discretisation memo empty."""
-    lti._zoh.cache_clear()
+    lti._hold.cache_clear()
     return [fields(r) for r in monitor_record(stamps, u, y, cfg, make_models())]
 
 

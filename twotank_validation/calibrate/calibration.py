@@ -460,6 +460,7 @@ def calibrate(
                 margin=cfg.margin,
                 max_order=cfg.max_order,
                 order_tolerance_db=cfg.order_tolerance_db,
+                intersample=model.intersample,
             )
             _weight_node(current, block)["weight"] = fitted.to_node()
             current_model = model_from_dict(current, f"{source} (calibrated)")
@@ -485,7 +486,7 @@ def calibrate(
     band_hz = (band_theta[0] / (2 * np.pi * ts), band_theta[1] / (2 * np.pi * ts))
     for r in results:
         if r.fitted is not None:
-            extrapolated[r.name] = _extrapolation(r.fitted, band_hz, ts)
+            extrapolated[r.name] = _extrapolation(r.fitted, band_hz, ts, model.intersample)
     document = _calibrated_document(doc, current, results) if fitted_any else None
     judged_d = fit_d + held_d
     after_model = current_model if fitted_any else model
@@ -595,13 +596,12 @@ def _requirement(
 
 
 def _extrapolation(
-    fitted: FittedWeight, band_hz: tuple[float, float], ts_s: float
+    fitted: FittedWeight, band_hz: tuple[float, float], ts_s: float, how: lti.Intersample
 ) -> dict[str, float]:
     """The fitted weight's magnitude outside the excited band (DC, a decade below, Nyquist)."""
-    sys = lti.discretise(fitted.system(), ts_s)
     points = {"dc": 0.0, "decade_below_band": band_hz[0] / 10.0, "nyquist": 0.5 / ts_s}
     theta = np.array([2 * np.pi * f * ts_s for f in points.values()])
-    mag = np.abs(lti.frequency_response(sys, theta)[:, 0, 0])
+    mag = np.abs(lti.bin_response(fitted.system(), theta, ts_s, how)[:, 0, 0])
     return {k: float(m) for k, m in zip(points, mag, strict=True)}
 
 

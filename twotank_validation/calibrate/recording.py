@@ -145,8 +145,10 @@ def _node_text(node: Mapping[str, Any]) -> str:
     return f"tf num [{num}] den [{den}]"
 
 
-def _curve(sys: lti.StateSpace, theta: np.ndarray, ts_s: float) -> np.ndarray:
-    resp = lti.frequency_response(lti.discretise(sys, ts_s), theta)
+def _curve(
+    sys: lti.StateSpace, theta: np.ndarray, ts_s: float, intersample: lti.Intersample
+) -> np.ndarray:
+    resp = lti.bin_response(sys, theta, ts_s, intersample)
     gain: np.ndarray = np.linalg.norm(resp, ord=2, axis=(1, 2))
     return gain
 
@@ -171,12 +173,12 @@ def weight_curves(
         b0, b1 = before_blocks[bc.name].weight, after_blocks[bc.name].weight
         if b0 is None or b1 is None:
             continue
-        s0 = _curve(b0, theta, ts_s)
+        s0 = _curve(b0, theta, ts_s, stated.intersample)
         out[bc.name] = {
             "freqs_hz": freqs,
             "stated": s0,
             "scaled": s0 * bc.scaling if math.isfinite(bc.scaling) else np.full_like(s0, np.nan),
-            "calibrated": _curve(b1, theta, ts_s),
+            "calibrated": _curve(b1, theta, ts_s, after.intersample),
         }
     return out
 

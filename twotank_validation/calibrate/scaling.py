@@ -51,6 +51,8 @@ class Block:
         columns: the columns of ``P`` (``[v; w; u]`` order) that the block's weight feeds.
         weight: the block's stated weight (continuous or discrete), or None for a block of a
             generalised plant (scaled as its columns of ``P``).
+        intersample: the model's intersample assumption (how a continuous weight is
+            evaluated at the bins).
     """
 
     name: str
@@ -58,6 +60,7 @@ class Block:
     index: int
     columns: slice
     weight: lti.StateSpace | None
+    intersample: lti.Intersample = lti.Intersample.ZOH
 
     @property
     def is_noise(self) -> bool:
@@ -73,15 +76,17 @@ def model_blocks(model: LFTModel) -> list[Block]:
     out = []
     for i, (name, cols) in enumerate(zip(model.block_names, model.blocks.v_slices, strict=True)):
         weight = model.perturbations[i].weight if model.perturbations else None
-        out.append(Block(name, "perturbation", i, cols, weight))
+        out.append(Block(name, "perturbation", i, cols, weight, model.intersample))
     col = model.blocks.nv
     if model.generalized is not None:
         for j, name in enumerate(model.noise_names):
-            out.append(Block(name, "noise", j, slice(col + j, col + j + 1), None))
+            out.append(
+                Block(name, "noise", j, slice(col + j, col + j + 1), None, model.intersample)
+            )
         return out
     for j, ch in enumerate(model.noise):
         k = len(ch.outputs)
-        out.append(Block(ch.name, "noise", j, slice(col, col + k), ch.weight))
+        out.append(Block(ch.name, "noise", j, slice(col, col + k), ch.weight, model.intersample))
         col += k
     return out
 
@@ -308,6 +313,6 @@ def weight_gain(block: Block, theta: np.ndarray, ts_s: float) -> np.ndarray:
     """(k,) largest singular value of the block's stated weight at ``theta`` (1 without one)."""
     if block.weight is None:
         return np.ones(theta.size)
-    resp = lti.frequency_response(lti.discretise(block.weight, ts_s), theta)
+    resp = lti.bin_response(block.weight, theta, ts_s, block.intersample)
     gain: np.ndarray = np.linalg.norm(resp, ord=2, axis=(1, 2))
     return gain

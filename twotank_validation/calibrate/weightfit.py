@@ -5,8 +5,8 @@ The weight is continuous-time, of the form::
     W(s) = K prod_i (s / z_i + 1) / (s / p_i + 1),      z_i, p_i > 0,
 
 so it is stable and minimum phase by construction, and biproper (a real pole and zero per
-order). Its gain ``K`` is the smallest that makes the zero-order-hold discretised weight
-(as the model evaluates it at the datum's sample period) cover ``margin`` times the
+order). Its gain ``K`` is the smallest that makes the weight as the model evaluates it at the
+datum's sample period (its ``intersample`` hold, or exactly at the bins) cover ``margin`` times the
 requirement at every bin; the corner frequencies minimise the mean excess
 ``mean_n log(|W(n)| / required(n))`` over the bins, by Nelder-Mead from several starts
 (``scipy.optimize.minimize``). Orders 0 (a constant) to ``max_order`` are fitted and the
@@ -75,9 +75,11 @@ def _coefficients(gain: float, zeros: np.ndarray, poles: np.ndarray) -> tuple[np
     return num, den
 
 
-def _discrete_gain(num: np.ndarray, den: np.ndarray, theta: np.ndarray, ts_s: float) -> np.ndarray:
-    sys = lti.discretise(lti.from_transfer_function(num.tolist(), den.tolist()), ts_s)
-    gain: np.ndarray = np.abs(lti.frequency_response(sys, theta)[:, 0, 0])
+def _discrete_gain(
+    num: np.ndarray, den: np.ndarray, theta: np.ndarray, ts_s: float, how: lti.Intersample
+) -> np.ndarray:
+    sys = lti.from_transfer_function(num.tolist(), den.tolist())
+    gain: np.ndarray = np.abs(lti.bin_response(sys, theta, ts_s, how)[:, 0, 0])
     return gain
 
 
@@ -89,17 +91,19 @@ def fit_weight(
     margin: float = 1.2,
     max_order: int = 2,
     order_tolerance_db: float = 1.0,
+    intersample: lti.Intersample = lti.Intersample.ZOH,
 ) -> FittedWeight:
     """The lowest-order weight that covers ``margin`` times ``required`` at every bin.
 
     Args:
         theta: (k,) bin frequencies, rad/sample.
         required: (k,) required magnitudes (>= 0, finite); bins with 0 need nothing.
-        ts_s: sample period (s) at which the weight is discretised (zero-order hold).
+        ts_s: sample period (s) at which the weight is evaluated.
         margin: cover factor, >= 1.
         max_order: largest number of pole-zero pairs tried.
         order_tolerance_db: an order is enough when its mean excess is within this of the
             best order's.
+        intersample: how the model evaluates a continuous weight at the bins.
 
     Raises:
         ModelError: a requirement that is negative, infinite or NaN, or a bad setting.
@@ -156,7 +160,7 @@ def fit_weight(
             x = np.clip(best.x, lo_w, hi_w)
         zeros, poles = np.exp(x[:order]), np.exp(x[order:])
         num, den = _coefficients(1.0, zeros, poles)
-        shape = _discrete_gain(num, den, th, ts_s)
+        shape = _discrete_gain(num, den, th, ts_s, intersample)
         gain = float(np.max(req / shape))
         mag = gain * shape
         fits.append(
@@ -167,7 +171,7 @@ def fit_weight(
         f for f in fits if f[0] <= best_excess + order_tolerance_db
     )
     num, den = _coefficients(gain, zeros, poles)
-    magnitude = _discrete_gain(num, den, theta, ts_s)
+    magnitude = _discrete_gain(num, den, theta, ts_s, intersample)
     return FittedWeight(
         tuple(float(v) for v in num),
         tuple(float(v) for v in den),

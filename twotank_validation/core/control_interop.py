@@ -9,8 +9,10 @@ or ``weight`` entries are ``control.StateSpace`` / ``control.TransferFunction`` 
 
 ``P`` is built by interconnecting the parts' state spaces (the structured forms of
 :mod:`~twotank_validation.core.model`). With ``dt_s`` each part is first discretised by
-zero-order hold on its own, as the validator does, so the discrete ``P`` has exactly the
-validator's ``P(e^{j theta})``; the continuous ``P`` is exact too, except that an input
+the model's hold on its own (zero-order, or first-order under ``intersample: foh``), as the
+validator does, so the discrete ``P`` has exactly the validator's ``P(e^{j theta})`` (under
+``intersample: exact`` the parts are first-order-hold discretised, which the validator's
+exact evaluation at the bins is not); the continuous ``P`` is exact too, except that an input
 multiplicative block's series ``G W`` discretised as a whole differs slightly from the
 product of the parts' holds.
 """
@@ -61,14 +63,16 @@ class ControlModelSet:
 
 
 def to_control_set(model: LFTModel, dt_s: float | None = None) -> ControlModelSet:
-    """The model as python-control objects; discrete at ``dt_s`` (zero-order hold per part).
+    """The model as python-control objects; discrete at ``dt_s`` (the model's hold per part).
 
     Raises:
         ModelError: a part with transport delays, or discrete parts without ``dt_s`` of
             their own period mixed with continuous ones.
     """
     disc: Callable[[StateSpace], StateSpace] = (
-        (lambda s: lti.discretise(s, dt_s)) if dt_s is not None else (lambda s: s)
+        (lambda s: lti.discretise(s, dt_s, model.intersample))
+        if dt_s is not None
+        else (lambda s: s)
     )
     nv, nz = model.blocks.nv, model.blocks.nz
     nw, nu, ny = model.nw, model.nu, model.ny

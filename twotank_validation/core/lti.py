@@ -1,8 +1,11 @@
-"""Linear time-invariant building blocks: state space, zero-order hold, frequency response.
+"""Linear time-invariant building blocks: state space, discretisation, frequency response.
 
-Every model part is held as a state-space quadruple. Continuous-time parts are discretised
-by zero-order hold (``scipy.signal.cont2discrete``) at the sample period of the datum, and
-the discrete parts are evaluated on the unit circle at the DFT bins.
+Every model part is held as a state-space quadruple. How a continuous-time part meets the
+sampled data is the model's :class:`Intersample` assumption (docs/theory.md §14): a held
+input (zero-order hold) or a band-limited one (first-order hold, or the continuous response
+evaluated exactly at the DFT bins); :func:`bin_response` is the one place that applies it.
+Discretisation is ``scipy.signal.cont2discrete`` at the sample period of the datum, and the
+discrete parts are evaluated on the unit circle at the DFT bins.
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 import scipy.signal
@@ -18,6 +22,27 @@ from twotank_validation.errors import DimensionError, ModelError, UnstableModelE
 
 _FloatArray = np.ndarray
 _STABILITY_MARGIN = 1e-9
+
+
+class Intersample(StrEnum):
+    """How the input of a continuous-time model part behaves between samples.
+
+    ``ZOH``: held constant over each sample period (a DAC's command): zero-order hold.
+    ``FOH``: band-limited, approximated as linear between samples (a measured signal):
+    first-order (triangle) hold. ``EXACT``: band-limited (no power at or above Nyquist):
+    the continuous response ``G(j omega)`` at each bin, no discretisation; where a
+    discrete-time system is needed (a simulation, a pulse response) it is the first-order
+    hold's (:meth:`simulation_method`).
+    """
+
+    ZOH = "zoh"
+    FOH = "foh"
+    EXACT = "exact"
+
+    @property
+    def simulation_method(self) -> str:
+        """The ``cont2discrete`` method of a time-domain simulation under this assumption."""
+        return "zoh" if self is Intersample.ZOH else "foh"
 
 
 @dataclass(frozen=True)
@@ -134,8 +159,14 @@ def from_transfer_function(num: Sequence[float], den: Sequence[float]) -> StateS
     return StateSpace(a, b, c, d)
 
 
-def discretise(sys: StateSpace, dt_s: float) -> StateSpace:
-    """Zero-order-hold discretisation at ``dt_s`` seconds (identity on discrete systems).
+def discretise(
+    sys: StateSpace, dt_s: float, intersample: Intersample = Intersample.ZOH
+) -> StateSpace:
+    """Discretisation at ``dt_s`` seconds (identity on discrete systems).
+
+    Zero-order hold by default; ``FOH`` is the first-order (triangle) hold, and ``EXACT``,
+    which has no discrete equivalent, also the first-order hold (its time-domain stand-in:
+    :func:`bin_response` evaluates it exactly at the bins).
 
     Raises:
         ModelError: a discrete system with another sample period.
@@ -150,12 +181,16 @@ def discretise(sys: StateSpace, dt_s: float) -> StateSpace:
     if sys.n_states == 0:
         return StateSpace(sys.a, sys.b, sys.c, sys.d, dt_s, sys.output_delays_s)
     mats = tuple((m.shape, m.tobytes()) for m in (sys.a, sys.b, sys.c, sys.d))
-    return _zoh(mats, float(dt_s), sys.output_delays_s)
+    method = Intersample(intersample).simulation_method
+    return _hold(mats, float(dt_s), sys.output_delays_s, method)
 
 
 @functools.lru_cache(maxsize=512)
-def _zoh(
-    mats: tuple[tuple[tuple[int, ...], bytes], ...], dt_s: float, delays: tuple[float, ...]
+def _hold(
+    mats: tuple[tuple[tuple[int, ...], bytes], ...],
+    dt_s: float,
+    delays: tuple[float, ...],
+    method: str,
 ) -> StateSpace:
     """:func:`discretise` of a continuous system given by its matrices' shapes and bytes.
 
@@ -164,7 +199,7 @@ def _zoh(
     read-only, as every caller shares them.
     """
     a, b, c, d = (np.frombuffer(raw, dtype=float).reshape(shape) for shape, raw in mats)
-    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((a, b, c, d), dt_s, method="zoh")
+    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((a, b, c, d), dt_s, method=method)
     for m in (ad, bd, cd, dd):
         m.setflags(write=False)
     return StateSpace(ad, bd, cd, dd, dt_s, delays)
@@ -205,19 +240,74 @@ def frequency_response(sys: StateSpace, theta: _FloatArray) -> np.ndarray:
     if not sys.is_discrete:
         raise ModelError("frequency_response needs a discrete system: call discretise() first")
     theta = np.asarray(theta, dtype=float)
-    rational = _rational_response(sys, theta)
+    rational = _rational_response(sys, np.exp(1j * theta))
     if sys.output_delays_s:
         tau = np.asarray(sys.output_delays_s) / float(sys.dt_s)  # type: ignore[arg-type]
         rational *= np.exp(-1j * theta[:, None] * tau[None, :])[:, :, None]
     return rational
 
 
-def _rational_response(sys: StateSpace, theta: _FloatArray) -> np.ndarray:
-    """``C (zI - A)^-1 B + D`` at ``z = exp(j theta)``: (n_bins, n_outputs, n_inputs)."""
-    z = np.exp(1j * theta)
+def continuous_response(sys: StateSpace, omega: _FloatArray) -> np.ndarray:
+    """Evaluate a continuous system at ``s = j omega``, its delays as ``exp(-j omega tau)``.
+
+    Args:
+        sys: continuous-time system.
+        omega: (n_bins,) float, angular frequencies (rad/s).
+
+    Returns:
+        (n_bins, n_outputs, n_inputs) complex.
+    """
+    if sys.is_discrete:
+        raise ModelError("continuous_response needs a continuous system")
+    omega = np.asarray(omega, dtype=float)
+    rational = _rational_response(sys, 1j * omega)
+    if sys.output_delays_s:
+        tau = np.asarray(sys.output_delays_s)
+        rational *= np.exp(-1j * omega[:, None] * tau[None, :])[:, :, None]
+    return rational
+
+
+def bin_response(
+    sys: StateSpace,
+    theta: _FloatArray,
+    dt_s: float,
+    intersample: Intersample = Intersample.ZOH,
+) -> np.ndarray:
+    """A model part's response at the DFT bins under an intersample assumption.
+
+    A discrete part is evaluated at ``z = exp(j theta)`` as it is; a continuous part is
+    discretised by ``intersample``'s hold, or under ``EXACT`` evaluated at
+    ``s = j theta / dt_s`` (``theta`` above pi wrapped to the negative frequency it aliases,
+    ``theta - 2 pi``): no hold, no aliasing of the plant's response (docs/theory.md §14).
+
+    Args:
+        sys: continuous or discrete system.
+        theta: (n_bins,) float, rad/sample.
+        dt_s: sample period (s).
+        intersample: the model's assumption about the input between samples.
+
+    Returns:
+        (n_bins, n_outputs, n_inputs) complex.
+
+    Raises:
+        ModelError: a discrete part with another sample period.
+    """
+    if sys.is_discrete or Intersample(intersample) is not Intersample.EXACT:
+        return frequency_response(discretise(sys, dt_s, intersample), theta)
+    theta = np.asarray(theta, dtype=float)
+    wrapped = np.where(theta > np.pi, theta - 2.0 * np.pi, theta)
+    return continuous_response(sys, wrapped / float(dt_s))
+
+
+def _rational_response(sys: StateSpace, points: np.ndarray) -> np.ndarray:
+    """``C (sI - A)^-1 B + D`` at the complex ``points`` (``exp(j theta)`` or ``j omega``).
+
+    Returns (n_points, n_outputs, n_inputs) complex.
+    """
+    z = np.asarray(points, dtype=complex)
     p, m = sys.shape
     if sys.n_states == 0:
-        return np.broadcast_to(sys.d.astype(complex), (theta.size, p, m)).copy()
+        return np.broadcast_to(sys.d.astype(complex), (z.size, p, m)).copy()
     # Diagonalise A once when it is well conditioned (O(n_bins n^2)); otherwise solve per bin.
     eigvals, eigvecs = np.linalg.eig(sys.a)
     if np.linalg.cond(eigvecs) < 1e8:
@@ -227,7 +317,7 @@ def _rational_response(sys: StateSpace, theta: _FloatArray) -> np.ndarray:
         return np.einsum("pi,ki,im->kpm", cb, resolvent, bb) + sys.d[None, :, :]
     eye = np.eye(sys.n_states)
     zi_a = z[:, None, None] * eye[None] - sys.a[None]
-    x = np.linalg.solve(zi_a, np.broadcast_to(sys.b, (theta.size, *sys.b.shape)))
+    x = np.linalg.solve(zi_a, np.broadcast_to(sys.b, (z.size, *sys.b.shape)))
     return np.einsum("pn,knm->kpm", sys.c, x) + sys.d[None, :, :]
 
 

@@ -17,8 +17,10 @@ state-space ``P`` (closed-loop experiments, any interconnection). Structured kin
 * ``additive`` from inputs S_in to outputs S_out: ``y += E_out^T W v``, ``z = E_in u``.
 * noise on outputs S: ``y += E_S^T W_n w``.
 
-Continuous parts are discretised by zero-order hold, each part on its own, at the sample
-period of the datum (as in the paper).
+Continuous parts meet the sampled data as the model's ``intersample`` key says (docs/theory.md
+§14): discretised by zero-order hold (the default, as in the paper: a held input), by
+first-order hold, or evaluated exactly at the bins (a band-limited input), each part on its
+own, at the sample period of the datum. Discrete parts are evaluated as they are.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ import yaml
 from twotank_validation.core import lti
 from twotank_validation.core.band import Band, parse_band
 from twotank_validation.core.control_lti import from_control, is_control_system
-from twotank_validation.core.lti import StateSpace
+from twotank_validation.core.lti import Intersample, StateSpace
 from twotank_validation.errors import DimensionError, ModelError, ModelFileError
 
 PERTURBATION_KINDS = ("output_multiplicative", "input_multiplicative", "additive")
@@ -231,6 +233,8 @@ class LFTModel:
         operating_point: output values around which the model holds (model units).
         band: the frequencies the model set is claimed over (:class:`~twotank_validation.
             core.band.Band`); ``None``: every bin up to Nyquist.
+        intersample: how the input behaves between samples, i.e. how every continuous part
+            is evaluated at the bins (:class:`~twotank_validation.core.lti.Intersample`).
     """
 
     name: str
@@ -246,6 +250,7 @@ class LFTModel:
     description: str = ""
     operating_point: Mapping[str, float] = field(default_factory=dict)
     band: Band | None = None
+    intersample: Intersample = Intersample.ZOH
     cache: dict[object, Any] = field(default_factory=dict, compare=False, repr=False)
     """Memo of derived quantities (e.g. pulse-response moments per sample period)."""
 
@@ -293,11 +298,15 @@ class LFTModel:
         return len(self.noise_names)
 
     def nominal_discrete(self, dt_s: float) -> StateSpace:
-        """The nominal plant ``P23`` discretised by zero-order hold at ``dt_s`` seconds."""
+        """The nominal plant ``P23`` discretised at ``dt_s`` seconds by the model's hold.
+
+        Zero-order hold, or first-order hold under ``foh`` and ``exact`` (the time-domain
+        stand-in of the exact evaluation, :attr:`Intersample.simulation_method`).
+        """
         if self.nominal is not None:
-            return lti.discretise(self.nominal, dt_s)
+            return lti.discretise(self.nominal, dt_s, self.intersample)
         assert self.generalized is not None
-        g = lti.discretise(self.generalized, dt_s)
+        g = lti.discretise(self.generalized, dt_s, self.intersample)
         nz, c0 = self.blocks.nz, self.blocks.nv + self.nw
         delays = g.output_delays_s[nz:] if g.output_delays_s else ()
         return StateSpace(g.a, g.b[:, c0:], g.c[nz:], g.d[nz:, c0:], g.dt_s, delays)
@@ -307,14 +316,14 @@ class LFTModel:
 
         Args:
             theta: (n_bins,) float, rad/sample.
-            dt_s: sample period (s) for the zero-order hold.
+            dt_s: sample period (s) of the data.
 
         Returns:
             The plant response, ``p`` of shape (n_bins, nz+ny, nv+nw+nu).
         """
         theta = np.asarray(theta, dtype=float)
         if self.generalized is not None:
-            p = lti.frequency_response(lti.discretise(self.generalized, dt_s), theta)
+            p = lti.bin_response(self.generalized, theta, dt_s, self.intersample)
             return PlantResponse(p, self.blocks, self.nw, self.nu, self.ny)
         return PlantResponse(
             self._structured_response(theta, dt_s), self.blocks, self.nw, self.nu, self.ny
@@ -324,14 +333,14 @@ class LFTModel:
         assert self.nominal is not None
         nb = theta.size
         nz, nv, nw, nu, ny = self.blocks.nz, self.blocks.nv, self.nw, self.nu, self.ny
-        g = lti.frequency_response(lti.discretise(self.nominal, dt_s), theta)  # (nb, ny, nu)
+        g = lti.bin_response(self.nominal, theta, dt_s, self.intersample)  # (nb, ny, nu)
         p = np.zeros((nb, nz + ny, nv + nw + nu), dtype=complex)
         y_rows = slice(nz, nz + ny)
         p[:, y_rows, nv + nw :] = g
         for pert, vs, zs in zip(
             self.perturbations, self.blocks.v_slices, self.blocks.z_slices, strict=True
         ):
-            wgt = lti.frequency_response(lti.discretise(pert.weight, dt_s), theta)
+            wgt = lti.bin_response(pert.weight, theta, dt_s, self.intersample)
             if pert.kind == "output_multiplicative":
                 outs = list(pert.outputs)
                 p[:, zs, nv + nw :] = g[:, outs, :]
@@ -346,7 +355,7 @@ class LFTModel:
                 p[:, nz + np.array(outs)[:, None], np.arange(vs.start, vs.stop)[None, :]] = wgt
         col = nv
         for ch in self.noise:
-            wgt = lti.frequency_response(lti.discretise(ch.weight, dt_s), theta)
+            wgt = lti.bin_response(ch.weight, theta, dt_s, self.intersample)
             k = len(ch.outputs)
             p[:, nz + np.array(ch.outputs)[:, None], np.arange(col, col + k)[None, :]] = wgt
             col += k
@@ -515,6 +524,20 @@ def _band(node: Any, source: str) -> Band | None:
         raise _err(source, "band", str(err)) from err
 
 
+def _intersample(node: Any, source: str) -> Intersample:
+    if node is None:
+        return Intersample.ZOH
+    try:
+        return Intersample(node)
+    except ValueError as err:
+        raise _err(
+            source,
+            "intersample",
+            f"expected one of {[m.value for m in Intersample]} (the input held between samples, "
+            f"or band-limited: first-order hold or exact), found {node!r}",
+        ) from err
+
+
 def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
     """Build a model from a parsed YAML document (schema in docs/models.md).
 
@@ -525,7 +548,8 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
     if not isinstance(doc, Mapping):
         raise _err(source, "top level", f"expected a mapping, found {type(doc).__name__}")
     allowed = {"name", "description", "inputs", "outputs", "operating_point", "nominal",
-               "perturbations", "noise", "generalized_plant", "derivation", "band"}  # fmt: skip
+               "perturbations", "noise", "generalized_plant", "derivation", "band",
+               "intersample"}  # fmt: skip
     _check_keys(doc, allowed, source, "top level")
     for key in ("name", "inputs", "outputs"):
         if key not in doc:
@@ -558,6 +582,7 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> LFTModel:
         "description": str(doc.get("description", "")),
         "operating_point": op_values,
         "band": _band(doc.get("band"), source),
+        "intersample": _intersample(doc.get("intersample"), source),
     }
     if "generalized_plant" in doc:
         if "nominal" in doc or "perturbations" in doc or "noise" in doc:

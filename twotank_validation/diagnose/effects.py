@@ -39,6 +39,14 @@ with a recommendation, :data:`REPORTED_KINDS`; every kind's properties are one r
 
 A ``drift`` (a slowly moving sensor reading, ``y_c += d t``) is not diagnosed: it is not a
 property of an LTI model, and the datum's transient check flags the windows it spoils.
+
+A discrete-time nominal (``ss`` with ``dt_s``, e.g. a fit from measured data) takes the
+effects that act on its channels (docs/theory.md §14): ``gain`` and ``input_gain`` scale its
+``C``/``D`` rows or ``B``/``D`` columns as in continuous time; ``delay`` is
+``exp(-j theta tau / dt)`` at the bins (whole samples exactly, a fractional part as the
+band-limited delay of a periodic signal); ``lag`` and ``coupling`` append their first-order
+filter discretised by the model's ``intersample`` hold (first-order hold under ``exact``).
+The tank effects need named continuous states and do not apply.
 """
 
 from __future__ import annotations
@@ -50,7 +58,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from twotank_validation.core import lti
-from twotank_validation.core.lti import StateSpace
+from twotank_validation.core.lti import Intersample, StateSpace
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.diagnose.inputs import DiagnosisError
 from twotank_validation.diagnose.kinds import (
@@ -107,12 +115,15 @@ THERMAL_STATES = ("energy", "temperature")
 
 @dataclass(frozen=True)
 class Nominal:
-    """A continuous-time nominal plant as it appears in a model file.
+    """A nominal plant as it appears in a model file (continuous, or discrete with ``dt_s``).
 
     Attributes:
         a, b, c, d: state-space matrices (n, n), (n, nu), (ny, n), (ny, nu).
         delays_s: (ny,) float, output transport delays in s.
         states: one name per state (``""`` when unnamed).
+        dt_s: sample period (s) of a discrete-time nominal; ``None``: continuous.
+        intersample: the model's intersample assumption (how a continuous nominal meets the
+            bins, how an effect's filter is discretised on a discrete one).
     """
 
     a: np.ndarray
@@ -121,26 +132,24 @@ class Nominal:
     d: np.ndarray
     delays_s: np.ndarray
     states: tuple[str, ...]
+    dt_s: float | None = None
+    intersample: Intersample = Intersample.ZOH
 
     @classmethod
     def from_document(cls, doc: Mapping[str, Any], source: str = "model") -> Nominal:
         """Read the nominal of a model document (``nominal: {ss: ...}`` or ``tf``/``gain``).
 
         Raises:
-            DiagnosisError: a generalized-plant model or a discrete-time nominal.
+            DiagnosisError: a generalized-plant model.
         """
         if "generalized_plant" in doc or "nominal" not in doc:
             raise DiagnosisError(
                 f"{source}: diagnosis needs a structured model (nominal, perturbations, noise); "
                 "a generalized plant has no nominal channels to change"
             )
-        sys = model_from_dict(doc, source).nominal
+        model = model_from_dict(doc, source)
+        sys = model.nominal
         assert sys is not None
-        if sys.is_discrete:
-            raise DiagnosisError(
-                f"{source}: the nominal is discrete-time; diagnosis changes continuous-time "
-                "plants (give the nominal in continuous time)"
-            )
         node = doc["nominal"]
         names: list[str] = []
         if isinstance(node, Mapping) and isinstance(node.get("ss"), Mapping):
@@ -149,32 +158,39 @@ class Nominal:
             names = [""] * sys.n_states
         ny = sys.shape[0]
         delays = np.array(sys.output_delays_s or (0.0,) * ny, dtype=float)
-        return cls(sys.a, sys.b, sys.c, sys.d, delays, tuple(names))
+        return cls(sys.a, sys.b, sys.c, sys.d, delays, tuple(names), sys.dt_s, model.intersample)
 
     def state_space(self) -> StateSpace:
-        """The continuous-time state space with its delays."""
-        return StateSpace(self.a, self.b, self.c, self.d, None, tuple(self.delays_s.tolist()))
+        """The state space (continuous, or discrete at ``dt_s``) with its delays."""
+        delays = tuple(self.delays_s.tolist())
+        return StateSpace(self.a, self.b, self.c, self.d, self.dt_s, delays)
 
     def response(self, theta: np.ndarray, ts_s: float) -> np.ndarray:
-        """ZOH-discretised response at ``exp(j theta)``: (n_bins, ny, nu) complex."""
-        return lti.frequency_response(lti.discretise(self.state_space(), ts_s), theta)
+        """The response at the bins as the validator has it (:func:`lti.bin_response`).
+
+        Shape (n_bins, ny, nu) complex.
+        """
+        return lti.bin_response(self.state_space(), theta, ts_s, self.intersample)
 
     def hold_response(self, theta: np.ndarray, ts_s: float) -> np.ndarray:
-        """Fast response for fitting: ``G(j w) (1 - e^{-j theta}) / (j theta)`` times delays.
+        """Fast response for fitting: ``G(j w) H(theta)`` times delays.
 
-        The continuous response times the zero-order hold's; it differs from the exact ZOH
-        discretisation (:meth:`response`) only by aliasing, ``O(|G(j(w + 2 pi / ts))|)``,
-        i.e. ~1e-4 relative at the excited bins of the tank models (< 0.1 Hz at 10 Hz
-        sampling). One batched solve instead of a matrix exponential per evaluation: the
-        fit evaluates thousands of candidate plants. Shape (n_bins, ny, nu).
+        ``H`` is the hold of the model's ``intersample``: ``(1 - e^{-j theta}) / (j theta)``
+        (zero-order), ``sinc(theta / 2)^2`` (first-order, the triangle hold) or 1 (exact).
+        It differs from the discretisation (:meth:`response`) only by aliasing,
+        ``O(|G(j(w + 2 pi / ts))|)``, i.e. ~1e-4 relative at the excited bins of the tank
+        models (< 0.1 Hz at 10 Hz sampling). One batched solve instead of a matrix
+        exponential per evaluation: the fit evaluates thousands of candidate plants. A
+        discrete nominal is evaluated at ``exp(j theta)`` as it is. Shape (n_bins, ny, nu).
         """
+        if self.dt_s is not None:
+            return lti.frequency_response(self.state_space(), np.asarray(theta, dtype=float))
         omega = np.asarray(theta, dtype=float) / ts_s
         n = self.a.shape[0]
         jw = 1j * omega[:, None, None] * np.eye(n)[None]
         x = np.linalg.solve(jw - self.a[None], np.broadcast_to(self.b, (omega.size, *self.b.shape)))
         g = np.einsum("pn,knm->kpm", self.c, x) + self.d[None]
-        th = np.where(theta == 0.0, 1.0, theta)
-        hold = np.where(theta == 0.0, 1.0, (1.0 - np.exp(-1j * th)) / (1j * th))
+        hold = _hold_factor(np.asarray(theta, dtype=float), self.intersample)
         delay = np.exp(-1j * omega[:, None] * self.delays_s[None, :])
         return g * hold[:, None, None] * delay[:, :, None]
 
@@ -194,6 +210,8 @@ class Nominal:
             ss["states"] = list(self.states)
         if np.any(self.delays_s > 0):
             ss["output_delays_s"] = [float(f"{t:.12g}") for t in self.delays_s]
+        if self.dt_s is not None:
+            ss["dt_s"] = self.dt_s
         return {"ss": ss}
 
     def with_state(
@@ -208,6 +226,29 @@ class Nominal:
         b = np.vstack([self.b, b_new[None, :]])
         c = np.hstack([self.c, np.zeros((self.c.shape[0], 1))])
         return replace(self, a=a, b=b, c=c, states=(*self.states, name))
+
+
+def _hold_factor(theta: np.ndarray, how: Intersample) -> np.ndarray:
+    """(n_bins,) complex: the hold's response relative to ``G(j w)`` (aliasing left out)."""
+    th = np.where(theta == 0.0, 1.0, theta)
+    if how is Intersample.EXACT:
+        return np.ones(theta.size, dtype=complex)
+    if how is Intersample.FOH:
+        return np.where(theta == 0.0, 1.0, (np.sin(th / 2.0) / (th / 2.0)) ** 2).astype(complex)
+    return np.where(theta == 0.0, 1.0, (1.0 - np.exp(-1j * th)) / (1j * th))
+
+
+def _lag_filter(nom: Nominal, t_s: float) -> tuple[float, float, float, float]:
+    """``1 / (1 + T s)`` as ``(a, b, c, d)`` scalars in the nominal's time domain.
+
+    Continuous: ``(-1/T, 1/T, 1, 0)``; on a discrete nominal the filter discretised at its
+    ``dt_s`` by the model's hold (first-order hold under ``exact``).
+    """
+    a, b, c, d = (np.array([[x]]) for x in (-1.0 / t_s, 1.0 / t_s, 1.0, 0.0))
+    lag = StateSpace(a, b, c, d)
+    if nom.dt_s is not None:
+        lag = lti.discretise(lag, nom.dt_s, nom.intersample)
+    return float(lag.a[0, 0]), float(lag.b[0, 0]), float(lag.c[0, 0]), float(lag.d[0, 0])
 
 
 # --------------------------------------------------------------------------- the catalogue
@@ -288,12 +329,12 @@ def _delay(ch: int) -> Callable[[Nominal, np.ndarray], Nominal]:
 
 def _lag(ch: int, name: str) -> Callable[[Nominal, np.ndarray], Nominal]:
     def apply(nom: Nominal, p: np.ndarray) -> Nominal:
-        t = max(float(p[0]), 1e-9)
-        out = nom.with_state(nom.c[ch] / t, -1.0 / t, nom.d[ch] / t, name)
+        fa, fb, fc, fd = _lag_filter(nom, max(float(p[0]), 1e-9))
+        out = nom.with_state(fb * nom.c[ch], fa, fb * nom.d[ch], name)
         c, d = out.c.copy(), out.d.copy()
-        c[ch] = 0.0
-        c[ch, -1] = 1.0
-        d[ch] = 0.0
+        c[ch] *= fd
+        c[ch, -1] = fc
+        d[ch] *= fd
         return replace(out, c=c, d=d)
 
     return apply
@@ -409,12 +450,14 @@ def _explain_hot_supply(hot: int, thermal_out: int, height_out: int) -> Callable
 def _coupling(src: int, ch: int, name: str, t_s: float) -> Callable[[Nominal, np.ndarray], Nominal]:
     def apply(nom: Nominal, p: np.ndarray) -> Nominal:
         k0, k_inf = float(p[0]), float(p[1])
+        fa, fb, fc, fd = _lag_filter(nom, t_s)  # K = k_inf + (k0 - k_inf) / (1 + T s)
         c_src, d_src = nom.c[src].copy(), nom.d[src].copy()
-        out = nom.with_state(c_src / t_s, -1.0 / t_s, d_src / t_s, name)
+        out = nom.with_state(fb * c_src, fa, fb * d_src, name)
         c, d = out.c.copy(), out.d.copy()
-        c[ch, : c_src.size] += k_inf * c_src
-        c[ch, -1] += k0 - k_inf
-        d[ch] += k_inf * d_src
+        through = k_inf + (k0 - k_inf) * fd
+        c[ch, : c_src.size] += through * c_src
+        c[ch, -1] += (k0 - k_inf) * fc
+        d[ch] += through * d_src
         return replace(out, c=c, d=d)
 
     return apply
@@ -427,6 +470,9 @@ def channel_time_constants(nom: Nominal, ch: int, min_s: float) -> list[float]:
     is one of these (the fit picks which).
     """
     lam, vec = np.linalg.eig(nom.a)
+    if nom.dt_s is not None:  # the continuous rate of a discrete pole: log(z) / dt
+        z = lam.astype(complex)  # a pole at 0 (a pure delay): rate -inf, no time constant
+        lam = np.where(z == 0, -np.inf, np.log(np.where(z == 0, 1.0, z)) / nom.dt_s)
     left = np.linalg.inv(vec)
     seen = np.abs(nom.c[ch] @ vec) * np.linalg.norm(left @ nom.b, axis=1)
     scale = float(np.max(seen, initial=0.0))
@@ -521,7 +567,8 @@ def catalogue(
     in_names = list(inputs) if len(inputs) == nu else [f"input {i}" for i in range(nu)]
     w0 = 2.0 * np.pi / period_s  # the first harmonic: which output carries most of an input
     eye = np.eye(nominal.a.shape[0])
-    g0 = np.abs(nominal.c @ np.linalg.solve(1j * w0 * eye - nominal.a, nominal.b) + nominal.d)
+    at = 1j * w0 if nominal.dt_s is None else np.exp(1j * w0 * nominal.dt_s)
+    g0 = np.abs(nominal.c @ np.linalg.solve(at * eye - nominal.a, nominal.b) + nominal.d)
     share = g0 / np.maximum(np.sum(g0, axis=1, keepdims=True), 1e-300)
     for i, name in enumerate(in_names):
         specs.append(
@@ -551,6 +598,9 @@ def catalogue(
                         fixed={"time_constant_s": t_c},
                     )
                 )
+    if nominal.dt_s is not None:
+        skipped += _discrete_skips()
+        return specs, skipped
     names = list(nominal.states)
     thermal = next((n for n in THERMAL_STATES if n in names), None)
     if "height" not in names or thermal is None:
@@ -595,6 +645,21 @@ def catalogue(
         )
     )  # fmt: skip
     return specs, skipped
+
+
+def _discrete_skips() -> list[tuple[str, str]]:
+    """The effects on named continuous states, each with why a discrete nominal has none."""
+    why = (
+        "not applicable: the nominal is discrete-time; a {} acts on the rates of named "
+        "continuous states (the mass and energy balances), which a discrete nominal's "
+        "matrices (exp(A Ts)) do not keep apart; give the nominal in continuous time with "
+        "`states:`"
+    )
+    return [
+        (str(k), why.format(k.record.text))
+        for k in EFFECT_KINDS
+        if ModelNeed.TANK_STATES in k.record.needs
+    ]
 
 
 def _hot_supply_spec(  # noqa: PLR0917 - the catalogue's context

@@ -95,6 +95,8 @@ class Tank:
         cls, nominal: Nominal, outputs: Sequence[str], operating_point: Mapping[str, float]
     ) -> Tank | str:
         """The tank of a model, or why the level test does not apply to it (a sentence)."""
+        if nominal.dt_s is not None:
+            return "the model's nominal is discrete-time (the test moves continuous balances)"
         names = list(nominal.states)
         thermal = next((n for n in THERMAL_STATES if n in names), None)
         if LEVEL not in names or thermal is None:
@@ -349,14 +351,15 @@ def mean_deviations(t_s: np.ndarray, u: np.ndarray, y: np.ndarray, nominal: Nomi
 
     A period mean is a moving average, which commutes with the plant: the output means are
     the plant's response to the input means, simulated here (scipy.signal.lsim from rest at
-    the first mean, linear between means) where the means are evenly spaced, else its steady
-    state ``G(0) (ū − ū_0)``. Constant while the plant is the nominal (the same deviation as
-    the live diagnosis's, ``twotank_validation.diagnose.live_jobs.mean_deviations``).
+    the first mean, linear between means) where the means are evenly spaced and the nominal
+    continuous, else its steady state ``G(0) (ū − ū_0)``. Constant while the plant is the
+    nominal (the same deviation as the live diagnosis's,
+    ``twotank_validation.diagnose.live_jobs.mean_deviations``).
     """
     du, dy = u - u[0], y - y[0]
     steps = np.diff(t_s)
     even = steps.size > 0 and steps[0] > 0 and np.allclose(steps, steps[0], rtol=1e-6)
-    if not even or not np.any(du):
+    if not even or not np.any(du) or nominal.dt_s is not None:  # discrete: steady state
         return np.asarray(dy - du @ dc_gain(nominal).T)
     sys = scipy.signal.StateSpace(nominal.a, nominal.b, nominal.c, nominal.d)
     _, sim, _ = scipy.signal.lsim(sys, du, t_s - t_s[0], interp=True)

@@ -429,15 +429,15 @@ def mean_deviations(job: DiagnosisJob, nominal: Nominal) -> np.ndarray:
     the first), so that what the inputs did, a feedback loop's compensation or a setpoint
     change included, leaves the deviation in its settling as at steady state. Constant
     while the plant is the nominal; a fault shows in it with its own time course. With
-    input means that never moved, or stamps not evenly spaced (a gap in the judged
-    windows), the steady-state version ``ȳ − ȳ_0 − G(0)(ū − ū_0)``.
+    input means that never moved, stamps not evenly spaced (a gap in the judged
+    windows) or a discrete-time nominal, the steady-state version ``ȳ − ȳ_0 − G(0)(ū − ū_0)``.
     """
     du = job.means_u - job.means_u[0]
     dy = job.means_y - job.means_y[0]
     t = (job.means_end_ns - job.means_end_ns[0]) * 1e-9
     steps = np.diff(t)
     even = steps.size > 0 and np.allclose(steps, steps[0], rtol=1e-6) and steps[0] > 0
-    if not even or not np.any(du):
+    if not even or not np.any(du) or nominal.dt_s is not None:  # discrete: steady state
         return np.asarray(dy - du @ dc_gain(nominal).T)
     sys = scipy.signal.StateSpace(nominal.a, nominal.b, nominal.c, nominal.d)
     _, ysim, _ = scipy.signal.lsim(sys, du, t, interp=True)

@@ -97,12 +97,15 @@ def window_means(windows: Sequence[Window]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def dc_gain(nom: Nominal) -> np.ndarray:
-    """Steady-state gain ``D - C A^-1 B`` of the nominal: (ny, nu).
+    """Steady-state gain of the nominal, (ny, nu): ``D - C A^-1 B`` (``D + C (I - A)^-1 B``).
 
     Raises:
         DiagnosisError: the nominal has an integrator (no steady state).
     """
     try:
+        if nom.dt_s is not None:  # D + C (I - A)^-1 B at z = 1
+            eye = np.eye(nom.a.shape[0])
+            return np.asarray(nom.d + nom.c @ np.linalg.solve(eye - nom.a, nom.b))
         return np.asarray(nom.d - nom.c @ np.linalg.solve(nom.a, nom.b))
     except np.linalg.LinAlgError as err:
         raise DiagnosisError(

@@ -245,12 +245,15 @@ def _select(rows: int, cols: int, pairs: Sequence[tuple[int, int]]) -> FloatArra
 def discrete_plant(model: LFTModel, ts_s: float) -> StateSpace:
     """The generalised plant ``P: [v; w; u] -> [z; y]`` as one discrete, delay-free state space.
 
-    Each continuous part is discretised by ZOH at ``ts_s`` on its own (as
-    :meth:`LFTModel.response`), so ``P(e^{jθ})`` equals ``model.response(θ, ts_s).p`` (for
-    whole-sample delays). A structured model is the sum of its paths: the nominal G on u
-    (into y and into the z of output-multiplicative blocks), per block its weight on v (into
-    y, through G[:, S] for an input-multiplicative block) and its selection of u or G u
-    into z, per noise channel its weight on w.
+    Each continuous part is discretised at ``ts_s`` on its own by the model's hold (as
+    :meth:`LFTModel.response`: zero-order hold, or first-order hold under ``intersample:
+    foh``), so ``P(e^{jθ})`` equals ``model.response(θ, ts_s).p`` (for whole-sample delays).
+    Under ``intersample: exact`` the parts are first-order-hold discretised too (a
+    simulation needs a discrete system): ``P`` then differs from the exact response at the
+    bins by the first-order hold's error (docs/theory.md §14). A structured model is the sum
+    of its paths: the nominal G on u (into y and into the z of output-multiplicative
+    blocks), per block its weight on v (into y, through G[:, S] for an input-multiplicative
+    block) and its selection of u or G u into z, per noise channel its weight on w.
 
     Args:
         model: The model set.
@@ -265,9 +268,9 @@ def discrete_plant(model: LFTModel, ts_s: float) -> StateSpace:
     nz, nv, nw, nu, ny = model.blocks.nz, model.blocks.nv, model.nw, model.nu, model.ny
     n_in, n_out = nv + nw + nu, nz + ny
     if model.generalized is not None:
-        return undelay(lti.discretise(model.generalized, ts_s))
+        return undelay(lti.discretise(model.generalized, ts_s, model.intersample))
     assert model.nominal is not None
-    g = undelay(lti.discretise(model.nominal, ts_s))
+    g = undelay(lti.discretise(model.nominal, ts_s, model.intersample))
     u_cols = [nv + nw + j for j in range(nu)]
     y_rows = [nz + i for i in range(ny)]
     # the nominal on u, into y; output-multiplicative blocks read their z from this copy of G
@@ -278,7 +281,7 @@ def discrete_plant(model: LFTModel, ts_s: float) -> StateSpace:
     for pert, vs, zs in zip(
         model.perturbations, model.blocks.v_slices, model.blocks.z_slices, strict=True
     ):
-        w = undelay(lti.discretise(pert.weight, ts_s))
+        w = undelay(lti.discretise(pert.weight, ts_s, model.intersample))
         v_in = _select(w.shape[1], n_in, [(k, vs.start + k) for k in range(w.shape[1])])
         if pert.kind == "output_multiplicative":
             for k, o in enumerate(pert.outputs):
@@ -298,7 +301,7 @@ def discrete_plant(model: LFTModel, ts_s: float) -> StateSpace:
             parts.append((w, v_in, _select(n_out, w.shape[0], y_sel)))
     col = nv
     for ch in model.noise:
-        w = undelay(lti.discretise(ch.weight, ts_s))
+        w = undelay(lti.discretise(ch.weight, ts_s, model.intersample))
         k_in = w.shape[1]
         w_in = _select(k_in, n_in, [(k, col + k) for k in range(k_in)])
         y_sel = [(y_rows[o], k) for k, o in enumerate(ch.outputs)]

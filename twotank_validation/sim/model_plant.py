@@ -4,8 +4,10 @@ The two-tank rig (:mod:`twotank_validation.sim.rig`) is one plant; a user's plan
 an :class:`~twotank_validation.core.model.LFTModel` of any shape and channel names. This module
 simulates such a model directly, the way the validator reads it:
 
-* Every continuous part (nominal, each weight, a generalised P) is discretised by zero-order
-  hold at ``ts_s`` on its own (:func:`twotank_validation.core.lti.discretise`), exactly as
+* Every continuous part (nominal, each weight, a generalised P) is discretised at ``ts_s``
+  on its own (:func:`twotank_validation.core.lti.discretise`) by the model's hold: zero-order
+  hold, or first-order hold under ``intersample: foh`` and ``exact`` (a simulation needs a
+  discrete system; ``exact`` is the response at the bins only), as
   :meth:`LFTModel.response` does, and the parts are assembled into one discrete state space
   of the generalised plant ``P: [v; w; u] -> [z; y]`` (:func:`discrete_plant`). Transport
   delays of the model (``output_delays_s``) must be whole samples of ``ts_s``; they become
