@@ -99,14 +99,13 @@ def test_node_band_parameter_fills_the_message_as_validate_reports(tmp_path, cap
         assert msg.beta == pytest.approx(w["beta"], rel=1e-9)
         assert msg.beta_outside == pytest.approx(w["beta_outside"], rel=1e-9)
         assert msg.beta_outside > 1.0 > msg.beta  # the line outside the band, not in β
-        hz, share = np.array(w["lines_outside"]).T
-        np.testing.assert_allclose(msg.lines_outside_hz, hz, rtol=1e-12)
-        np.testing.assert_allclose(msg.lines_outside_share, share, rtol=1e-9)
-        assert msg.lines_outside_hz[0] == pytest.approx(LINE_HZ)
+        pairs_msg = np.reshape(msg.lines_outside, (-1, 2))
+        np.testing.assert_allclose(pairs_msg, np.array(w["lines_outside"]), rtol=1e-9)
+        assert pairs_msg[0, 0] == pytest.approx(LINE_HZ)
         assert msg.input_noise == 0.0  # commanded inputs: no noise to report
         assert msg.input_noise_effect == 0.0
     for rep, msg in pairs:  # a window not judged: NaN and empty
         if not rep.judged:
             assert math.isnan(msg.beta_outside)
             assert math.isnan(msg.input_noise_effect)
-            assert len(msg.lines_outside_hz) == len(msg.lines_outside_share) == 0
+            assert len(msg.lines_outside) == 0
