@@ -15,6 +15,7 @@ mpl.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from twotank_validation.core.band import excited_lines
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse, load_model
 from twotank_validation.core.validate import ValidationResult, inverse_dft
@@ -88,10 +89,8 @@ def experiment_numbers(res: ExperimentResult) -> dict[str, Any]:
 
 
 def _excited_mask(d: Datum) -> np.ndarray:
-    """(n_bins,) bool: the excited harmonic bins (the diagnosis's ``excited_bins``)."""
-    mask = np.zeros(d.theta.size, dtype=bool)
-    mask[excited_bins(d, 1e-10)] = True
-    return mask
+    """(n_bins,) bool: the excited lines (the band's ``excited``, ``core.band.excited_lines``)."""
+    return excited_lines(d.u_bins, d.n_periods, noise_std=d.u_noise_std)
 
 
 @dataclass(frozen=True)
@@ -480,6 +479,8 @@ def write_replay_report(
                 snap.y,
                 ts_s=float(np.median(np.diff(snap.stamps_ns))) / 1e9,
                 period_samples=rep.n_samples // rep.n_periods,
+                convention=rep.convention,
+                measured=snap.measured,
             )
             res = validate(d, model)
             stem = f"{name}_{why}"

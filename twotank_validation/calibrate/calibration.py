@@ -41,7 +41,7 @@ from twotank_validation.calibrate.scaling import (
 )
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core import lti
-from twotank_validation.core.datum import Datum, NormConvention, make_datum
+from twotank_validation.core.datum import Datum, NormConvention
 from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.core.validate import validate
 from twotank_validation.defaults import METHODS
@@ -336,10 +336,7 @@ class Calibration:
 
 
 def _datums(windows: Sequence[Window], convention: NormConvention) -> list[Datum]:
-    return [
-        make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=w.period_samples, convention=convention)
-        for w in windows
-    ]
+    return [w.datum(convention) for w in windows]
 
 
 def _weight_node(doc: Mapping[str, Any], block: Block) -> Any:

@@ -23,7 +23,12 @@ import scipy.optimize
 from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse
-from twotank_validation.core.validate import check_compatible, solve_bins, total_beta
+from twotank_validation.core.validate import (
+    check_compatible,
+    solve_bins,
+    total_beta,
+    validation_band,
+)
 from twotank_validation.diagnose.fit import excited_bins
 from twotank_validation.errors import DatumError
 
@@ -124,17 +129,27 @@ class WindowProblem:
         datum: the window's datum.
         response: ``P`` at ``datum.theta`` (the model as it stands).
         method: the solver route (``"auto"``, ...), as :func:`validate`.
+        counted: (k,) int, the bins β counts: the model's validation band
+            (:func:`~twotank_validation.core.validate.validation_band`, as :func:`validate`
+            totals them); None: every bin (a model without a band).
     """
 
     datum: Datum
     response: PlantResponse
     method: str = "auto"
+    counted: np.ndarray | None = None
 
     @classmethod
     def of(cls, datum: Datum, model: LFTModel, method: str = "auto") -> WindowProblem:
         """The problem of ``model`` on ``datum`` (raises as :func:`check_compatible`)."""
         check_compatible(datum, model)
-        return cls(datum, model.response(datum.theta, datum.ts_s), method)
+        mask = validation_band(datum, model)
+        counted = None if mask is None else np.flatnonzero(mask)
+        return cls(datum, model.response(datum.theta, datum.ts_s), method, counted)
+
+    def counted_bins(self) -> np.ndarray:
+        """(k,) int, the bins β counts (every bin without a band)."""
+        return np.arange(self.datum.theta.size) if self.counted is None else self.counted
 
     def bin_lower(
         self, block: Block, factor: float | np.ndarray, bins: np.ndarray | None = None
@@ -159,18 +174,31 @@ class WindowProblem:
         return lower
 
     def beta(self, block: Block, factor: float) -> float:
-        """The window's beta with the block's weight times ``factor``."""
-        return total_beta(self.bin_lower(block, factor), self.datum.bin_weights)
+        """The window's beta (over the band's bins) with the block's weight times ``factor``."""
+        d, bins = self.datum, self.counted
+        if bins is None:
+            return total_beta(self.bin_lower(block, factor), d.bin_weights)
+        if bins.size == 0:
+            return 0.0
+        return total_beta(self.bin_lower(block, factor, bins), d.bin_weights[bins])
 
     def beta_joint(self, blocks: Sequence[Block], factors: Sequence[float]) -> float:
-        """The window's beta with each block's weight times its factor (the rest as stated)."""
-        p = self.response.p.copy()
+        """The window's beta (over the band's bins), each block's weight times its factor."""
+        d, bins = self.datum, self.counted
+        if bins is not None and bins.size == 0:
+            return 0.0
+        # fancy indexing copies already; every bin: one copy, no index
+        p = self.response.p.copy() if bins is None else self.response.p[bins]
         for block, f in zip(blocks, factors, strict=True):
             p[:, :, block.columns] *= f
         resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
                              self.response.ny)  # fmt: skip
-        sol = solve_bins(resp, self.datum.u_bins, self.datum.y_bins, method=self.method)
-        return total_beta(sol.lower, self.datum.bin_weights)
+        u, y, w = (
+            (d.u_bins, d.y_bins, d.bin_weights)
+            if bins is None
+            else (d.u_bins[bins], d.y_bins[bins], d.bin_weights[bins])
+        )
+        return total_beta(solve_bins(resp, u, y, method=self.method).lower, w)
 
 
 def window_scaling(problem: WindowProblem, block: Block, guess: float | None = None) -> float:
@@ -215,11 +243,12 @@ def active_bins(problem: WindowProblem, block: Block, floor: float) -> np.ndarra
     ``P13 U`` for a structured model: at the excited harmonic bins of the period (input power
     at least ``floor`` times the largest harmonic's, 0 < n < N/2, as the diagnosis); where
     ``z`` depends on ``v`` or ``w`` (a generalised plant with ``P11`` or ``P12``), at every bin.
+    Only the bins β counts (the model's band, :attr:`WindowProblem.counted`).
     """
     d = problem.datum
     if block.is_noise or problem.response.coupled:
-        return np.arange(d.theta.size)
-    return excited_bins(d, floor)
+        return problem.counted_bins()
+    return np.intersect1d(excited_bins(d, floor), problem.counted_bins())
 
 
 @dataclass(frozen=True)
@@ -231,7 +260,8 @@ class BinRequirement:
         factor: (k,) float, the smallest factor on the block's stated weight at each bin
             (0: the bin needs none of it; inf: no factor explains the bin within its share).
         share: the share of ``beta^2`` each active bin may use, per unit bin weight (``b^2``).
-        fixed: ``sum weight_n w_min(n)^2`` over the other bins, with the block taken out there.
+        fixed: ``sum weight_n w_min(n)^2`` over the other bins β counts, with the block taken
+            out there.
     """
 
     bins: np.ndarray
@@ -244,13 +274,14 @@ def bin_requirement(problem: WindowProblem, block: Block, floor: float) -> BinRe
     """The smallest factor on the block's weight that each active bin requires.
 
     The window is valid when ``beta^2 = sum_n c_n w_min(n)^2 <= 1`` (``c_n`` the one-sided bin
-    weights). The bins where the block does not act keep what they need with the block taken
-    out there (``fixed``: a weight changed only at the active bins can then not make them
-    worse); the rest of the budget, ``1 - fixed``, is shared equally (per unit bin weight)
-    among the active bins: each must reach ``w_min(n) <= b`` with ``b^2 = (1 - fixed) /
-    sum_active c_n``. A weight at least ``factor(n)`` times the stated one at every active
-    bin therefore leaves the window valid. (The equal share is a choice: it is the
-    allocation a white unknown input would make; docs/calibrate.md.)
+    weights, ``n`` over the bins β counts: the model's band). The bins where the block does
+    not act keep what they need with the block taken out there (``fixed``: a weight changed
+    only at the active bins can then not make them worse); the rest of the budget,
+    ``1 - fixed``, is shared equally (per unit bin weight) among the active bins: each must
+    reach ``w_min(n) <= b`` with ``b^2 = (1 - fixed) / sum_active c_n``. A weight at least
+    ``factor(n)`` times the stated one at every active bin therefore leaves the window valid.
+    (The equal share is a choice: it is the allocation a white unknown input would make;
+    docs/calibrate.md.)
 
     ``w_min(n)`` does not grow with the factor, so each bin's factor is found by bisection in
     ``log factor``, all bins at once (one solver call per step: written here because
@@ -258,7 +289,7 @@ def bin_requirement(problem: WindowProblem, block: Block, floor: float) -> BinRe
     """
     d = problem.datum
     bins = active_bins(problem, block, floor)
-    others = np.setdiff1d(np.arange(d.theta.size), bins)
+    others = np.setdiff1d(problem.counted_bins(), bins)
     fixed = (
         total_beta(problem.bin_lower(block, 0.0, others), d.bin_weights[others]) ** 2
         if others.size

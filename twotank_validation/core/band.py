@@ -108,18 +108,34 @@ def parse_band(value: Any) -> Band | None:
     raise ModelError(f"band {value!r} not understood: use {forms}")
 
 
-def excited_lines(command_bins: np.ndarray, n_periods: int) -> np.ndarray:
+def excited_lines(
+    command_bins: np.ndarray,
+    n_periods: int,
+    floor: float = EXCITED_FLOOR,
+    noise_std: np.ndarray | None = None,
+) -> np.ndarray:
     """(n_bins,) bool: the command's excited lines.
 
-    A line is excited where it is a harmonic of the period (bin ``n`` a multiple of
-    ``n_periods``, ``n > 0``) and the command's power there, ``sum_j |U_j(n)|^2``, is at least
-    :data:`EXCITED_FLOOR` times the largest harmonic's. Only the command decides: a line
-    present in a measured input or output but absent from the command (mains pickup) is not
-    excited.
+    The one definition: the band's ``excited``, the diagnosis's and calibration's excited
+    bins (``diagnose.fit.excited_bins``), the reports' figures. A line is excited where it
+    is a harmonic of the period (bin ``n`` a multiple of ``n_periods``, ``n > 0``) and the
+    command's power there, ``sum_j |U_j(n)|^2``, is at least ``floor`` times the largest
+    harmonic's. Only the command decides: a line present in an output but absent from the
+    command (mains pickup) is not excited. Where the datum's input is a measurement
+    (``noise_std``: the noise left in it, ``Datum.u_noise_std``), a line must also stand
+    above that noise, ``sum_j |U_j(n)|^2 > PERIODIC_RATIO^2 sum_j sigma_j(n)^2`` (the rule
+    :func:`periodic_lines` applies to the outputs): at the other harmonics the averaged input
+    holds its sensor's noise only. A periodic line the sensor picks up at a harmonic stands
+    above its noise too: only a logged command tells it apart.
 
     Args:
-        command_bins: (n_bins, n_inputs) complex, scaled DFT of the command, bins 0..N//2.
+        command_bins: (n_bins, n_inputs) complex, scaled DFT of the command (or of the
+            datum's inputs), bins 0..N//2.
         n_periods: whole periods in the record (>= 1).
+        floor: least power relative to the largest harmonic's, in (0, 1).
+        noise_std: (n_bins, n_inputs) float, per-bin noise standard deviation of
+            ``command_bins`` (0 for a commanded input; NaN where not estimable: the test is
+            then left out); None or empty: every input commanded.
     """
     n = np.arange(command_bins.shape[0])
     harmonic = (n % max(int(n_periods), 1) == 0) & (n > 0)
@@ -127,7 +143,11 @@ def excited_lines(command_bins: np.ndarray, n_periods: int) -> np.ndarray:
     top = float(np.max(power[harmonic], initial=0.0))
     if top <= 0.0:
         return np.zeros(n.size, dtype=bool)
-    return harmonic & (power >= EXCITED_FLOOR * top)
+    excited = harmonic & (power >= floor * top)
+    if noise_std is not None and noise_std.size:
+        noise = np.sum(np.nan_to_num(noise_std) ** 2, axis=1)
+        excited &= power > PERIODIC_RATIO**2 * noise
+    return excited
 
 
 def band_mask(
@@ -135,6 +155,7 @@ def band_mask(
     band: Band | None,
     command_bins: np.ndarray | None = None,
     n_periods: int = 1,
+    noise_std: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n_bins,) bool: the bins the band counts.
 
@@ -144,6 +165,8 @@ def band_mask(
         command_bins: (n_bins, n_inputs) complex, the command's scaled DFT (needed when
             ``band.excited``).
         n_periods: whole periods in the record.
+        noise_std: (n_bins, n_inputs) float, the noise left in ``command_bins`` where they
+            are a measured input's (:func:`excited_lines`); None: a command.
     """
     freqs = np.asarray(freqs_hz, dtype=float)
     if band is None:
@@ -152,7 +175,7 @@ def band_mask(
     if band.excited:
         if command_bins is None:
             raise ModelError("band 'excited' needs the command's spectrum")
-        mask &= excited_lines(command_bins, n_periods)
+        mask &= excited_lines(command_bins, n_periods, noise_std=noise_std)
     return mask
 
 

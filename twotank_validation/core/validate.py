@@ -387,12 +387,15 @@ def validation_band(
         datum: the datum.
         model: the model (its ``band``).
         command_bins: (n_bins, n_inputs) complex, the command's scaled DFT where it differs
-            from the datum's inputs (a measured input); default the datum's ``u_bins``.
+            from the datum's inputs (a measured input); default the datum's ``u_bins``, whose
+            lines must then stand above a measured input's noise (``u_noise_std``,
+            :func:`~twotank_validation.core.band.excited_lines`).
     """
     if model.band is None:
         return None
-    cmd = datum.u_bins if command_bins is None else command_bins
-    return band_mask(datum.freqs_hz, model.band, cmd, datum.n_periods)
+    if command_bins is not None:
+        return band_mask(datum.freqs_hz, model.band, command_bins, datum.n_periods)
+    return band_mask(datum.freqs_hz, model.band, datum.u_bins, datum.n_periods, datum.u_noise_std)
 
 
 def leakage_exceeds_data(leak: np.ndarray, y_bins: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
-from twotank_validation.core.datum import Datum, NormConvention, make_datum
+from twotank_validation.core.datum import Datum, NormConvention
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose.distortion import finding_summary, reported_effects
@@ -304,10 +304,7 @@ def changed_document(
 
 
 def _datums(windows: Sequence[Window], convention: NormConvention) -> list[Datum]:
-    return [
-        make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=w.period_samples, convention=convention)
-        for w in windows
-    ]
+    return [w.datum(convention) for w in windows]
 
 
 def diagnose(

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.optimize
 import scipy.stats
 
-from twotank_validation.core.datum import NormConvention, make_datum, scaled_dft
+from twotank_validation.core.datum import NormConvention, scaled_dft
 from twotank_validation.core.model import LFTModel
 from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.diagnose.effects import Nominal
@@ -105,7 +105,7 @@ def distortion_test(
     det: list[np.ndarray] = []
     noise: list[np.ndarray] = []
     for w in windows:
-        d = make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=w.period_samples)
+        d = w.datum()
         p = d.n_samples // d.period_samples
         n = np.arange(d.theta.size)
         idx = excited_bins(d, floor)

@@ -17,6 +17,7 @@ import scipy.optimize
 import scipy.stats
 
 from twotank_validation.core import stats
+from twotank_validation.core.band import excited_lines
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel
 from twotank_validation.core.validate import ValidationResult, inverse_dft, validate
@@ -55,17 +56,11 @@ class BinData:
 def excited_bins(datum: Datum, floor: float) -> np.ndarray:
     """Indices of the excited harmonic bins of a datum.
 
-    Harmonic: n a multiple of the number of periods, 0 < n < N/2; excited: input power at
-    least ``floor`` times the largest harmonic's.
+    :func:`~twotank_validation.core.band.excited_lines` of the datum's inputs (a measured
+    input's lines above its noise), with input power at least ``floor`` times the largest
+    harmonic's.
     """
-    n_per = datum.n_samples // datum.period_samples
-    n = np.arange(datum.theta.size)
-    harmonic = (n % n_per == 0) & (n > 0) & (n < datum.n_samples // 2)
-    power = np.sum(np.abs(datum.u_bins) ** 2, axis=1)
-    top = float(np.max(power[harmonic], initial=0.0))
-    if top <= 0.0:
-        return np.zeros(0, dtype=int)
-    return np.flatnonzero(harmonic & (power >= floor * top))
+    return np.flatnonzero(excited_lines(datum.u_bins, datum.n_periods, floor, datum.u_noise_std))
 
 
 def noise_scale(model: LFTModel, theta: np.ndarray, ts_s: float, y_rms: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from twotank_validation.core.datum import Datum, NormConvention, make_datum
 from twotank_validation.errors import DatumError
 
 
@@ -106,6 +107,8 @@ class Window:
         ts_s: sample period, s.
         period_samples: samples per excitation period.
         start_s: time of the first sample (s), for the report.
+        measured: (n_inputs,) bool, the inputs logged by a sensor (the interface map's
+            ``kind: measured``); None: every input commanded.
     """
 
     u: np.ndarray
@@ -113,6 +116,25 @@ class Window:
     ts_s: float
     period_samples: int
     start_s: float = 0.0
+    measured: np.ndarray | None = None
+
+    def datum(self, convention: NormConvention | str = NormConvention.POWER) -> Datum:
+        """The window's datum, built as the validator builds it (``make_datum``).
+
+        A measured input is averaged over the periods, its noise estimated and its gate
+        tolerant of that noise (docs/theory.md, "Measured inputs").
+
+        Raises:
+            DatumError: as :func:`~twotank_validation.core.datum.make_datum`.
+        """
+        return make_datum(
+            self.u,
+            self.y,
+            ts_s=self.ts_s,
+            period_samples=self.period_samples,
+            convention=convention,
+            measured=self.measured,
+        )
 
     @property
     def n_periods(self) -> int:
@@ -123,7 +145,12 @@ class Window:
         """The sub-window of ``count`` periods starting at period ``first``."""
         a, b = first * self.period_samples, (first + count) * self.period_samples
         return Window(
-            self.u[a:b], self.y[a:b], self.ts_s, self.period_samples, self.start_s + a * self.ts_s
+            self.u[a:b],
+            self.y[a:b],
+            self.ts_s,
+            self.period_samples,
+            self.start_s + a * self.ts_s,
+            self.measured,
         )
 
 

@@ -69,7 +69,8 @@ operating-point check's default dead band)."""
 
 def _windows(data: Sequence[WindowData], job: DiagnosisJob, t0_ns: int) -> list[Window]:
     return [
-        Window(w.u, w.y, job.ts_s, job.period_samples, (w.start_ns - t0_ns) * 1e-9) for w in data
+        Window(w.u, w.y, job.ts_s, job.period_samples, (w.start_ns - t0_ns) * 1e-9, job.measured)
+        for w in data
     ]
 
 

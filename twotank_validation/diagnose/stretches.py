@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
-from twotank_validation.core.datum import NormConvention, make_datum
+from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.oppoint import OperatingPoint
 from twotank_validation.core.validate import validate
@@ -218,9 +218,7 @@ def window_features(
     g0 = nominal.hold_response(np.zeros(1), 1.0)[0].real  # (ny, nu) DC gain
     out = []
     for i, w in enumerate(windows):
-        datum = make_datum(
-            w.u, w.y, ts_s=w.ts_s, period_samples=w.period_samples, convention=convention
-        )
+        datum = w.datum(convention)
         found = findings[i] if findings is not None else WindowFindings()
         beta = found.beta if math.isfinite(found.beta) else float(validate(datum, model).beta)
         if findings is not None:

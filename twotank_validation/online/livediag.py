@@ -157,6 +157,8 @@ class DiagnosisJob:
         earlier: further non-overlapping judged windows before ``pre``, oldest first (the
             runner may take its reference from them when it dates the change earlier than
             ``onset_ns``: a slow fault can leave windows valid after it started).
+        measured: (nu,) bool, the model's inputs the interface map marks measured (its
+            datums average them as the validator's do); None: every input commanded.
     """
 
     model: str
@@ -172,6 +174,7 @@ class DiagnosisJob:
     period_samples: int
     update: int
     earlier: tuple[WindowData, ...] = ()
+    measured: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "raised_by", RaisedBy(self.raised_by))
@@ -296,14 +299,25 @@ class LiveDiagnoser:
         self.on_result = on_result
         self._ts_s = 0.0
         self._period = 0
+        self._measured: dict[str, np.ndarray | None] = {}
         self._states: dict[str, _ModelState] = {}
         self._lock = threading.Lock()
         self.jobs_started = 0
         self.failures: list[str] = []
 
-    def bind(self, ts_s: float, period_samples: int) -> None:
-        """The validator's sample period (s) and excitation period (samples)."""
+    def bind(
+        self,
+        ts_s: float,
+        period_samples: int,
+        measured: Mapping[str, np.ndarray | None] | None = None,
+    ) -> None:
+        """The validator's sample period (s), excitation period (samples), measured inputs.
+
+        ``measured``: per model, its measured inputs (:attr:`DiagnosisJob.measured`); none
+        given: every input commanded.
+        """
         self._ts_s, self._period = ts_s, period_samples
+        self._measured = dict(measured or {})
 
     def _state(self, model: str) -> _ModelState:
         st = self._states.get(model)
@@ -425,6 +439,7 @@ class LiveDiagnoser:
             period_samples=self._period,
             update=ep.updates,
             earlier=ep.earlier,
+            measured=self._measured.get(rep.model),
         )
         self.jobs_started += 1
         if self.executor is None:

@@ -158,8 +158,6 @@ class OnlineValidator:
             imap.input_names, imap.output_names, models, source=imap.label
         )
         self.diagnoser = diagnoser
-        if diagnoser is not None:
-            diagnoser.bind(config.ts_s, config.period_samples)
         self._topics = message_sources(imap)
         over = dict(oversampling or {})
         if unknown := sorted(set(over) - set(self._topics)):
@@ -179,6 +177,9 @@ class OnlineValidator:
         self._monitor = WindowMonitor(
             config, models, self.channels, measured_inputs=imap.measured_inputs
         )
+        if diagnoser is not None:
+            measured = {m.name: self._monitor.measured_of(m.name) for m in models}
+            diagnoser.bind(config.ts_s, config.period_samples, measured)
         self._aligner = SampleAligner(
             config.ts_s,
             n_in,
@@ -383,6 +384,13 @@ class OnlineValidator:
                 interface map's order.
         """
         return self._monitor.last_window(model)
+
+    def measured_of(self, model: str) -> np.ndarray | None:
+        """(nu,) bool, the model's measured inputs (as :meth:`last_window` orders them).
+
+        The interface map's ``kind: measured``; None: every input commanded.
+        """
+        return self._monitor.measured_of(model)
 
     def alarm_levels(self) -> dict[str, Alarm]:
         """Current alarm level of each model."""

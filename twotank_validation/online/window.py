@@ -564,6 +564,10 @@ class WindowMonitor:
                         on_report(rep)
         return out
 
+    def measured_of(self, model: str) -> np.ndarray | None:
+        """(nu,) bool, the model's measured inputs in its own input order; None: all commanded."""
+        return self._measured_of[model]
+
     def last_window(self, model: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(stamps_ns, u, y)`` of the most recent window: (n,), (n, nu), (n, ny) copies.
 

@@ -130,12 +130,17 @@ class ReplayConfigError(TwotankError, ValueError):
 
 @dataclass(frozen=True)
 class WindowSnapshot:
-    """Samples of one window kept for figures: stamps (n,), u (n, nu), y (n, ny)."""
+    """Samples of one window kept for figures: stamps (n,), u (n, nu), y (n, ny).
+
+    ``measured``: (nu,) bool, the inputs the interface map marks measured (None: every input
+    commanded), for a datum built as the validator built it.
+    """
 
     report: WindowReport
     stamps_ns: np.ndarray
     u: np.ndarray
     y: np.ndarray
+    measured: np.ndarray | None = None
 
 
 @dataclass

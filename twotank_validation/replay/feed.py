@@ -136,7 +136,7 @@ def _reporter(
         _keep_if_interesting(result, core, rep)
         if on_window is not None and rep.judged:
             stamps, u, y = core.last_window(rep.model)
-            on_window(rep, WindowSnapshot(rep, stamps, u, y))
+            on_window(rep, WindowSnapshot(rep, stamps, u, y, core.measured_of(rep.model)))
         if on_report is not None:
             on_report(rep, result.bag_start_ns)
 
@@ -560,6 +560,6 @@ def _keep_if_interesting(result: ReplayResult, core: OnlineValidator, rep: Windo
         reasons.append("first_alarm")
     if reasons:
         stamps, u, y = core.last_window(rep.model)
-        snap = WindowSnapshot(rep, stamps, u, y)
+        snap = WindowSnapshot(rep, stamps, u, y, core.measured_of(rep.model))
         for r in reasons:
             kept[r] = snap

@@ -181,7 +181,7 @@ def _windows(
     t0 = result.bag_start_ns
     mon = cfg.monitor
     windows = [
-        Window(snap.u, snap.y, mon.ts_s, mon.period_samples, (start - t0) * 1e-9)
+        Window(snap.u, snap.y, mon.ts_s, mon.period_samples, (start - t0) * 1e-9, snap.measured)
         for start, snap in kept
     ]
     return windows, [snap.report for _, snap in kept], result

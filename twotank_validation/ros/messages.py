@@ -122,4 +122,10 @@ def report_message(report: WindowReport, cls: Any) -> Any:
     msg.beta_total = float(report.beta_total)
     msg.raised_by = report.raised_by
     msg.operating_point = report.operating_point
+    msg.beta_outside = float(report.beta_outside)
+    # (Hz, share) pairs flattened (one sequence: the message's layout reads the same in rclpy
+    # and rosbags, which pad an empty float64 sequence differently; a float64 follows it)
+    msg.lines_outside = _doubles(np.array(report.lines_outside, dtype=np.float64).reshape(-1))
+    msg.input_noise = float(report.input_noise)
+    msg.input_noise_effect = float(report.input_noise_effect)
     return msg

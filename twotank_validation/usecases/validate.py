@@ -177,7 +177,7 @@ class ValidateJob:
         if self.report_dir:
             from twotank_validation import report  # noqa: PLC0415 (matplotlib)
 
-            by_name = {m.name: m for m in models}
+            by_name = {m.name: cfg.monitor.banded(m) for m in models}  # as judged (--band)
             report.write_replay_report(result, by_name, summary, Path(self.report_dir))
         # every report's row in the order judged (those streamed first: the same lines)
         start = result.bag_start_ns
