@@ -201,7 +201,8 @@ def test_expected_effect_reads_the_records_as_the_old_table() -> None:
 
 def test_every_effect_kind_has_a_complete_record() -> None:
     assert tuple(EFFECT_RECORDS) == tuple(EffectKind)
-    assert EFFECT_KINDS == OLD_EFFECT_KINDS
+    # the old tuple, then the kinds added since (each once, in the order they are tried)
+    assert (*OLD_EFFECT_KINDS, "mode") == EFFECT_KINDS
     assert REPORTED_KINDS == ("offset", "saturation")
     assert EffectKind.UNEXPLAINED == UNEXPLAINED
     for kind, rec in EFFECT_RECORDS.items():
@@ -229,7 +230,8 @@ def test_the_catalogue_takes_names_and_needs_from_the_records() -> None:
     op = {"height": 1.0, "temperature": 0.5}
     specs, skipped = catalogue(nom, outputs, period_s=204.8, operating_point=op, inputs=inputs)
     assert not skipped
-    assert {s.kind for s in specs} == set(EFFECT_KINDS)
+    # Model B has no complex pole pair: no mode to shift, and nothing to say about it
+    assert {s.kind for s in specs} == set(EFFECT_KINDS) - {EffectKind.MODE}
     for s in specs:
         assert isinstance(s.kind, EffectKind)
         assert s.names == s.kind.record.parameters
@@ -241,6 +243,14 @@ def test_the_catalogue_takes_names_and_needs_from_the_records() -> None:
     assert all(type(k) is str for k, _ in skipped)
     assert not {s.kind for s in specs} & set(needing)
     assert "no states named 'height' and 'energy'/'temperature'" in skipped[0][1]
+    doc, _ = load_model_document(str(Path(__file__).parent / "data/models/structure.yaml"))
+    specs, skipped = catalogue(
+        Nominal.from_document(doc), ("x1", "x2", "x3"), period_s=10.24, operating_point={}
+    )
+    modes = [s for s in specs if s.kind is EffectKind.MODE]
+    assert len(modes) == 3  # a structure: one mode shift per lightly damped pair
+    assert all(s.names == EffectKind.MODE.record.parameters for s in modes)
+    assert [k for k, _ in skipped] == needing  # no tank states
 
 
 # --- raised_by --------------------------------------------------------------------------------

@@ -20,6 +20,8 @@ from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse, load_model
 from twotank_validation.core.validate import ValidationResult, inverse_dft
 from twotank_validation.diagnose import Diagnosis, EvidencePoints, FittedEffect, excited_bins
+from twotank_validation.diagnose.effects import mode_shift_text
+from twotank_validation.diagnose.kinds import EffectKind
 from twotank_validation.experiment import ExperimentResult
 
 PAPER_BETA = {"A": 1.32, "B": 0.53}
@@ -545,6 +547,10 @@ def diagnosis_text(diag: Diagnosis, model_file: str | None = None) -> str:
             entry = e.to_dict(diag.outputs)
             params = ", ".join(f"{k} = {v:.4g}" for k, v in entry["parameters"].items())
             lines.append(f"  + {e.spec.label(diag.outputs)} ({params})")
+            if e.spec.kind is EffectKind.MODE:  # the shift in one line, with its intervals
+                u = e.uncertainty
+                low, high = (u.low, u.high) if u is not None else (None, None)
+                lines.append(f"    {mode_shift_text(e.spec, e.values, low, high)}")
             lines.extend(f"    {t}" for t in _uncertainty_lines(e))
             lines.append(f"    why: {e.evidence}")
     elif diag.findings:

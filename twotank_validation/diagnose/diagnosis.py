@@ -377,6 +377,7 @@ def _diagnose(
             "the windows carry no excitation at the harmonics of the period: a model error "
             "cannot be traced without excitation"
         )
+    f_fit = fit_data.theta / (2.0 * math.pi * ts)  # the excited band, Hz
     specs, skipped = catalogue(
         nominal,
         outputs,
@@ -384,6 +385,7 @@ def _diagnose(
         operating_point=model.operating_point,
         max_time_fraction=cfg.max_time_fraction,
         inputs=model.input_names,
+        band_hz=(float(np.min(f_fit)), float(np.max(f_fit))),
     )
     before = assess(model, held_d, held_w, cfg)
     j0 = cost(nominal, held_data, ts)

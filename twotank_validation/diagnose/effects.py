@@ -26,6 +26,11 @@ Catalogue (parameters in SI units; rates in 1/s, times in s):
   ``B`` and the columns of its valve-lag states (states driven by that input alone, with
   no other dynamics). Needs state names, an input named ``hot`` and, for a temperature
   state, the operating height.
+* ``mode``: one lightly damped pole pair of the nominal (a resonance of a structure) moved
+  to a new natural frequency ``frequency_hz`` (Hz) and damping ratio ``damping_ratio``,
+  its mode shape kept (:func:`shift_mode`; the other modes unchanged). One candidate per
+  pair with a damping ratio below :data:`MODE_MAX_DAMPING` inside the excited band
+  (:func:`mode_specs`); a discrete nominal's poles map through ``z = exp(s T)``.
 
 Outside the state-space catalogue (they cannot be written into an LTI model file; reported
 with a recommendation, :data:`REPORTED_KINDS`; every kind's properties are one record,
@@ -70,15 +75,26 @@ from twotank_validation.diagnose.kinds import (
 
 __all__ = [  # the kinds' tuples are views of their records (diagnose.kinds)
     "EFFECT_KINDS",
+    "MODE_MAX_DAMPING",
     "REPORTED_KINDS",
     "THERMAL_STATES",
     "Bins",
     "EffectSpec",
+    "Mode",
     "Nominal",
     "catalogue",
     "channel_time_constants",
     "input_lag_states",
     "input_shares",
+    "modal_coordinates",
+    "mode_coefficients",
+    "mode_of_pole",
+    "mode_shift_text",
+    "mode_specs",
+    "modes",
+    "s_from_z",
+    "shift_mode",
+    "z_from_s",
 ]
 
 
@@ -310,11 +326,13 @@ class EffectSpec:
     def label(self, outputs: Sequence[str]) -> str:
         """Human-readable name, e.g. ``delay on temperature`` (the kind's ``record.label``)."""
         t = self.fixed.get("time_constant_s")
+        f0 = self.fixed.get("nominal_frequency_hz")
         return self.kind.record.label.format(
             output=outputs[self.channel],
             input=self.input_name,
             source=outputs[self.source] if self.source is not None else "",
             via=f" (T {t:.4g} s)" if t is not None else "",
+            mode=f"{int(self.fixed.get('mode', 0))} at {f0:.4g} Hz" if f0 is not None else "",
         )
 
 
@@ -507,6 +525,7 @@ def catalogue(
     operating_point: Mapping[str, float],
     max_time_fraction: float = 0.25,
     inputs: Sequence[str] = (),
+    band_hz: tuple[float, float] | None = None,
 ) -> tuple[list[EffectSpec], list[tuple[str, str]]]:
     """The candidate effects that apply to this model, and those that do not (with why).
 
@@ -518,6 +537,8 @@ def catalogue(
         max_time_fraction: delays and time constants up to this fraction of the period.
         inputs: input names (``hot``/``cold``; the hot-supply change needs ``hot``);
             default ``input 0``, ``input 1``, ...
+        band_hz: the excited band ``(lowest, highest)``, Hz: a mode shift is a candidate
+            for the nominal's lightly damped modes inside it (:func:`mode_specs`).
     """
     t_max = max_time_fraction * period_s
     times = tuple(float(x) for x in np.geomspace(0.5, t_max, 16))
@@ -598,6 +619,9 @@ def catalogue(
                         fixed={"time_constant_s": t_c},
                     )
                 )
+    specs_mode, skipped_mode = mode_specs(nominal, band_hz, nominal.dt_s)
+    specs += specs_mode
+    skipped += skipped_mode
     if nominal.dt_s is not None:
         skipped += _discrete_skips()
         return specs, skipped
@@ -689,3 +713,235 @@ def _hot_supply_spec(  # noqa: PLR0917 - the catalogue's context
         input=hot, input_name="hot", explain=_explain_hot_supply(hot, t_ch, h_ch),
     )  # fmt: skip
     return [spec], ""
+
+
+# --------------------------------------------------------------------------- resonant modes
+
+MODE_MAX_DAMPING = 0.3
+"""A complex pole pair with a damping ratio below this is a candidate for a mode shift."""
+
+MODE_MAX_RATIO = 1.5
+"""A mode's frequency is searched within this factor of the nominal's (and never past the
+geometric mean with a neighbouring mode's, so that two modes cannot trade places)."""
+
+_MODE_STEPS = (-0.2, -0.12, -0.08, -0.05, -0.03, -0.015, 0.0, 0.015, 0.03, 0.05, 0.08, 0.12, 0.2)
+"""Relative frequency changes scanned before the local fit (a lightly damped resonance is
+a narrow dip of the cost: steps of a few per cent, finer than its half-power width)."""
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One complex pole pair of a nominal.
+
+    Attributes:
+        index: its number, 1 for the lowest natural frequency (among all complex pairs).
+        f_hz: natural (undamped) frequency ``|s| / (2 pi)``, Hz.
+        zeta: damping ratio ``-Re(s) / |s|``.
+        pole: the pole with positive imaginary part in the nominal's own domain: ``s``
+            (rad/s) for a continuous nominal, ``z = exp(s T)`` for a discrete one.
+    """
+
+    index: int
+    f_hz: float
+    zeta: float
+    pole: complex
+
+
+def z_from_s(s: complex, ts_s: float) -> complex:
+    """The discrete pole of a continuous one sampled every ``ts_s`` s: ``z = exp(s T)``."""
+    return complex(np.exp(s * ts_s))
+
+
+def s_from_z(z: complex, ts_s: float) -> complex:
+    """The continuous pole of a discrete one (principal branch): ``s = log(z) / T``, rad/s."""
+    return complex(np.log(complex(z)) / ts_s)
+
+
+def mode_of_pole(s: complex) -> tuple[float, float]:
+    """``(f_hz, zeta)`` of a continuous pole ``s`` (rad/s): ``|s| / (2 pi)``, ``-Re(s) / |s|``."""
+    w = abs(s)
+    return w / (2.0 * np.pi), (-s.real / w if w > 0 else 1.0)
+
+
+def mode_coefficients(f_hz: float, zeta: float, ts_s: float | None = None) -> tuple[float, float]:
+    """``(a0, a1)`` of the pair's characteristic polynomial ``x^2 + a1 x + a0``.
+
+    ``s = w (-zeta + j sqrt(1 - zeta^2))`` with ``w = 2 pi f_hz`` (``0 <= zeta < 1``); in
+    continuous time ``x = s``: ``(w^2, 2 zeta w)``; for a discrete nominal (``ts_s`` given)
+    the pole maps through ``z = exp(s T)``: ``(|z|^2, -2 Re z)``.
+    """
+    w = 2.0 * np.pi * f_hz
+    s = complex(-zeta * w, w * np.sqrt(max(1.0 - zeta * zeta, 0.0)))
+    x = s if ts_s is None else z_from_s(s, ts_s)
+    return abs(x) ** 2, -2.0 * x.real
+
+
+def modes(a: np.ndarray, ts_s: float | None = None) -> list[Mode]:
+    """The complex pole pairs of ``a`` (n, n), by natural frequency (``ts_s``: a discrete ``a``)."""
+    lam = np.linalg.eigvals(a)
+    tol = 1e-9 * max(float(np.max(np.abs(lam), initial=0.0)), 1.0)
+    up = [complex(x) for x in lam if x.imag > tol]
+    cont = [x if ts_s is None else s_from_z(x, ts_s) for x in up]
+    order = sorted(range(len(up)), key=lambda i: abs(cont[i]))
+    return [Mode(k + 1, *mode_of_pole(cont[i]), up[i]) for k, i in enumerate(order)]
+
+
+def modal_coordinates(
+    a: np.ndarray, b: np.ndarray, pole: complex
+) -> tuple[np.ndarray, np.ndarray, complex]:
+    """The real companion coordinates of the pole pair of ``a`` nearest ``pole``.
+
+    With ``v``, ``w`` the right and left eigenvectors of the pole (``w v = 1``), the real
+    basis ``V = [Re v, Im v]`` (n, 2) and ``W = [2 Re w; -2 Im w]`` (2, n) span the pair's
+    invariant subspace (``W V = I``, ``V W`` the projector onto it along the other modes).
+    In it the mode is ``zeta' = A0 zeta + B0 u`` with ``A0 = W A V``, ``B0 = W B``. The
+    coordinate ``eta = p^T zeta`` with ``p`` the direction least driven by the inputs (the
+    left singular vector of ``B0`` of its smallest singular value: ``p^T B0 = 0`` for one
+    input) and its rate ``eta' = p^T A0 zeta`` are the companion coordinates: the mode's
+    block is ``[[0, 1], [-a0, -a1]]`` and the inputs drive the rate alone, as forces drive
+    a modal coordinate's acceleration in a structure.
+
+    Args:
+        a: (n, n) the state matrix.
+        b: (n, nu) the input matrix.
+        pole: the pole sought (the one with positive imaginary part).
+
+    Returns:
+        ``(P, Q, lam)``: P (n, 2), Q (2, n) real with ``Q P = I``, ``A P = P Ac``,
+        ``Q A = Ac Q`` (``Ac`` the companion block), and the pole found.
+    """
+    lam, vec = np.linalg.eig(a)
+    i = int(np.argmin(np.abs(lam - pole)))
+    v, w = vec[:, i], np.linalg.inv(vec)[i]
+    basis = np.column_stack([v.real, v.imag])
+    coords = np.vstack([2.0 * w.real, -2.0 * w.imag])
+    a0, b0 = coords @ a @ basis, coords @ b
+    p = np.linalg.svd(b0)[0][:, -1]
+    s_inv = np.vstack([p, p @ a0])
+    return basis @ np.linalg.inv(s_inv), s_inv @ coords, complex(lam[i])
+
+
+def shift_mode(
+    a: np.ndarray, b: np.ndarray, pole: complex, a0_new: float, a1_new: float
+) -> np.ndarray:
+    """``a`` with the pole pair nearest ``pole`` moved to the roots of ``x^2 + a1 x + a0``.
+
+    The mode's companion block (:func:`modal_coordinates`) takes the new coefficients; the
+    input and output maps of its coordinates (the mode shape) and every other mode stay:
+    ``A' = A - P[:, 1] (da0 Q[0] + da1 Q[1])``. Its contribution to the response,
+    ``C P [1; s] (Q B)_2 / (s^2 + a1 s + a0)``, keeps its numerator: a stiffer spring
+    raises ``a0 = w^2`` and the mode's static gain falls as ``1 / w^2``, as a structure's
+    does when the mode shape is unchanged (a residue kept instead would leave the
+    resonance peak's height unchanged and raise the static gain with w). Shape (n, n).
+    """
+    p_, q_, lam = modal_coordinates(a, b, pole)
+    a0, a1 = abs(lam) ** 2, -2.0 * lam.real
+    return np.asarray(a - np.outer(p_[:, 1], (a0_new - a0) * q_[0] + (a1_new - a1) * q_[1]))
+
+
+def _mode(pole: complex, ts_s: float | None) -> Callable[[Nominal, np.ndarray], Nominal]:
+    def apply(nom: Nominal, p: np.ndarray) -> Nominal:
+        a0, a1 = mode_coefficients(float(p[0]), float(p[1]), ts_s)
+        return replace(nom, a=shift_mode(nom.a, nom.b, pole, a0, a1))
+
+    return apply
+
+
+def _mode_channel(nom: Nominal, mode: Mode, ts_s: float | None) -> tuple[int, float]:
+    """The output the mode shows on most, and how much it is driven and seen at all.
+
+    Most: the largest share of the mode in the output's response at the mode's own
+    frequency; at all: ``|C P| |Q B|`` over ``|C| |B|``.
+    """
+    p_, q_, _ = modal_coordinates(nom.a, nom.b, mode.pole)
+    w = 2.0 * np.pi * mode.f_hz
+    x = 1j * w if ts_s is None else np.exp(1j * w * ts_s)
+    n = nom.a.shape[0]
+    full = nom.c @ np.linalg.solve(x * np.eye(n) - nom.a, nom.b) + nom.d
+    ac = q_ @ nom.a @ p_
+    part = nom.c @ p_ @ np.linalg.solve(x * np.eye(2) - ac, q_ @ nom.b)
+    share = np.linalg.norm(part, axis=1) / np.maximum(np.linalg.norm(full - part, axis=1), 1e-300)
+    seen = float(np.linalg.norm(nom.c @ p_) * np.linalg.norm(q_ @ nom.b))
+    scale = max(float(np.linalg.norm(nom.c) * np.linalg.norm(nom.b)), 1e-300)
+    return int(np.argmax(share)), seen / scale
+
+
+def mode_specs(
+    nominal: Nominal,
+    band_hz: tuple[float, float] | None = None,
+    ts_s: float | None = None,
+) -> tuple[list[EffectSpec], list[tuple[str, str]]]:
+    """A mode shift per lightly damped pole pair of the nominal in the band, and the others.
+
+    Each pair with a damping ratio below :data:`MODE_MAX_DAMPING`, a natural frequency
+    inside ``band_hz`` (the excited band; ``None``: any) and some input driving it and
+    some output seeing it is a candidate: parameters its new natural frequency (Hz) and
+    damping ratio, fixed its number and nominal values. A nominal without a complex pair
+    has nothing to shift (no entry); a pair that does not qualify is listed with why.
+
+    Args:
+        nominal: the nominal plant.
+        band_hz: ``(lowest, highest)`` excited frequency, Hz.
+        ts_s: the sample period of a discrete nominal (poles map through ``z = exp(s T)``);
+            ``None`` for a continuous one.
+    """
+    specs: list[EffectSpec] = []
+    skipped: list[tuple[str, str]] = []
+    found = modes(nominal.a, ts_s)
+    kind = EffectKind.MODE
+    for k, m in enumerate(found):
+        what = f"mode {m.index} at {m.f_hz:.4g} Hz (damping {m.zeta:.3g})"
+        if m.zeta >= MODE_MAX_DAMPING:
+            skipped.append((kind.value, f"not applicable: {what} is not lightly damped "
+                            f"(below {MODE_MAX_DAMPING:g})"))  # fmt: skip
+            continue
+        if band_hz is not None and not band_hz[0] <= m.f_hz <= band_hz[1]:
+            skipped.append((kind.value, f"not applicable: {what} lies outside the excited "
+                            f"band {band_hz[0]:.4g}-{band_hz[1]:.4g} Hz"))  # fmt: skip
+            continue
+        channel, seen = _mode_channel(nominal, m, ts_s)
+        if seen < 1e-9:
+            skipped.append((kind.value, f"not applicable: {what} is not driven by the inputs "
+                            "or not seen on the outputs"))  # fmt: skip
+            continue
+        lo, hi = m.f_hz / MODE_MAX_RATIO, m.f_hz * MODE_MAX_RATIO
+        if k > 0:
+            lo = max(lo, float(np.sqrt(found[k - 1].f_hz * m.f_hz)))
+        if k + 1 < len(found):
+            hi = min(hi, float(np.sqrt(found[k + 1].f_hz * m.f_hz)))
+        if ts_s is not None:
+            hi = min(hi, 0.5 / ts_s * (1.0 - 1e-6))
+        grid = tuple(sorted({float(np.clip(m.f_hz * (1.0 + r), lo, hi)) for r in _MODE_STEPS}))
+        specs.append(
+            EffectSpec(
+                kind, channel, None, kind.record.parameters, (lo, 1e-4), (hi, 0.9), grid,
+                (m.zeta,), _mode(m.pole, ts_s),
+                fixed={"mode": float(m.index), "nominal_frequency_hz": m.f_hz,
+                       "nominal_damping_ratio": m.zeta},
+            )
+        )  # fmt: skip
+    return specs, skipped
+
+
+def mode_shift_text(
+    spec: EffectSpec,
+    values: np.ndarray,
+    low: np.ndarray | None = None,
+    high: np.ndarray | None = None,
+) -> str:
+    """``mode 3 at 10.7 Hz moved to 11.34 Hz (11.3-11.38), damping 0.037 -> 0.039 (...)``.
+
+    ``low``, ``high``: the parameters' confidence interval (omitted when ``None``).
+    """
+    f0 = spec.fixed["nominal_frequency_hz"]
+    z0 = spec.fixed["nominal_damping_ratio"]
+
+    def within(i: int) -> str:
+        if low is None or high is None:
+            return ""
+        return f" ({low[i]:.4g}-{high[i]:.4g})"
+
+    return (
+        f"mode {int(spec.fixed['mode'])} at {f0:.4g} Hz moved to {values[0]:.4g} Hz{within(0)} "
+        f"({values[0] / f0 - 1.0:+.1%}), damping {z0:.3g} -> {values[1]:.3g}{within(1)}"
+    )

@@ -8,7 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twotank_validation.diagnose.effects import THERMAL_STATES, EffectSpec, Nominal
+from twotank_validation.diagnose.effects import (
+    THERMAL_STATES,
+    EffectSpec,
+    Nominal,
+    mode_shift_text,
+)
 from twotank_validation.diagnose.fit import BinData
 from twotank_validation.diagnose.kinds import EffectKind
 
@@ -212,4 +217,26 @@ def evidence(  # noqa: PLR0911, PLR0917 - one text per kind; the effect and wher
             f"shortens the {state} time constant from {-1.0 / before.a[i, i]:.1f} s to "
             f"{-1.0 / after.a[i, i]:.1f} s ({fit_r2}){tail}"
         )
+    if spec.kind is EffectKind.MODE:
+        return _mode_evidence(spec, values, pts, out, fit_r2) + tail
     return f"fitted {dict(zip(spec.names, values.tolist(), strict=True))} ({fit_r2}){tail}"
+
+
+def _mode_evidence(
+    spec: EffectSpec, values: np.ndarray, pts: EvidencePoints, out: str, fit_r2: str
+) -> str:
+    """A resonance that sits elsewhere: the ratio's swing around the mode, and the shift."""
+    f0 = spec.fixed["nominal_frequency_hz"]
+    lo_f, hi_f = sorted((f0, float(values[0])))
+    near = (pts.f_hz >= lo_f / 1.1) & (pts.f_hz <= hi_f * 1.1)
+    if not np.any(near):
+        near = np.ones(pts.f_hz.size, dtype=bool)
+    mag = np.abs(pts.measured[near])
+    f = pts.f_hz[near]
+    return (
+        f"around mode {int(spec.fixed['mode'])} the {out} measured/modelled ratio swings from "
+        f"{float(np.min(mag)):.2f} to {float(np.max(mag)):.2f} over {f[0]:.4g}-{f[-1]:.4g} Hz "
+        f"(at {int(np.sum(near))} bins): a resonance that sits elsewhere than modelled, not a "
+        f"flat gain or a phase line; {mode_shift_text(spec, values)}, its mode shape kept "
+        f"({fit_r2})"
+    )

@@ -36,6 +36,7 @@ class EffectKind(StrEnum):
     LEAK = "leak"
     HEAT_LOSS = "heat_loss"
     HOT_SUPPLY = "hot_supply"
+    MODE = "mode"
     OFFSET = "offset"
     SATURATION = "saturation"
     STUCK = "stuck"
@@ -68,6 +69,7 @@ class ActsOn(StrEnum):
     INPUT = "input"
     OUTPUT_FROM_OUTPUT = "output from another output"
     TANK = "the tank's balances"
+    MODE = "a resonant mode of the plant"
     NOTHING = "nothing"
 
 
@@ -80,6 +82,9 @@ class ModelNeed(StrEnum):
     OPERATING_POINT = "the operating temperature (energy state) or height (temperature state)"
     """A heat loss on an energy state needs the operating temperature; a hot-supply change on
     a temperature state the operating height."""
+    RESONANT_MODE = "a lightly damped complex pole pair in the excited band"
+    """A mode shift acts on one of the nominal's lightly damped pole pairs
+    (:data:`~twotank_validation.diagnose.effects.MODE_MAX_DAMPING`) that the data excite."""
 
 
 @dataclass(frozen=True)
@@ -98,7 +103,8 @@ class EffectRecord:
             it a constant output offset cannot be judged on the operating point.
         thermal: it moves the temperature alone at steady state.
         text: the effect in words (``"heat loss"``).
-        label: its label, a template of ``{output}``, ``{input}``, ``{source}`` and ``{via}``
+        label: its label, a template of ``{output}``, ``{input}``, ``{source}``, ``{via}`` and
+            ``{mode}`` (a mode's number and nominal frequency, ``3 at 10.7 Hz``)
             (:meth:`~twotank_validation.diagnose.effects.EffectSpec.label`).
     """
 
@@ -153,6 +159,10 @@ EFFECT_RECORDS: Mapping[EffectKind, EffectRecord] = _records(
         _K.HOT_SUPPLY, _F.STATE_SPACE, _A.INPUT, ("delta_temperature",),
         (*_TANK, _N.HOT_INPUT, _N.OPERATING_POINT), True, True,
         "hot-supply change", "hot supply temperature",
+    ),
+    EffectRecord(
+        _K.MODE, _F.STATE_SPACE, _A.MODE, ("frequency_hz", "damping_ratio"),
+        (_N.RESONANT_MODE,), False, False, "mode shift", "mode {mode}",
     ),
     EffectRecord(
         _K.OFFSET, _F.REPORTED, _A.OUTPUT, ("offset",), (), False, False,
