@@ -3,24 +3,23 @@
 References are independent of the effect's code:
 
 * the test structure's model file against its matrices built from the masses and springs
-  (:func:`structure`), its modes against the eigenvalues of that physical model;
+  (:func:`tools.structure.structure`), its modes against the eigenvalues of that physical model;
 * the shift itself against the structure with the *modal* stiffness of one mode raised,
   ``K' = K + d M phi phi^T M`` (phi mass-normalised, damping matrix unchanged): the mode's
   frequency moves, its shape and every other mode stay, so its frequency response is the
   effect's exactly (the choice "mode shape kept");
 * the discrete pole map against the matrix exponential of that physical model;
-* the diagnosis against data simulated with ``simulate_model`` from the structure with a
-  *physical* spring stiffened (the support spring of the third mass, 100 -> 130 N/m): the
-  true new frequency and damping are the eigenvalues of that physical model (the stiffening
-  also moves the mode shape by about 1 %, which the effect does not carry: the test
-  shows the effect's intervals still hold the truth); and the same structure with an output
-  gain injected by hand (the measured deviation scaled), where the mode shift must not be
-  named.
+* the diagnosis against data simulated with ``simulate_model``
+  (:func:`tools.structure.windows`) from the structure with a *physical* spring stiffened
+  (the support spring of the third mass, 100 -> 130 N/m): the true new frequency and
+  damping are the eigenvalues of that physical model (the stiffening also moves the mode
+  shape by about 1 %, which the effect does not carry: the test shows the effect's
+  intervals still hold the truth); and the same structure with an output gain injected by
+  hand (the measured deviation scaled), where the mode shift must not be named.
 """
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +27,9 @@ import pytest
 import scipy.linalg
 import yaml
 
-from twotank_validation.core.model import load_model_document, model_from_dict
-from twotank_validation.diagnose import Nominal, Window, catalogue, diagnose
+from tools.structure import MASSES, MODEL, PERIOD, TS_S, structure, windows
+from twotank_validation.core.model import load_model_document
+from twotank_validation.diagnose import Nominal, catalogue, diagnose
 from twotank_validation.diagnose.effects import (
     mode_coefficients,
     mode_of_pole,
@@ -40,27 +40,6 @@ from twotank_validation.diagnose.effects import (
 )
 from twotank_validation.diagnose.kinds import EffectKind
 from twotank_validation.report import diagnosis_text
-from twotank_validation.sim.model_plant import ModelExcitation, ModelSimConfig, simulate_model
-
-MODEL = Path(__file__).parents[1] / "data" / "models" / "structure.yaml"
-MASSES = np.array([0.5, 0.2, 2.0])  # kg
-TS = 0.01  # s
-PERIOD = 1024  # samples
-
-
-def structure(support: float = 100.0, k_extra: np.ndarray | None = None) -> np.ndarray:
-    """The test structure's state matrix (6, 6) from its masses and springs (SI units).
-
-    Chain ground-800-m1-200-m2-800-m3, m3 also on a support spring ``support`` (N/m);
-    ``k_extra`` (3, 3) is added to the stiffness matrix; Rayleigh damping 0.5 M + 0.001 K
-    of the structure without ``k_extra``.
-    """
-    k1, k2, k3 = 800.0, 200.0, 800.0
-    k = np.array([[k1 + k2, -k2, 0], [-k2, k2 + k3, -k3], [0, -k3, k3 + support]])
-    c = 0.5 * np.diag(MASSES) + 0.001 * k
-    k = k if k_extra is None else k + k_extra
-    m = MASSES[:, None]
-    return np.block([[np.zeros((3, 3)), np.eye(3)], [-k / m, -c / m]])
 
 
 def response(a: np.ndarray, b: np.ndarray, c: np.ndarray, f_hz: np.ndarray) -> np.ndarray:
@@ -152,7 +131,7 @@ def test_a_discrete_nominal_maps_its_poles_through_exp_s_t() -> None:
 def test_every_lightly_damped_mode_in_band_is_a_candidate() -> None:
     nom = nominal()
     outputs = ("x1", "x2", "x3")
-    specs, skipped = catalogue(nom, outputs, period_s=PERIOD * TS, operating_point={})
+    specs, skipped = catalogue(nom, outputs, period_s=PERIOD * TS_S, operating_point={})
     found = [s for s in specs if s.kind is EffectKind.MODE]
     assert [s.label(outputs) for s in found] == [
         "mode 1 at 1.655 Hz",
@@ -168,34 +147,13 @@ def test_every_lightly_damped_mode_in_band_is_a_candidate() -> None:
     assert found[0].upper[0] <= found[1].lower[0] <= found[1].upper[0] <= found[2].lower[0]
     assert not [k for k, _ in skipped if k == "mode"]
     specs, skipped = catalogue(
-        nom, outputs, period_s=PERIOD * TS, operating_point={}, band_hz=(1.0, 8.0)
+        nom, outputs, period_s=PERIOD * TS_S, operating_point={}, band_hz=(1.0, 8.0)
     )
     assert len([s for s in specs if s.kind is EffectKind.MODE]) == 2
     why = [w for k, w in skipped if k == "mode"]
     assert len(why) == 1
     assert "mode 3 at 11.74 Hz" in why[0]
     assert "outside the excited band" in why[0]
-
-
-def windows(support: float, seed: int, gain_x2: float = 0.0) -> list[Window]:
-    """Two windows of two periods of the structure (support spring ``support`` N/m)."""
-    doc, _ = load_model_document(str(MODEL))
-    true = copy.deepcopy(doc)
-    true["nominal"]["ss"]["A"] = structure(support).tolist()
-    config = ModelSimConfig(
-        model=model_from_dict(true),
-        ts_s=TS,
-        excitation=ModelExcitation(
-            period_samples=PERIOD, rms=1.0, f_min_hz=1.0, f_max_hz=14.0, seed=seed
-        ),
-        periods=4,
-        noise_seed=seed + 1,
-    )
-    u, y = simulate_model(config).recorded()
-    y = y.copy()
-    y[:, 1] *= 1.0 + gain_x2  # an output gain injected by hand (the operating point is 0)
-    n = 2 * PERIOD
-    return [Window(u[i * n : (i + 1) * n], y[i * n : (i + 1) * n], TS, PERIOD) for i in (0, 1)]
 
 
 @pytest.mark.parametrize("seed", [3, 11])

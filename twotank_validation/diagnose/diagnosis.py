@@ -1011,10 +1011,12 @@ def _best_pair(
     for first in firsts:
         for s in specs:
             key = frozenset((id(first.spec), id(s)))
-            same = (s.kind, s.channel, s.input) == (
+            # (two modes of one structure are two effects, though they show on one output)
+            same = (s.kind, s.channel, s.input, s.fixed.get("mode")) == (
                 first.spec.kind,
                 first.spec.channel,
                 first.spec.input,
+                first.spec.fixed.get("mode"),
             )
             if same or key in seen:
                 continue
