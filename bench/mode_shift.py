@@ -8,7 +8,8 @@ support spring raised from 100 N/m to ``--support`` (built from the masses and s
 ``diagnose`` against the model file and prints: the runs that added exactly the mode shift of
 mode 1, the runs flagged unexplained, how often the 95 % intervals of the new frequency and
 damping ratio hold the physical structure's (its eigenvalues), the median and largest
-error of each in standard errors, and the seconds per diagnosis. Then two controls on the
+error of each in standard errors, the intervals' median half-width, and the seconds per
+diagnosis. Then two controls on the
 same seeds: the nominal structure (nothing must be added) and the nominal with a +10 %
 output gain on x2 (the gain must be named, no mode shift).
 """
@@ -42,7 +43,7 @@ def main() -> None:
     )
     seeds = range(args.first, args.first + args.seeds)
     named = unexplained = cover_f = cover_z = 0
-    z_f, z_z, secs = [], [], []
+    z_f, z_z, secs, half_f, half_z = [], [], [], [], []
     for seed in seeds:
         w = windows(args.support, seed)
         t0 = time.perf_counter()
@@ -59,6 +60,8 @@ def main() -> None:
         lo, hi, se = e.uncertainty.low, e.uncertainty.high, e.uncertainty.stderr
         cover_f += bool(lo[0] <= truth.f_hz <= hi[0])
         cover_z += bool(lo[1] <= truth.zeta <= hi[1])
+        half_f.append((hi[0] - lo[0]) / 2)
+        half_z.append((hi[1] - lo[1]) / 2)
         z_f.append((e.values[0] - truth.f_hz) / se[0])
         z_z.append((e.values[1] - truth.zeta) / se[1])
     n = len(seeds)
@@ -70,7 +73,9 @@ def main() -> None:
     print(
         f"stiffened: named {named}/{n}, unexplained {unexplained}/{n}; 95 % interval holds the "
         f"frequency {cover_f}/{named}, the damping {cover_z}/{named}; |error| in standard "
-        f"errors, median / largest: frequency {spread(z_f)}, damping {spread(z_z)}; "
+        f"errors, median / largest: frequency {spread(z_f)}, damping {spread(z_z)}; median "
+        f"half-width of the interval: frequency {statistics.median(half_f or [np.nan]):.2g} Hz, "
+        f"damping {statistics.median(half_z or [np.nan]):.2g}; "
         f"{statistics.median(secs):.2f} s per diagnosis"
     )
     quiet = gain = 0

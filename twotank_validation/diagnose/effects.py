@@ -929,19 +929,24 @@ def mode_shift_text(
     low: np.ndarray | None = None,
     high: np.ndarray | None = None,
 ) -> str:
-    """``mode 3 at 10.7 Hz moved to 11.34 Hz (11.3-11.38), damping 0.037 -> 0.039 (...)``.
+    """``mode 1 at 1.655 Hz moved to 1.75807 Hz (1.75798-1.75817) (+6.2%), damping ...``.
 
-    ``low``, ``high``: the parameters' confidence interval (omitted when ``None``).
+    ``low``, ``high``: the parameters' confidence interval (omitted when ``None``); each
+    value is printed with the digits that tell its interval's ends apart.
     """
     f0 = spec.fixed["nominal_frequency_hz"]
     z0 = spec.fixed["nominal_damping_ratio"]
 
-    def within(i: int) -> str:
+    def show(i: int, unit: str = "") -> str:
+        v = float(values[i])
         if low is None or high is None:
-            return ""
-        return f" ({low[i]:.4g}-{high[i]:.4g})"
+            return f"{v:.4g}{unit}"
+        width = float(high[i] - low[i])
+        rel = width / abs(v) if v and np.isfinite(width) and width > 0 else 1.0
+        digits = min(max(4, int(np.ceil(-np.log10(rel))) + 2), 12)
+        return f"{v:.{digits}g}{unit} ({low[i]:.{digits}g}-{high[i]:.{digits}g})"
 
     return (
-        f"mode {int(spec.fixed['mode'])} at {f0:.4g} Hz moved to {values[0]:.4g} Hz{within(0)} "
-        f"({values[0] / f0 - 1.0:+.1%}), damping {z0:.3g} -> {values[1]:.3g}{within(1)}"
+        f"mode {int(spec.fixed['mode'])} at {f0:.4g} Hz moved to {show(0, ' Hz')} "
+        f"({values[0] / f0 - 1.0:+.1%}), damping {z0:.3g} -> {show(1)}"
     )
