@@ -128,6 +128,24 @@ def test_a_discrete_nominal_maps_its_poles_through_exp_s_t() -> None:
     np.testing.assert_allclose(pair_eigs(shifted), want, rtol=1e-10)
 
 
+def test_a_repeated_frequency_is_named_not_fitted() -> None:
+    """Two equal oscillators: the bounds of either would be empty (no fit, no traceback)."""
+    osc = np.array([[0.0, 1.0], [-400.0, -1.0]])
+    a = scipy.linalg.block_diag(osc, osc, np.array([[-50.0]]))
+    doc = {
+        "name": "twins", "inputs": ["f"], "outputs": ["y1", "y2"],
+        "nominal": {"ss": {"A": a.tolist(), "B": [[0], [1], [0], [1], [1]],
+                           "C": [[1, 0, 0, 0, 0], [0, 0, 1, 0, 1]], "D": [[0], [0]]}},
+    }  # fmt: skip
+    specs, skipped = catalogue(
+        Nominal.from_document(doc), ("y1", "y2"), period_s=10.0, operating_point={}
+    )
+    assert not [s for s in specs if s.kind is EffectKind.MODE]
+    why = [w for k, w in skipped if k == "mode"]
+    assert len(why) == 2
+    assert all("repeated frequency" in w for w in why)
+
+
 def test_every_lightly_damped_mode_in_band_is_a_candidate() -> None:
     nom = nominal()
     outputs = ("x1", "x2", "x3")

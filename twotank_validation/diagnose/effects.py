@@ -866,6 +866,34 @@ def _mode_channel(nom: Nominal, mode: Mode, ts_s: float | None) -> tuple[int, fl
     return int(np.argmax(share)), seen / scale
 
 
+def _mode_bounds(found: Sequence[Mode], k: int, ts_s: float | None) -> tuple[float, float]:
+    """The search bounds of mode ``k``'s new frequency, Hz (:data:`MODE_MAX_RATIO`)."""
+    f = found[k].f_hz
+    lo, hi = f / MODE_MAX_RATIO, f * MODE_MAX_RATIO
+    if k > 0:
+        lo = max(lo, float(np.sqrt(found[k - 1].f_hz * f)))
+    if k + 1 < len(found):
+        hi = min(hi, float(np.sqrt(found[k + 1].f_hz * f)))
+    if ts_s is not None:
+        hi = min(hi, 0.5 / ts_s * (1.0 - 1e-6))
+    return lo, hi
+
+
+def _mode_not_applicable(
+    m: Mode, band_hz: tuple[float, float] | None, seen: float, lo: float, hi: float
+) -> str:
+    """Why a pole pair is no candidate (``""``: it is one)."""
+    if m.zeta >= MODE_MAX_DAMPING:
+        return f"is not lightly damped (below {MODE_MAX_DAMPING:g})"
+    if band_hz is not None and not band_hz[0] <= m.f_hz <= band_hz[1]:
+        return f"lies outside the excited band {band_hz[0]:.4g}-{band_hz[1]:.4g} Hz"
+    if seen < 1e-9:
+        return "is not driven by the inputs or not seen on the outputs"
+    if not (lo < m.f_hz * (1.0 - 1e-6) and m.f_hz * (1.0 + 1e-6) < hi):
+        return "coincides with another pair (a repeated frequency): which moved is not defined"
+    return ""
+
+
 def mode_specs(
     nominal: Nominal,
     band_hz: tuple[float, float] | None = None,
@@ -890,27 +918,13 @@ def mode_specs(
     found = modes(nominal.a, ts_s)
     kind = EffectKind.MODE
     for k, m in enumerate(found):
-        what = f"mode {m.index} at {m.f_hz:.4g} Hz (damping {m.zeta:.3g})"
-        if m.zeta >= MODE_MAX_DAMPING:
-            skipped.append((kind.value, f"not applicable: {what} is not lightly damped "
-                            f"(below {MODE_MAX_DAMPING:g})"))  # fmt: skip
-            continue
-        if band_hz is not None and not band_hz[0] <= m.f_hz <= band_hz[1]:
-            skipped.append((kind.value, f"not applicable: {what} lies outside the excited "
-                            f"band {band_hz[0]:.4g}-{band_hz[1]:.4g} Hz"))  # fmt: skip
-            continue
+        lo, hi = _mode_bounds(found, k, ts_s)
         channel, seen = _mode_channel(nominal, m, ts_s)
-        if seen < 1e-9:
-            skipped.append((kind.value, f"not applicable: {what} is not driven by the inputs "
-                            "or not seen on the outputs"))  # fmt: skip
+        why = _mode_not_applicable(m, band_hz, seen, lo, hi)
+        if why:
+            what = f"mode {m.index} at {m.f_hz:.4g} Hz (damping {m.zeta:.3g})"
+            skipped.append((kind.value, f"not applicable: {what} {why}"))
             continue
-        lo, hi = m.f_hz / MODE_MAX_RATIO, m.f_hz * MODE_MAX_RATIO
-        if k > 0:
-            lo = max(lo, float(np.sqrt(found[k - 1].f_hz * m.f_hz)))
-        if k + 1 < len(found):
-            hi = min(hi, float(np.sqrt(found[k + 1].f_hz * m.f_hz)))
-        if ts_s is not None:
-            hi = min(hi, 0.5 / ts_s * (1.0 - 1e-6))
         grid = tuple(sorted({float(np.clip(m.f_hz * (1.0 + r), lo, hi)) for r in _MODE_STEPS}))
         specs.append(
             EffectSpec(
