@@ -2,9 +2,9 @@
 
 Usage: scripts/run bench mode_shift.py [--seeds 20] [--first 10] [--support 130]
 
-For each seed, simulates the structure of ``test/data/models/structure.yaml`` with its
+For each seed, simulates the structure of ``test/data/models/mode_structure.yaml`` with its
 support spring raised from 100 N/m to ``--support`` (built from the masses and springs,
-:mod:`tools.structure`; two windows of two periods after automatic settling), runs
+:mod:`tools.mode_structure`; two windows of two periods after automatic settling), runs
 ``diagnose`` against the model file and prints: the runs that added exactly the mode shift of
 mode 1, the runs flagged unexplained, how often the 95 % intervals of the new frequency and
 damping ratio hold the physical structure's (its eigenvalues), the median and largest
@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from tools.structure import MODEL, SUPPORT, structure, windows
+from tools.mode_structure import MODEL, SUPPORT, structure, windows
 from twotank_validation.core.model import load_model_document
 from twotank_validation.diagnose import diagnose
 from twotank_validation.diagnose.effects import modes

@@ -243,7 +243,7 @@ def test_the_catalogue_takes_names_and_needs_from_the_records() -> None:
     assert all(type(k) is str for k, _ in skipped)
     assert not {s.kind for s in specs} & set(needing)
     assert "no states named 'height' and 'energy'/'temperature'" in skipped[0][1]
-    doc, _ = load_model_document(str(Path(__file__).parent / "data/models/structure.yaml"))
+    doc, _ = load_model_document(str(Path(__file__).parent / "data/models/mode_structure.yaml"))
     specs, skipped = catalogue(
         Nominal.from_document(doc), ("x1", "x2", "x3"), period_s=10.24, operating_point={}
     )

@@ -3,14 +3,15 @@
 References are independent of the effect's code:
 
 * the test structure's model file against its matrices built from the masses and springs
-  (:func:`tools.structure.structure`), its modes against the eigenvalues of that physical model;
+  (:func:`tools.mode_structure.structure`), its modes against the eigenvalues of that
+  physical model;
 * the shift itself against the structure with the *modal* stiffness of one mode raised,
   ``K' = K + d M phi phi^T M`` (phi mass-normalised, damping matrix unchanged): the mode's
   frequency moves, its shape and every other mode stay, so its frequency response is the
   effect's exactly (the choice "mode shape kept");
 * the discrete pole map against the matrix exponential of that physical model;
 * the diagnosis against data simulated with ``simulate_model``
-  (:func:`tools.structure.windows`) from the structure with a *physical* spring stiffened
+  (:func:`tools.mode_structure.windows`) from the structure with a *physical* spring stiffened
   (the support spring of the third mass, 100 -> 130 N/m): the true new frequency and
   damping are the eigenvalues of that physical model (the stiffening also moves the mode
   shape by about 1 %, which the effect does not carry: the test shows the effect's
@@ -27,7 +28,7 @@ import pytest
 import scipy.linalg
 import yaml
 
-from tools.structure import MASSES, MODEL, PERIOD, TS_S, structure, windows
+from tools.mode_structure import MASSES, MODEL, PERIOD, TS_S, structure, windows
 from twotank_validation.core.model import load_model_document
 from twotank_validation.diagnose import Nominal, catalogue, diagnose
 from twotank_validation.diagnose.effects import (

@@ -1,11 +1,12 @@
 """The 1 x 3 test structure built from its masses and springs, and records simulated from it.
 
-Used by ``test/diagnose/test_diagnose_mode.py`` and ``bench/mode_shift.py``. The structure is
-``test/data/models/structure.yaml``'s: three masses in a chain, ground-k1-m1-k2-m2-k3-m3, the
-third also on a support spring to ground, a force on the third (m = 0.5, 0.2, 2.0 kg;
-k = 800, 200, 800 N/m; support 100 N/m; Rayleigh damping C = 0.5 M + 0.001 K). States:
-displacements (m) and velocities (m/s); outputs: the displacements in mm. The changed plants
-are built here by physics (a spring stiffened), independently of the diagnosis's mode effect.
+Used by ``test/diagnose/test_diagnose_mode.py`` and ``bench/mode_shift.py``. The structure
+is ``test/data/models/mode_structure.yaml``'s: three masses in a chain,
+ground-k1-m1-k2-m2-k3-m3, the third also on a support spring to ground, a force on the third
+(m = 0.5, 0.2, 2.0 kg; k = 800, 200, 800 N/m; support 100 N/m; Rayleigh damping C = 0.5 M +
+0.001 K). States: displacements (m) and velocities (m/s); outputs: the displacements in mm.
+The changed plants are built here by physics (a spring stiffened), independently of the
+diagnosis's mode effect.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from twotank_validation.core.model import load_model_document, model_from_dict
 from twotank_validation.diagnose import Window
 from twotank_validation.sim.model_plant import ModelExcitation, ModelSimConfig, simulate_model
 
-MODEL = Path(__file__).parents[1] / "test" / "data" / "models" / "structure.yaml"
+MODEL = Path(__file__).parents[1] / "test" / "data" / "models" / "mode_structure.yaml"
 MASSES = np.array([0.5, 0.2, 2.0])
 """kg."""
 SUPPORT = 100.0
