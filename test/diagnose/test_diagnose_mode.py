@@ -221,3 +221,29 @@ def test_an_output_gain_is_not_taken_for_a_mode_shift() -> None:
     modes_tried = [e for e in d.candidates if e.spec.kind is EffectKind.MODE]
     assert len(modes_tried) == 3
     assert all(e.reduction < 0.5 for e in modes_tried)
+
+
+def test_a_discrete_nominal_names_the_same_mode_shift() -> None:
+    """The model file's nominal sampled (ZOH at the data's 0.01 s, ``dt_s``): the same answer.
+
+    The simulator holds the force over each sample, so the sampled nominal is exact; the
+    poles move as ``z = exp(s T)`` of the fitted frequency and damping.
+    """
+    doc, _ = load_model_document(str(MODEL))
+    nom = Nominal.from_document(doc)
+    a_d = scipy.linalg.expm(nom.a * TS_S)
+    b_d = np.linalg.solve(nom.a, (a_d - np.eye(6)) @ nom.b)
+    disc = {**doc, "nominal": {"ss": {**doc["nominal"]["ss"], "A": a_d.tolist(),
+                                      "B": b_d.tolist(), "dt_s": TS_S}}}  # fmt: skip
+    truth = modes(structure(130.0))[0]
+    d = diagnose(windows(130.0, 12), disc, source="sampled")
+    assert [(e.spec.kind, e.spec.fixed["mode"]) for e in d.effects] == [(EffectKind.MODE, 1.0)]
+    e = d.effects[0]
+    assert e.uncertainty is not None
+    assert e.uncertainty.low[0] <= truth.f_hz <= e.uncertainty.high[0]
+    assert e.uncertainty.low[1] <= truth.zeta <= e.uncertainty.high[1]
+    assert d.document is not None
+    changed = Nominal.from_document(d.document)
+    assert changed.dt_s == TS_S
+    got = modes(changed.a, TS_S)[0]
+    assert (got.f_hz, got.zeta) == pytest.approx(tuple(e.values), rel=1e-7)

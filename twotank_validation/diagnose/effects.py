@@ -50,8 +50,9 @@ effects that act on its channels (docs/theory.md §14): ``gain`` and ``input_gai
 ``C``/``D`` rows or ``B``/``D`` columns as in continuous time; ``delay`` is
 ``exp(-j theta tau / dt)`` at the bins (whole samples exactly, a fractional part as the
 band-limited delay of a periodic signal); ``lag`` and ``coupling`` append their first-order
-filter discretised by the model's ``intersample`` hold (first-order hold under ``exact``).
-The tank effects need named continuous states and do not apply.
+filter discretised by the model's ``intersample`` hold (first-order hold under ``exact``);
+``mode`` moves a pole pair of its own ``A`` through ``z = exp(s T)``. The tank effects
+need named continuous states and do not apply.
 """
 
 from __future__ import annotations
