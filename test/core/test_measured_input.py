@@ -116,3 +116,29 @@ def test_measured_mask_of_the_wrong_size_is_a_clear_error() -> None:
     u, y, _ = _record()
     with pytest.raises(DimensionError, match="measured marks 1 inputs but u has 2"):
         make_datum(u, y, ts_s=CONFIG.ts_s, period_samples=L, measured=[True])
+
+
+def test_the_noise_effect_under_a_band_counts_the_band_s_bins_only() -> None:
+    """The band's β moves only with the noise at its bins: the effect over a band is the
+    noise shift of a record whose input noise outside the band is removed (its DFT zeroed
+    there), the reference computed from the actual noise, not the estimate."""
+    u, y, n = _record()
+    model = _nominal_only("B")
+    clean = make_datum(u, y, ts_s=CONFIG.ts_s, period_samples=L)
+    resp = model.response(clean.theta, clean.ts_s)
+    band = clean.freqs_hz >= 0.005
+    left = scaled_dft(period_average(n - n.mean(0), L), NormConvention.POWER)
+    in_band = input_noise_shift(resp.p22, resp.p23, np.where(band[:, None], left, 0.0),
+                                clean.bin_weights)  # fmt: skip
+    whole = input_noise_shift(resp.p22, resp.p23, left, clean.bin_weights)
+    assert in_band < 0.5 * whole  # most of the noise's effect here lies below 0.005 Hz
+    noisy = make_datum(u + n, y, ts_s=CONFIG.ts_s, period_samples=L, measured=[True, True])
+    std = noisy.u_noise_std
+    effect_band = input_noise_effect(resp.p22, resp.p23, std, clean.bin_weights, band)
+    effect_out = input_noise_effect(resp.p22, resp.p23, std, clean.bin_weights, ~band)
+    effect = input_noise_effect(resp.p22, resp.p23, std, clean.bin_weights)
+    assert effect_band**2 + effect_out**2 == pytest.approx(effect**2, rel=1e-12)
+    terms = clean.bin_weights[:, None] * (noise_gain(resp.p22, resp.p23) * std) ** 2
+    terms = np.where(band[:, None], terms, 0.0)
+    spread = np.sqrt(np.sum(terms**2) * (1.0 + 1.0 / (noisy.n_periods - 1)))
+    assert abs(in_band**2 - effect_band**2) <= 4 * spread

@@ -51,7 +51,11 @@ def input_noise_shift(
 
 
 def input_noise_effect(
-    p22: np.ndarray, p23: np.ndarray, noise_std: np.ndarray, bin_weights: np.ndarray
+    p22: np.ndarray,
+    p23: np.ndarray,
+    noise_std: np.ndarray,
+    bin_weights: np.ndarray,
+    mask: np.ndarray | None = None,
 ) -> float:
     """The expected :func:`input_noise_shift` of the noise estimated in a measured input.
 
@@ -64,6 +68,7 @@ def input_noise_effect(
         noise_std: (n_bins, n_inputs) float, ``sigma_j(n)`` (``Datum.u_noise_std``; 0 for a
             commanded input); empty: every input commanded (the effect is 0).
         bin_weights: (n_bins,) float.
+        mask: (n_bins,) bool, the bins β counts (the model's band); None: every bin.
 
     Returns:
         The expected shift (units of ``||w||``); NaN where the noise cannot be estimated (one
@@ -72,4 +77,5 @@ def input_noise_effect(
     if noise_std.size == 0 or not np.any(noise_std != 0):
         return 0.0
     gain = noise_gain(p22, p23)
-    return float(np.sqrt(np.sum(bin_weights[:, None] * (gain * noise_std) ** 2)))
+    b = bin_weights if mask is None else np.where(mask, bin_weights, 0.0)
+    return float(np.sqrt(np.sum(b[:, None] * (gain * noise_std) ** 2)))

@@ -36,6 +36,7 @@ from twotank_validation.core.validate import (
     takes_closed_form,
     takes_fast_path,
     validate_beta,
+    validation_band,
 )
 from twotank_validation.defaults import (
     MAX_RECOVERED_FRACTION,
@@ -745,8 +746,13 @@ class WindowMonitor:
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
             resp = self._responses[model.name]
+            # over the bins β counts: noise outside the band cannot move the band's β
             noise_effect = input_noise_effect(
-                resp.p22, resp.p23, datum.u_noise_std, datum.bin_weights
+                resp.p22,
+                resp.p23,
+                datum.u_noise_std,
+                datum.bin_weights,
+                validation_band(datum, model),
             )
             warnings = res.warnings + measured_input_warning(noise_effect, res.beta)
             reports.append(
