@@ -3,7 +3,7 @@
 The layers, lowest first (a module may import its own layer and the layers below it):
 
     errors, defaults, settings -> core -> online -> sim -> bags -> tables -> diagnose -> replay
-    -> experiment -> calibrate -> report -> usecases -> fleet -> ros -> cli
+    -> experiment -> calibrate -> identify -> report -> usecases -> fleet -> ros -> cli
 
 The package root (``twotank_validation/__init__.py``) is the public surface above them all; it
 loads its names on first use and imports nothing at import time. Every ``import`` statement
@@ -32,6 +32,7 @@ LAYERS = (
     ("replay",),
     ("experiment",),
     ("calibrate",),
+    ("identify",),
     ("report",),
     ("usecases",),
     ("fleet",),

@@ -42,6 +42,14 @@ class UsageError(TwotankError, ValueError):
     """A command-line argument or a job's setting is not usable (the message says which)."""
 
 
+class IdentificationError(TwotankError, ValueError):
+    """A record cannot give the asked estimate; the message names the fix.
+
+    Too few periods or experiments, no excitation in the band, an order the data cannot
+    support.
+    """
+
+
 class ExitCode(IntEnum):
     """The command line's exit codes (a fleet's is its most severe recording's)."""
 
