@@ -1,0 +1,362 @@
+"""A stable rational nominal fitted to a measured frequency response (docs/theory.md).
+
+The model is continuous-time with poles common to every entry,
+
+    ``G(s) = D + sum_i R_i / (s - p_i)``,  ``s = j 2 pi f``,
+
+real poles and complex pairs (each pair stored once, ``Im p > 0``). Two steps:
+
+1. **Start: vector fitting** (Gustavsen & Semlyen, IEEE Trans. Power Delivery 14 (1999)),
+   weighted by ``1 / sigma`` per line and entry: starting pairs spread over the band, each
+   iteration solves the linearised problem ``sigma(s) G(s) ~ H(s)`` by least squares and moves
+   the poles to the zeros of ``sigma``; an unstable pole is reflected into the left half plane.
+2. **Refinement: weighted nonlinear least squares** (the maximum-likelihood cost for a
+   response with circular complex Gaussian errors of known variance, Pintelon & Schoukens
+   2012, sec. 9.11): ``V = sum |H - G|^2 / var`` over the poles by
+   ``scipy.optimize.least_squares``, the residues and ``D`` solved linearly inside it
+   (variable projection). Bounds keep every pole stable and every resonance inside
+   ``1.2 x`` the band's top: the fit adds no dynamics outside the band.
+
+Order selection compares the orders' costs by ``V (1 + n_par ln(n_eq) / n_eq)`` (Rissanen's
+MDL as Pintelon & Schoukens 2012, sec. 11.4 use it); the chosen fit's cost against its
+degrees of freedom says whether the response's own σ explains the residual.
+
+Written by hand: scikit-rf's vector fitting fits square S-parameter networks without per-line
+weights; scipy and python-control have no frequency-domain rational fit. ``least_squares`` does
+the nonlinear part.
+
+Units: frequencies in Hz, poles in rad/s, a response in output units per input unit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.optimize
+
+from twotank_validation.core.lti import StateSpace
+from twotank_validation.errors import IdentificationError
+from twotank_validation.identify.nonparametric import FrequencyResponse
+
+__all__ = ["RationalFit", "fit_rational", "select_order"]
+
+_VF_ITERATIONS = 12
+_TOP = 1.2
+"""Largest resonance frequency of a fitted pair, relative to the band's top line."""
+_SLOWEST = 1e-4
+"""Smallest decay rate of a pole, relative to the band's top (rad/s per rad/s)."""
+
+
+@dataclass(frozen=True)
+class RationalFit:
+    """A fitted rational model and how well it explains the response.
+
+    Attributes:
+        poles: (n,) complex, rad/s: real poles, then one of each complex pair (``Im > 0``).
+        pole_std: (n,) complex, rad/s: the standard deviation of each pole's real part (real
+            component) and imaginary part (imaginary component), from the noise; NaN
+            without σ.
+        residues: (n, n_y, n_u) complex, output units per input unit times rad/s.
+        d: (n_y, n_u) float, the feedthrough.
+        cost: ``V = sum |H - G|^2 / var`` over lines and entries (``var`` the response's).
+        n_eq: real equations (twice the complex ones).
+        weighted: whether ``var`` came from the data (False: relative weights, no σ).
+    """
+
+    poles: np.ndarray
+    pole_std: np.ndarray
+    residues: np.ndarray
+    d: np.ndarray
+    cost: float
+    n_eq: int
+    weighted: bool
+
+    @property
+    def order(self) -> int:
+        """States per input: real poles count once, complex pairs twice."""
+        return int(np.sum(np.where(np.abs(self.poles.imag) > 0, 2, 1)))
+
+    @property
+    def n_par(self) -> int:
+        """Real parameters: the poles and every entry's residues and feedthrough."""
+        n_y, n_u = self.d.shape
+        return self.order * (1 + n_y * n_u) + n_y * n_u
+
+    @property
+    def dof(self) -> int:
+        """Real degrees of freedom left for the noise."""
+        return max(self.n_eq - self.n_par, 1)
+
+    @property
+    def cost_ratio(self) -> float:
+        """``2 V / dof``: about 1 when the response's σ explains the residual.
+
+        Each complex equation with a unit-variance circular error adds 1 to ``E V`` and 2
+        real equations, so ``E V = dof / 2`` for a model that leaves only noise.
+        """
+        return 2.0 * self.cost / self.dof
+
+    def response(self, freqs_hz: np.ndarray) -> np.ndarray:
+        """(L, n_y, n_u) complex: the model at the frequencies."""
+        s = 2j * np.pi * np.asarray(freqs_hz, dtype=float)
+        out = np.broadcast_to(self.d.astype(complex), (s.size, *self.d.shape)).copy()
+        for p, r in zip(self.poles, self.residues, strict=True):
+            out += r[None] / (s[:, None, None] - p)
+            if p.imag > 0:
+                out += np.conj(r)[None] / (s[:, None, None] - np.conj(p))
+        return out
+
+    def state_space(self) -> StateSpace:
+        """A real continuous state space of the fit (``order x n_u`` states).
+
+        Each input has its own copy of the poles (a Gilbert realisation): minimal for one
+        input, not for several.
+        """
+        a_blk, b_blk = _pole_blocks(self.poles)
+        n_u = self.d.shape[1]
+        coeff = _coefficients(self.poles, self.residues)  # (order, n_y, n_u)
+        a = np.kron(np.eye(n_u), a_blk)
+        b = np.kron(np.eye(n_u), b_blk[:, None])
+        c = np.concatenate([coeff[:, :, j].T for j in range(n_u)], axis=1)
+        return StateSpace(a, b, c, self.d.astype(float))
+
+    def spurious(self, top_hz: float) -> list[complex]:
+        """Lightly damped pairs (ζ < 0.3) resonating above ``1.2 x top_hz``."""
+        out = []
+        for p in self.poles:
+            wn = abs(p)
+            if p.imag > 0 and wn > _TOP * 2 * math.pi * top_hz and -p.real / wn < 0.3:
+                out.append(complex(p))
+        return out
+
+
+def _pole_blocks(poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The real realisation ``(A, b)`` of the partial-fraction basis.
+
+    ``1/(s-a)`` per real pole; for a pair ``p = x + jy`` the block ``[[x, y], [-y, x]]`` with
+    ``b = [2, 0]``, whose states give ``1/(s-p) + 1/(s-p*)`` and ``j/(s-p) - j/(s-p*)``.
+    """
+    blocks, bs = [], []
+    for p in poles:
+        if p.imag > 0:
+            blocks.append(np.array([[p.real, p.imag], [-p.imag, p.real]]))
+            bs.extend([2.0, 0.0])
+        else:
+            blocks.append(np.array([[p.real]]))
+            bs.append(1.0)
+    n = sum(b.shape[0] for b in blocks)
+    a = np.zeros((n, n))
+    i = 0
+    for blk in blocks:
+        k = blk.shape[0]
+        a[i : i + k, i : i + k] = blk
+        i += k
+    return a, np.array(bs)
+
+
+def _basis(s: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """(L, order) complex: the real-coefficient partial-fraction basis at ``s``."""
+    cols = []
+    for p in poles:
+        if p.imag > 0:
+            cols.append(1 / (s - p) + 1 / (s - np.conj(p)))
+            cols.append(1j / (s - p) - 1j / (s - np.conj(p)))
+        else:
+            cols.append(1 / (s - p.real))
+    return np.stack(cols, axis=1)
+
+
+def _coefficients(poles: np.ndarray, residues: np.ndarray) -> np.ndarray:
+    """(order, n_y, n_u) real basis coefficients of the residues (``R = c1 + j c2``)."""
+    rows = []
+    for p, r in zip(poles, residues, strict=True):
+        if p.imag > 0:
+            rows.extend([r.real, r.imag])
+        else:
+            rows.append(r.real)
+    return np.stack(rows)
+
+
+def _residues(poles: np.ndarray, coeff: np.ndarray) -> np.ndarray:
+    out, i = [], 0
+    for p in poles:
+        if p.imag > 0:
+            out.append(coeff[i] + 1j * coeff[i + 1])
+            i += 2
+        else:
+            out.append(coeff[i].astype(complex))
+            i += 1
+    return np.stack(out)
+
+
+def _ri(x: np.ndarray) -> np.ndarray:
+    """Complex rows stacked as real rows: (2 L, ...)."""
+    return np.concatenate([x.real, x.imag], axis=0)
+
+
+def _linear(
+    s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residues, feedthrough and weighted residual at fixed poles.
+
+    Args:
+        s: (L,) complex, ``j omega`` (scaled).
+        h: (L, E) complex, the entries.
+        w: (L, E) float, weights ``1 / sigma``.
+        poles: (n,) complex, scaled.
+
+    Returns:
+        coefficients (order + 1, E) real (last row the feedthrough), the weighted complex
+        residual (L, E).
+    """
+    phi = np.concatenate([_basis(s, poles), np.ones((s.size, 1))], axis=1)
+    coef = np.empty((phi.shape[1], h.shape[1]))
+    resid = np.empty(h.shape, complex)
+    for e in range(h.shape[1]):
+        a = _ri(w[:, e, None] * phi)
+        b = _ri(w[:, e] * h[:, e])
+        coef[:, e] = np.linalg.lstsq(a, b, rcond=None)[0]
+        resid[:, e] = w[:, e] * (phi @ coef[:, e] - h[:, e])
+    return coef, resid, phi
+
+
+def _vf_step(s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """One vector-fitting pole relocation: the zeros of ``sigma(s) = 1 + sum c_i phi_i``."""
+    phi = _basis(s, poles)
+    full = np.concatenate([phi, np.ones((s.size, 1))], axis=1)
+    rows, rhs = [], []
+    for e in range(h.shape[1]):
+        a = _ri(np.concatenate([w[:, e, None] * full, -(w[:, e] * h[:, e])[:, None] * phi], 1))
+        b = _ri(w[:, e] * h[:, e])
+        q, r = np.linalg.qr(a)
+        k = full.shape[1]
+        rows.append(r[k:, k:])
+        rhs.append((q.T @ b)[k:])
+    c_sigma = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+    a_blk, b_blk = _pole_blocks(poles)
+    return _tidy(np.linalg.eigvals(a_blk - np.outer(b_blk, c_sigma)))
+
+
+def _tidy(z: np.ndarray) -> np.ndarray:
+    """Stable, real poles first then one of each pair; unstable ones reflected."""
+    z = np.where(z.real > 0, -z.real + 1j * z.imag, z)
+    real = np.sort(z[np.abs(z.imag) <= 1e-9 * np.maximum(np.abs(z), 1e-300)].real)
+    pairs = z[z.imag > 1e-9 * np.abs(z)]
+    pairs = pairs[np.argsort(pairs.imag)]
+    return np.concatenate([real.astype(complex), pairs])
+
+
+def _start_poles(order: int, top: float) -> np.ndarray:
+    """Complex pairs spread linearly over the band (scaled to top = 1), one real if odd."""
+    n_pairs = order // 2
+    beta = np.linspace(top / (n_pairs + 1), top, n_pairs) if n_pairs else np.array([])
+    pairs = -beta / 100 + 1j * beta
+    real = np.array([-top / 2]) if order % 2 else np.array([])
+    return np.concatenate([real.astype(complex), pairs])
+
+
+def _pack(poles: np.ndarray) -> np.ndarray:
+    return np.concatenate([poles.real, poles[poles.imag > 0].imag])
+
+
+def _unpack(x: np.ndarray, is_pair: np.ndarray) -> np.ndarray:
+    n = is_pair.size
+    out = x[:n].astype(complex)
+    out[is_pair] += 1j * x[n:]
+    return out
+
+
+def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
+    """A stable rational model of ``order`` states per input fitted to the response.
+
+    Args:
+        fr: the response; its ``var`` weights the fit (where it is NaN or zero, relative
+            weights ``1 / |H|`` are used and :attr:`RationalFit.weighted` is False).
+        order: states per input, ``1 <= order`` and fewer parameters than equations.
+
+    Raises:
+        IdentificationError: an order the data cannot support (as many parameters as
+            equations or more), or a response that is not finite.
+    """
+    lines, n_y, n_u = fr.g.shape
+    h = fr.g.reshape(lines, -1)
+    if not np.all(np.isfinite(h)):
+        raise IdentificationError("the response holds NaN: leave the unexcited lines out")
+    var = fr.var.reshape(lines, -1)
+    weighted = bool(np.all(np.isfinite(var)) and np.all(var > 0))
+    floor = 1e-12 * float(np.max(np.abs(h)))
+    w = 1.0 / np.sqrt(var) if weighted else 1.0 / np.maximum(np.abs(h), floor)
+    n_eq = 2 * h.size
+    n_par = order * (1 + h.shape[1]) + h.shape[1]
+    if order < 1 or n_par >= n_eq:
+        raise IdentificationError(
+            f"order {order} needs {n_par} parameters and the response gives {n_eq} equations: "
+            "lower the order or excite more lines"
+        )
+    scale = 2 * math.pi * float(np.max(fr.freqs_hz))
+    s = 2j * math.pi * fr.freqs_hz / scale
+    poles = _start_poles(order, 1.0)
+    for _ in range(_VF_ITERATIONS):
+        poles = _clip(_vf_step(s, h, w, poles))
+    is_pair = poles.imag > 0
+    lower = np.concatenate([np.full(poles.size, -50.0), np.zeros(int(is_pair.sum()))])
+    upper = np.concatenate([np.full(poles.size, -_SLOWEST), np.full(int(is_pair.sum()), _TOP)])
+    x0 = np.clip(_pack(poles), lower + 1e-12, upper - 1e-12)
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        _, r, _ = _linear(s, h, w, _unpack(x, is_pair))
+        return _ri(r).ravel()
+
+    sol = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale="jac")
+    poles = _unpack(sol.x, is_pair)
+    coef, r, _ = _linear(s, h, w, poles)
+    order_rows = coef[:-1]
+    residues = _residues(poles, order_rows.reshape(-1, n_y, n_u)) * scale
+    # the variable-projection Jacobian gives the poles' covariance (Golub & Pereyra 2003);
+    # each real component of a unit-variance circular residual has variance 1/2
+    jac = sol.jac
+    cov = np.linalg.pinv(jac.T @ jac) / 2.0 * (1.0 if weighted else float("nan"))
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
+    std = sd[: poles.size].astype(complex)
+    std[is_pair] += 1j * sd[poles.size :]
+    return RationalFit(
+        poles=poles * scale,
+        pole_std=std,
+        residues=residues,
+        d=coef[-1].reshape(n_y, n_u),
+        cost=float(np.sum(np.abs(r) ** 2)),
+        n_eq=n_eq,
+        weighted=weighted,
+    )
+
+
+def _clip(poles: np.ndarray) -> np.ndarray:
+    """Poles held inside the refinement's bounds (scaled: band top = 1)."""
+    re = np.clip(poles.real, -50.0, -_SLOWEST)
+    im = np.clip(poles.imag, 0.0, _TOP)
+    return _tidy(re + 1j * np.where(poles.imag > 0, im, 0.0))
+
+
+def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, list[RationalFit]]:
+    """The fit of the order with the smallest MDL cost, and every order's fit.
+
+    ``V_mdl = V (1 + n_par ln(n_eq) / n_eq)``; orders the data cannot support are skipped.
+
+    Raises:
+        IdentificationError: no order in the range can be fitted.
+    """
+    fits = []
+    for order in orders:
+        try:
+            fits.append(fit_rational(fr, order))
+        except IdentificationError:
+            continue
+    if not fits:
+        raise IdentificationError(
+            f"no order in {orders.start}..{orders.stop - 1} can be fitted to {fr.g.shape[0]} "
+            "lines: lower the orders or excite more lines"
+        )
+    best = min(fits, key=lambda f: f.cost * (1 + f.n_par * math.log(f.n_eq) / f.n_eq))
+    return best, fits
