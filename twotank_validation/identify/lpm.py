@@ -102,6 +102,7 @@ def local_polynomial(
     yf = np.fft.rfft(y, axis=0) / m
     g = np.zeros((lines.size, n_y, n_u), complex)
     var = np.zeros((lines.size, n_y, n_u))
+    noise_var = np.zeros((lines.size, n_y))
     dofs = []
     for i, k in enumerate(lines):
         lo = min(max(1, k - width), last - 2 * width)
@@ -130,6 +131,7 @@ def local_polynomial(
         theta = np.linalg.solve(rr, q.conj().T @ yf[idx])  # (n_par, n_y)
         resid = yf[idx] - kmat @ theta
         s2 = np.sum(np.abs(resid) ** 2, axis=0) / dof  # (n_y,)
+        noise_var[i] = s2
         cov = np.linalg.inv(rr.conj().T @ rr)
         # the constant term of each input's response: the first kept column of that input
         col_of = np.cumsum(keep) - 1
@@ -150,4 +152,5 @@ def local_polynomial(
         var=var,
         n_periods=int(min(dofs)) + 1,
         n_experiments=1,
+        noise_var=noise_var,
     )

@@ -58,6 +58,9 @@ class FrequencyResponse:
             the noise, as the period-to-period spread shows it.
         n_periods: periods averaged per experiment.
         n_experiments: experiments combined (``>= n_u``).
+        noise_var: (L, n_y) float or None: the output noise's variance at each line of the
+            record the estimate came from (its DFT scaled by 1 / its length), where the
+            estimator gives it (the local polynomial method's residual).
     """
 
     lines: np.ndarray
@@ -66,6 +69,7 @@ class FrequencyResponse:
     var: np.ndarray
     n_periods: int
     n_experiments: int
+    noise_var: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:

@@ -1,0 +1,467 @@
+"""From the windows of a periodic experiment to a response, a nominal and a model document.
+
+The windows come from the replay (the same reading, gaps and periodicity gate as
+``validate``); :func:`probe_model` is the model the replay is given to cut them: it names the
+interface map's channels and claims nothing (a zero nominal with unit noise), so every window
+the gate passes is kept whatever the plant.
+
+:func:`identify_windows` picks the estimator from the data (docs/theory.md §16):
+
+* whole periods in steady state, one input pattern per input or more:
+  :func:`~twotank_validation.identify.nonparametric.frf_from_experiments`;
+* one input and several random-phase realisations (input patterns):
+  :func:`~twotank_validation.identify.nonparametric.best_linear_approximation`, whose spread
+  over the realisations holds the nonlinear distortion;
+* a single period per window, or a transient the gate flagged:
+  :func:`~twotank_validation.identify.lpm.local_polynomial` on each window, combined by
+  inverse-variance weighting.
+
+then fits a nominal (:mod:`twotank_validation.identify.fit`) and says how far it is from the
+response at each line. :func:`model_document` writes the result as a model file that
+``validate`` reads.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from twotank_validation.calibrate.noise import noise_from_data
+from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
+from twotank_validation.core.band import Band, excited_lines
+from twotank_validation.core.datum import assess_periodicity, input_noise_rms, make_datum
+from twotank_validation.core.model import LFTModel, model_from_dict
+from twotank_validation.core.noise_budget import (
+    NOISE_BUDGET,
+    NOISE_QUANTILE,
+    NoiseSpread,
+    NoiseWeights,
+    noise_weights,
+)
+from twotank_validation.core.validate import validate, validation_band
+from twotank_validation.diagnose.inputs import Window
+from twotank_validation.errors import DatumError, IdentificationError
+from twotank_validation.identify.fit import RationalFit, select_order
+from twotank_validation.identify.lpm import local_polynomial
+from twotank_validation.identify.nonparametric import (
+    FrequencyResponse,
+    best_linear_approximation,
+    frf_from_experiments,
+    split_by_pattern,
+)
+
+__all__ = [
+    "Estimator",
+    "Identification",
+    "IdentifiedModel",
+    "IdentifyConfig",
+    "identified_model",
+    "identify_windows",
+    "model_document",
+    "probe_model",
+]
+
+PROBE_NAME = "identify_probe"
+
+
+class Estimator(enum.StrEnum):
+    """How the response was estimated."""
+
+    PERIODIC = "periodic"
+    """Averaged over whole periods in steady state (the period spread gives σ)."""
+    BLA = "best linear approximation"
+    """Over random-phase realisations (σ holds the noise and the nonlinear distortion)."""
+    LPM = "local polynomial"
+    """The transient removed by local polynomials (a single period or a settling record)."""
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """Settings of the identification.
+
+    Attributes:
+        orders: the orders (states per input) tried; the MDL picks one.
+        band: the band (Hz) the response and the fit use; None: every excited line.
+        lpm_degree: the local polynomials' degree.
+        margin: the perturbation weight covers this times the fit's error (with 2 σ).
+        max_weight_order: largest order of the perturbation weight.
+    """
+
+    orders: range = field(default_factory=lambda: range(1, 9))
+    band: Band | None = None
+    lpm_degree: int = 2
+    margin: float = 1.2
+    max_weight_order: int = 2
+
+
+@dataclass(frozen=True)
+class Identification:
+    """What the identification found.
+
+    Attributes:
+        response: the measured response at the excited lines in the band.
+        estimator: how it was estimated.
+        var_noise: (L, n_y, n_u) the noise's share of ``response.var`` (equal to it but
+            for the best linear approximation, where the rest is distortion).
+        fit: the chosen nominal.
+        fits: every order's fit.
+        noise_rms: (n_y,) each output's noise RMS from the period spread (model units;
+            NaN with one period).
+        weights: per output, the output-multiplicative weight covering the fit's relative
+            error (``margin`` times, with 2 σ of the response).
+        ts_s: sample period (s).
+        period_samples: samples per period.
+        n_windows: windows used.
+        notes: what a user should know (the estimator's choice, a poor fit, dropped lines).
+    """
+
+    response: FrequencyResponse
+    estimator: Estimator
+    var_noise: np.ndarray
+    fit: RationalFit
+    fits: tuple[RationalFit, ...]
+    noise_rms: np.ndarray
+    weights: tuple[FittedWeight, ...]
+    ts_s: float
+    period_samples: int
+    n_windows: int
+    notes: tuple[str, ...] = ()
+
+    @property
+    def relative_error(self) -> np.ndarray:
+        """(L, n_y) the fit's largest relative error over the inputs at each line."""
+        model = self.fit.response(self.response.freqs_hz)
+        err = np.abs(self.response.g - model)
+        return np.max(err / np.maximum(np.abs(model), 1e-300), axis=2)
+
+
+def probe_model(inputs: Sequence[str], outputs: Sequence[str]) -> LFTModel:
+    """A model that names the channels and claims nothing: the replay cuts windows with it.
+
+    A zero nominal and unit noise weights (``n_y x n_u``), so it is valid on any data.
+    """
+    return model_from_dict(
+        {
+            "name": PROBE_NAME,
+            "inputs": list(inputs),
+            "outputs": list(outputs),
+            "nominal": {"gain": [[0.0] * len(inputs) for _ in outputs]},
+            "noise": [{"name": "probe", "outputs": list(outputs), "weight": {"gain": 1.0}}],
+        },
+        source="identify probe",
+    )
+
+
+def _lines(windows: Sequence[Window], band: Band | None) -> np.ndarray:
+    """The excited lines of the windows' mean input period, inside the band."""
+    n = windows[0].period_samples
+    periods = np.concatenate([w.u.reshape(-1, n, w.u.shape[1]) for w in windows])
+    spec = np.fft.rfft(periods.mean(axis=0), axis=0) / n
+    lines = np.flatnonzero(excited_lines(spec, 1))
+    if band is not None:
+        f = lines / (n * windows[0].ts_s)
+        lines = lines[(f >= band.min_hz) & (f <= band.max_hz)]
+    if lines.size == 0:
+        where = "" if band is None else f" in {band.min_hz:g}..{band.max_hz:g} Hz"
+        raise IdentificationError(
+            f"no excited line{where}: the input carries no periodic excitation there; give a "
+            "band where it does (--band) or a record with a periodic excitation"
+        )
+    return lines
+
+
+def _periodic(
+    windows: Sequence[Window], lines: np.ndarray
+) -> tuple[FrequencyResponse, np.ndarray, Estimator]:
+    n = windows[0].period_samples
+    u = np.concatenate([w.u for w in windows])
+    y = np.concatenate([w.y for w in windows])
+    groups = split_by_pattern(u - u.mean(axis=0), y - y.mean(axis=0), n)
+    n_u = u.shape[1]
+    ts = windows[0].ts_s
+    if n_u == 1 and len(groups) > 1:
+        bla = best_linear_approximation([[g] for g in groups], n, lines, ts)
+        return bla.response, bla.var_noise, Estimator.BLA
+    fr = frf_from_experiments(groups, n, lines, ts)
+    return fr, fr.var, Estimator.PERIODIC
+
+
+def _lpm(
+    windows: Sequence[Window], lines: np.ndarray, degree: int
+) -> tuple[FrequencyResponse, np.ndarray, Estimator]:
+    fits = []
+    for w in windows:
+        p = w.n_periods
+        fits.append(
+            local_polynomial(
+                w.u - w.u.mean(axis=0),
+                w.y - w.y.mean(axis=0),
+                lines * p,
+                w.ts_s,
+                degree=degree,
+                n_periods=p,
+            )
+        )
+    inv = np.sum([1.0 / f.var for f in fits], axis=0)
+    g = np.sum([f.g / f.var for f in fits], axis=0) / inv
+    var = 1.0 / inv
+    noise_var = np.mean([f.noise_var for f in fits if f.noise_var is not None], axis=0)
+    fr = FrequencyResponse(
+        lines=lines,
+        freqs_hz=lines / (windows[0].period_samples * windows[0].ts_s),
+        g=g,
+        var=var,
+        n_periods=min(f.n_periods for f in fits),
+        n_experiments=len(fits),
+        noise_var=noise_var,
+    )
+    return fr, var, Estimator.LPM
+
+
+def _transient(windows: Sequence[Window]) -> bool:
+    """Whether a window of three or more periods shows a transient still decaying.
+
+    A drift or a shrinking period-to-period variation
+    (:func:`~twotank_validation.core.datum.assess_periodicity`).
+    """
+    for w in windows:
+        if w.n_periods >= 3:
+            u, y = w.u - w.u.mean(axis=0), w.y - w.y.mean(axis=0)
+            if assess_periodicity(u, y, w.period_samples).transient_suspected:
+                return True
+    return False
+
+
+def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Identification:
+    """The response, the nominal and the weights from the windows of one experiment.
+
+    A single period per window, or a transient still decaying, takes the local polynomial
+    method; else the periods are averaged.
+
+    Args:
+        windows: whole-period windows in model units (non-overlapping).
+        config: the settings.
+
+    Raises:
+        IdentificationError: no window, no excitation in the band, too few experiments for
+            the inputs, or no order the data can support.
+    """
+    if not windows:
+        raise IdentificationError("no window to identify from")
+    lines = _lines(windows, config.band)
+    one_period = all(w.n_periods == 1 for w in windows)
+    transient = not one_period and _transient(windows)
+    notes = []
+    if one_period or transient:
+        fr, var_noise, est = _lpm(windows, lines, config.lpm_degree)
+        why = "a single period per window" if one_period else "a transient in the windows"
+        notes.append(f"{est.value}: {why}, the transient removed by local polynomials")
+    else:
+        fr, var_noise, est = _periodic(windows, lines)
+        notes.append(f"{est.value}: averaged over whole periods")
+    best, fits = select_order(fr, config.orders)
+    if best.cost_ratio > 4.0:
+        notes.append(
+            f"the order-{best.order} fit leaves {best.cost_ratio:.1f} times the residual the "
+            "response's σ explains: the plant is not linear over the band, or needs a higher "
+            "order (--orders); the perturbation weight covers the difference"
+        )
+    top = float(np.max(fr.freqs_hz))
+    if best.spurious(top):
+        notes.append(f"the fit has resonances above the band: {best.spurious(top)}")
+    n = windows[0].period_samples
+    ts = windows[0].ts_s
+    if one_period:
+        noise = np.full(windows[0].y.shape[1], np.nan)
+    else:
+        y = np.concatenate([w.y for w in windows])
+        noise = input_noise_rms(y, n)
+    weights = _weights(fr, best, ts, n, config)
+    return Identification(
+        response=fr,
+        estimator=est,
+        var_noise=var_noise,
+        fit=best,
+        fits=tuple(fits),
+        noise_rms=noise,
+        weights=weights,
+        ts_s=ts,
+        period_samples=n,
+        n_windows=len(windows),
+        notes=tuple(notes),
+    )
+
+
+def _weights(
+    fr: FrequencyResponse, fit: RationalFit, ts_s: float, n: int, config: IdentifyConfig
+) -> tuple[FittedWeight, ...]:
+    """Per output, a weight over ``(|H - G| + 2 σ) / |G|`` (largest over the inputs)."""
+    model = fit.response(fr.freqs_hz)
+    need = (np.abs(fr.g - model) + 2.0 * np.sqrt(fr.var)) / np.maximum(np.abs(model), 1e-300)
+    theta = 2 * math.pi * fr.lines / n
+    out = []
+    for c in range(fr.g.shape[1]):
+        out.append(
+            fit_weight(
+                theta,
+                np.max(need[:, c, :], axis=1),
+                ts_s,
+                margin=config.margin,
+                max_order=config.max_weight_order,
+            )
+        )
+    return tuple(out)
+
+
+def _matrix(x: np.ndarray) -> list[list[float]]:
+    return [[float(v) for v in row] for row in np.atleast_2d(x)]
+
+
+def model_document(
+    ident: Identification,
+    name: str,
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    *,
+    noise_weights: Sequence[float],
+) -> dict[str, Any]:
+    """The identified model set as a model-file document (``validate`` reads it as it is).
+
+    The nominal is the fit's state space (continuous, s), evaluated exactly at the bins
+    (``intersample: exact``): it was fitted to the sampled response as measured, so a hold
+    applied again would count the sampling twice (docs/theory.md §14, §16). One
+    output-multiplicative perturbation per output with its fitted weight; noise on every
+    output with the flat weights ``noise_weights`` (model units, one per output); the band
+    the identification used.
+    """
+    ss = ident.fit.state_space()
+    freqs = ident.response.freqs_hz
+    doc: dict[str, Any] = {
+        "name": name,
+        "description": (
+            f"identified: order {ident.fit.order} per input, {ident.estimator.value}, "
+            f"{freqs.size} lines {freqs.min():.4g}..{freqs.max():.4g} Hz"
+        ),
+        "inputs": list(inputs),
+        "outputs": list(outputs),
+        "intersample": "exact",
+        "nominal": {
+            "ss": {"A": _matrix(ss.a), "B": _matrix(ss.b), "C": _matrix(ss.c), "D": _matrix(ss.d)}
+        },
+        "band": f"{float(freqs.min()):.6g}:{float(freqs.max()):.6g}",
+    }
+    perturbations = []
+    for c, (out, w) in enumerate(zip(outputs, ident.weights, strict=True)):
+        if w.gain <= 0.0:
+            continue
+        perturbations.append(
+            {
+                "name": f"{out}_multiplicative",
+                "kind": "output_multiplicative",
+                "outputs": [outputs[c]],
+                "weight": {"tf": {"num": list(w.num), "den": list(w.den)}},
+            }
+        )
+    if perturbations:
+        doc["perturbations"] = perturbations
+    doc["noise"] = [
+        {"name": f"{out}_noise", "outputs": [out], "weight": {"gain": max(float(wn), 1e-12)}}
+        for out, wn in zip(outputs, noise_weights, strict=True)
+    ]
+    return doc
+
+
+@dataclass(frozen=True)
+class IdentifiedModel:
+    """The identified model set and how it did on the windows.
+
+    Attributes:
+        document: the model file (a mapping ``model_from_dict`` reads).
+        noise: the noise weights set from the data (docs/theory.md §13).
+        beta: (n_windows,) β of the model set on each window.
+        held_out: (n_windows,) bool, the windows that took no part in setting the noise
+            weights (all False where there was nothing to hold out).
+    """
+
+    document: dict[str, Any]
+    noise: NoiseWeights
+    beta: np.ndarray
+    held_out: np.ndarray
+
+
+def _placeholder_gains(n_y: int) -> list[float]:
+    """Noise gains that only make a document loadable before the noise is set."""
+    return [1.0] * n_y
+
+
+def _one_period_spread(fr: FrequencyResponse, n: int) -> NoiseSpread:
+    """The output noise per bin of a one-period window, from the local polynomials' residual.
+
+    Every bin takes its nearest line's estimate; the estimate at a line has the local fit's
+    degrees of freedom.
+    """
+    if fr.noise_var is None:
+        raise IdentificationError("the response carries no noise estimate")
+    bins = np.arange(n // 2 + 1)
+    nearest = np.abs(bins[:, None] - fr.lines[None, :]).argmin(axis=1)
+    var = fr.noise_var[nearest].copy()
+    var[0] = 0.0
+    return NoiseSpread(var, nearest, fr.noise_var, float(max(fr.n_periods - 1, 1)), 1)
+
+
+def identified_model(
+    ident: Identification,
+    windows: Sequence[Window],
+    name: str,
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    *,
+    quantile: float = NOISE_QUANTILE,
+    budget: float = NOISE_BUDGET,
+) -> IdentifiedModel:
+    """The model set: the nominal and perturbation weights, then noise weights from the data.
+
+    With two or more periods per window the noise weights come from the period-to-period
+    spread of the fit windows and the model is judged on held-out ones
+    (:func:`~twotank_validation.calibrate.noise.noise_from_data`); with one period, from the
+    local polynomials' residual, judged on every window.
+
+    Raises:
+        IdentificationError: the noise cannot be estimated (too few degrees of freedom).
+    """
+    draft = model_document(
+        ident, name, inputs, outputs, noise_weights=_placeholder_gains(len(outputs))
+    )
+    try:
+        if all(w.n_periods >= 2 for w in windows):
+            cal = noise_from_data(windows, draft, quantile=quantile, budget=budget, source=name)
+            doc = model_document(ident, name, inputs, outputs, noise_weights=cal.fit.gains.tolist())
+            return IdentifiedModel(doc, cal.fit, cal.judged.beta_after, cal.judged.held_out)
+        n = windows[0].period_samples
+        first = make_datum(windows[0].u, windows[0].y, ts_s=ident.ts_s, period_samples=n)
+        model = model_from_dict(draft, name)
+        spread = _one_period_spread(ident.response, n)
+        fitted = noise_weights(
+            spread,
+            first.bin_weights,
+            first.n_samples,
+            mask=validation_band(first, model),
+            quantile=quantile,
+            budget=budget,
+        )
+    except DatumError as err:  # CalibrationError is one
+        raise IdentificationError(f"the noise weights cannot be set: {err}") from err
+    doc = model_document(ident, name, inputs, outputs, noise_weights=fitted.gains.tolist())
+    final = model_from_dict(doc, name)
+    beta = np.array(
+        [
+            validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
+            for w in windows
+        ]
+    )
+    return IdentifiedModel(doc, fitted, beta, np.zeros(len(windows), dtype=bool))
