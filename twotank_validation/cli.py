@@ -32,6 +32,7 @@ from twotank_validation.cli_options import (
     absolute,
     add_calibrate_arguments,
     add_diagnose_arguments,
+    add_identify_arguments,
     add_recording_options,
     add_validate_arguments,
     check_fleet_options,
@@ -374,6 +375,29 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return _show(outcome, bar.shown)
 
 
+def _cmd_identify(args: argparse.Namespace) -> int:
+    """``identify``: the measured response, a fitted nominal and a model set."""
+    from twotank_validation.usecases import IdentifyJob  # noqa: PLC0415
+
+    job = IdentifyJob(
+        args.bag,
+        read_settings(args),
+        orders=args.orders,
+        start=args.start,
+        end=args.end,
+        name=args.name,
+        json_path=args.json,
+        report_dir=args.report,
+        out_model=args.out_model,
+    )
+    bar = _ReplayBar(args.quiet)
+    try:
+        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
+    finally:
+        bar.close()
+    return _show(outcome, bar.shown)
+
+
 # --------------------------------------------------------------------------- many recordings
 
 
@@ -571,6 +595,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_calibrate_arguments(cal)
     add_recording_options(cal)
     cal.set_defaults(func=_cmd_calibrate)
+    ide = command(
+        "identify",
+        "from a periodic experiment to a model set: the measured response ± σ, a fitted "
+        "nominal, perturbation and noise weights (docs/identify.md)",
+    )
+    add_identify_arguments(ide)
+    add_recording_options(ide)
+    ide.set_defaults(func=_cmd_identify)
     return parser
 
 

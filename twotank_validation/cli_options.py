@@ -367,3 +367,27 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --noise-from-data: the share of windows on which the noise alone costs at "
         f"most --noise-budget (default {NOISE_QUANTILE})",
     )
+
+
+def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``identify`` (a :class:`~twotank_validation.usecases.IdentifyJob`)."""
+    parser.add_argument(
+        "bag",
+        help="rosbag2 directory (MCAP or SQLite3), a plain .mcap file, or a .csv/.parquet "
+        "table (with --map of its columns) of a periodic experiment",
+    )
+    parser.add_argument(
+        "--orders",
+        default="1..8",
+        help="the orders (states per input) tried, N or A..B; the MDL picks one (default 1..8)",
+    )
+    parser.add_argument("--name", default="identified", help="the identified model's name")
+    parser.add_argument(
+        "--start",
+        help="use only the windows from this time: seconds from the recording start, or an "
+        "ISO 8601 time; default: from the start",
+    )
+    parser.add_argument("--end", help="use only the windows up to this time, as --start")
+    parser.add_argument("--json", help="write the identification as JSON to this file")
+    parser.add_argument("--report", help="write the figures (Bode ± σ, fit, orders) here")
+    parser.add_argument("--out-model", help="write the identified model set (YAML) here")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from twotank_validation.core.band import Band
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model, model_from_dict
 from twotank_validation.core.validate import validate
@@ -13,8 +14,8 @@ from twotank_validation.errors import IdentificationError
 from twotank_validation.identify.pipeline import (
     Estimator,
     IdentifyConfig,
-    identify_windows,
     identified_model,
+    identify_windows,
     probe_model,
 )
 from twotank_validation.sim.model_plant import ModelExcitation, ModelSimConfig, simulate_model
@@ -82,7 +83,5 @@ def test_a_single_period_with_a_transient_uses_the_local_polynomial_method():
 
 
 def test_a_band_without_excitation_is_refused():
-    from twotank_validation.core.band import Band
-
     with pytest.raises(IdentificationError, match="no excited line"):
         identify_windows([_window(1)], IdentifyConfig(band=Band(3.0, 4.0, False)))

@@ -31,10 +31,12 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate
 from twotank_validation.calibrate.noise import noise_from_data
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core.band import Band, excited_lines
 from twotank_validation.core.datum import assess_periodicity, input_noise_rms, make_datum
+from twotank_validation.core.lti import Intersample
 from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.core.noise_budget import (
     NOISE_BUDGET,
@@ -112,8 +114,10 @@ class Identification:
         fits: every order's fit.
         noise_rms: (n_y,) each output's noise RMS from the period spread (model units;
             NaN with one period).
-        weights: per output, the output-multiplicative weight covering the fit's relative
-            error (``margin`` times, with 2 σ of the response).
+        shapes: per output, an output-multiplicative weight over the fit's relative error
+            ``|H - G| / |G|`` (largest over the inputs): the shape the calibration scales.
+        covers: per output, a weight over ``(|H - G| + 2 σ) / |G|`` times ``margin``: what the
+            response alone demands where nothing can be held out to calibrate on.
         ts_s: sample period (s).
         period_samples: samples per period.
         n_windows: windows used.
@@ -126,7 +130,8 @@ class Identification:
     fit: RationalFit
     fits: tuple[RationalFit, ...]
     noise_rms: np.ndarray
-    weights: tuple[FittedWeight, ...]
+    shapes: tuple[FittedWeight, ...]
+    covers: tuple[FittedWeight, ...]
     ts_s: float
     period_samples: int
     n_windows: int
@@ -281,7 +286,8 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     else:
         y = np.concatenate([w.y for w in windows])
         noise = input_noise_rms(y, n)
-    weights = _weights(fr, best, ts, n, config)
+    shapes = _weights(fr, best, ts, n, config, cover=False)
+    covers = _weights(fr, best, ts, n, config, cover=True)
     return Identification(
         response=fr,
         estimator=est,
@@ -289,7 +295,8 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         fit=best,
         fits=tuple(fits),
         noise_rms=noise,
-        weights=weights,
+        shapes=shapes,
+        covers=covers,
         ts_s=ts,
         period_samples=n,
         n_windows=len(windows),
@@ -298,11 +305,22 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
 
 
 def _weights(
-    fr: FrequencyResponse, fit: RationalFit, ts_s: float, n: int, config: IdentifyConfig
+    fr: FrequencyResponse,
+    fit: RationalFit,
+    ts_s: float,
+    n: int,
+    config: IdentifyConfig,
+    *,
+    cover: bool,
 ) -> tuple[FittedWeight, ...]:
-    """Per output, a weight over ``(|H - G| + 2 σ) / |G|`` (largest over the inputs)."""
+    """Per output, a weight over the fit's relative error (largest over the inputs).
+
+    ``cover``: over ``(|H - G| + 2 σ) / |G|`` times the margin (the response's uncertainty
+    counted as error); else over ``|H - G| / |G|`` (a shape, margin 1).
+    """
     model = fit.response(fr.freqs_hz)
-    need = (np.abs(fr.g - model) + 2.0 * np.sqrt(fr.var)) / np.maximum(np.abs(model), 1e-300)
+    spread = 2.0 * np.sqrt(fr.var) if cover else 0.0
+    need = (np.abs(fr.g - model) + spread) / np.maximum(np.abs(model), 1e-300)
     theta = 2 * math.pi * fr.lines / n
     out = []
     for c in range(fr.g.shape[1]):
@@ -311,8 +329,9 @@ def _weights(
                 theta,
                 np.max(need[:, c, :], axis=1),
                 ts_s,
-                margin=config.margin,
+                margin=config.margin if cover else 1.0,
                 max_order=config.max_weight_order,
+                intersample=Intersample.EXACT,
             )
         )
     return tuple(out)
@@ -329,6 +348,8 @@ def model_document(
     outputs: Sequence[str],
     *,
     noise_weights: Sequence[float],
+    cover: bool = False,
+    shape_margin: float = 1.0,
 ) -> dict[str, Any]:
     """The identified model set as a model-file document (``validate`` reads it as it is).
 
@@ -337,7 +358,8 @@ def model_document(
     applied again would count the sampling twice (docs/theory.md §14, §16). One
     output-multiplicative perturbation per output with its fitted weight; noise on every
     output with the flat weights ``noise_weights`` (model units, one per output); the band
-    the identification used.
+    the identification used. ``cover``: the perturbation weights are the covers (what the
+    response demands), else the shapes times ``shape_margin``.
     """
     ss = ident.fit.state_space()
     freqs = ident.response.freqs_hz
@@ -356,7 +378,8 @@ def model_document(
         "band": f"{float(freqs.min()):.6g}:{float(freqs.max()):.6g}",
     }
     perturbations = []
-    for c, (out, w) in enumerate(zip(outputs, ident.weights, strict=True)):
+    weights = ident.covers if cover else ident.shapes
+    for c, (out, w) in enumerate(zip(outputs, weights, strict=True)):
         if w.gain <= 0.0:
             continue
         perturbations.append(
@@ -364,7 +387,12 @@ def model_document(
                 "name": f"{out}_multiplicative",
                 "kind": "output_multiplicative",
                 "outputs": [outputs[c]],
-                "weight": {"tf": {"num": list(w.num), "den": list(w.den)}},
+                "weight": {
+                    "tf": {
+                        "num": [float(x) * (1.0 if cover else shape_margin) for x in w.num],
+                        "den": list(w.den),
+                    }
+                },
             }
         )
     if perturbations:
@@ -384,14 +412,28 @@ class IdentifiedModel:
         document: the model file (a mapping ``model_from_dict`` reads).
         noise: the noise weights set from the data (docs/theory.md §13).
         beta: (n_windows,) β of the model set on each window.
-        held_out: (n_windows,) bool, the windows that took no part in setting the noise
-            weights (all False where there was nothing to hold out).
+        held_out: (n_windows,) bool, the windows that took no part in setting the weights
+            (all False where there was nothing to hold out).
+        calibrated: the perturbation weights were scaled together on fit windows by
+            ``calibrate`` (False: the response's covers were written, nothing held out).
+        factors: the joint factors on the weight shapes (one per output; empty when not
+            calibrated).
     """
 
     document: dict[str, Any]
     noise: NoiseWeights
     beta: np.ndarray
     held_out: np.ndarray
+    calibrated: bool
+    factors: tuple[float, ...] = ()
+
+    def weights(self) -> list[tuple[str, list[float], list[float]]]:
+        """Each perturbation block's name and weight (numerator, denominator in s)."""
+        out = []
+        for p in self.document.get("perturbations", []):
+            tf = p["weight"]["tf"]
+            out.append((p["name"], [float(x) for x in tf["num"]], [float(x) for x in tf["den"]]))
+        return out
 
 
 def _placeholder_gains(n_y: int) -> list[float]:
@@ -414,6 +456,10 @@ def _one_period_spread(fr: FrequencyResponse, n: int) -> NoiseSpread:
     return NoiseSpread(var, nearest, fr.noise_var, float(max(fr.n_periods - 1, 1)), 1)
 
 
+def _can_hold_out(windows: Sequence[Window]) -> bool:
+    return len(windows) >= 2 or windows[0].n_periods >= 2
+
+
 def identified_model(
     ident: Identification,
     windows: Sequence[Window],
@@ -423,45 +469,103 @@ def identified_model(
     *,
     quantile: float = NOISE_QUANTILE,
     budget: float = NOISE_BUDGET,
+    margin: float = 1.2,
 ) -> IdentifiedModel:
-    """The model set: the nominal and perturbation weights, then noise weights from the data.
+    """The model set: the nominal, noise weights from the data, then the perturbations.
 
-    With two or more periods per window the noise weights come from the period-to-period
-    spread of the fit windows and the model is judged on held-out ones
-    (:func:`~twotank_validation.calibrate.noise.noise_from_data`); with one period, from the
-    local polynomials' residual, judged on every window.
+    1. Noise weights: with two or more periods per window from the period-to-period spread
+       of the fit windows (:func:`~twotank_validation.calibrate.noise.noise_from_data`); with
+       one period from the local polynomials' residual.
+    2. Perturbation weights: where windows can be held out, the weight shapes (the fit's
+       relative error) scaled together by ``calibrate`` on the fit windows, the smallest
+       factors for which no fit window is invalidated, times ``margin``, and judged on the
+       held-out windows; else the covers of the response's error with its 2 σ.
 
     Raises:
-        IdentificationError: the noise cannot be estimated (too few degrees of freedom).
+        IdentificationError: the noise cannot be estimated, or no scaling explains the fit
+            windows.
     """
     draft = model_document(
         ident, name, inputs, outputs, noise_weights=_placeholder_gains(len(outputs))
     )
+    n = windows[0].period_samples
     try:
         if all(w.n_periods >= 2 for w in windows):
-            cal = noise_from_data(windows, draft, quantile=quantile, budget=budget, source=name)
-            doc = model_document(ident, name, inputs, outputs, noise_weights=cal.fit.gains.tolist())
-            return IdentifiedModel(doc, cal.fit, cal.judged.beta_after, cal.judged.held_out)
-        n = windows[0].period_samples
-        first = make_datum(windows[0].u, windows[0].y, ts_s=ident.ts_s, period_samples=n)
-        model = model_from_dict(draft, name)
-        spread = _one_period_spread(ident.response, n)
-        fitted = noise_weights(
-            spread,
-            first.bin_weights,
-            first.n_samples,
-            mask=validation_band(first, model),
-            quantile=quantile,
-            budget=budget,
-        )
+            fitted = noise_from_data(
+                windows, draft, quantile=quantile, budget=budget, source=name
+            ).fit
+        else:
+            first = make_datum(windows[0].u, windows[0].y, ts_s=ident.ts_s, period_samples=n)
+            fitted = noise_weights(
+                _one_period_spread(ident.response, n),
+                first.bin_weights,
+                first.n_samples,
+                mask=validation_band(first, model_from_dict(draft, name)),
+                quantile=quantile,
+                budget=budget,
+            )
     except DatumError as err:  # CalibrationError is one
         raise IdentificationError(f"the noise weights cannot be set: {err}") from err
-    doc = model_document(ident, name, inputs, outputs, noise_weights=fitted.gains.tolist())
-    final = model_from_dict(doc, name)
-    beta = np.array(
-        [
-            validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
-            for w in windows
-        ]
+    gains = fitted.gains.tolist()
+    if not _can_hold_out(windows):
+        doc = model_document(ident, name, inputs, outputs, noise_weights=gains, cover=True)
+        final = model_from_dict(doc, name)
+        beta = np.array(
+            [
+                validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
+                for w in windows
+            ]
+        )
+        return IdentifiedModel(doc, fitted, beta, np.zeros(len(windows), bool), False)
+    doc = model_document(ident, name, inputs, outputs, noise_weights=gains)
+    blocks = [p["name"] for p in doc.get("perturbations", [])]
+    if not blocks:
+        final = model_from_dict(doc, name)
+        beta = np.array(
+            [
+                validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
+                for w in windows
+            ]
+        )
+        return IdentifiedModel(doc, fitted, beta, np.zeros(len(windows), bool), False)
+    try:
+        cal = calibrate(
+            windows,
+            doc,
+            CalibrationConfig(margin=margin, together=True),
+            blocks=blocks,
+            source=name,
+        )
+    except DatumError as err:
+        raise IdentificationError(f"the perturbation weights cannot be calibrated: {err}") from err
+    if cal.joint is not None and cal.joint.fit.common == 0.0:
+        # the noise weights explain the fit windows without any perturbation: the fit's own
+        # error at the lines (the shapes) times the margin is written, and judged
+        final_doc = model_document(
+            ident, name, inputs, outputs, noise_weights=gains, shape_margin=margin
+        )
+        final = model_from_dict(final_doc, name)
+        beta = np.array(
+            [
+                validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
+                for w in windows
+            ]
+        )
+        return IdentifiedModel(final_doc, fitted, beta, cal.judged.held_out, False)
+    if cal.document is None or cal.joint is None:
+        raise IdentificationError(
+            "no scaling of the perturbation weights explains the fit windows: the plant is "
+            "not linear over the band or changed during the record; identify on a steady "
+            "stretch (--start/--end) or a narrower band (--band)"
+        )
+    result = dict(cal.document)
+    result["name"] = name
+    result["description"] = doc["description"]
+    return IdentifiedModel(
+        result,
+        fitted,
+        cal.judged.beta_after,
+        cal.judged.held_out,
+        True,
+        tuple(float(x) for x in cal.joint.fit.factors),
     )
-    return IdentifiedModel(doc, fitted, beta, np.zeros(len(windows), dtype=bool))

@@ -13,6 +13,7 @@ fleet ships the job to its workers (``job.at(path).run()``).
 from twotank_validation.errors import ExitCode
 from twotank_validation.usecases.calibrate import CalibrateJob
 from twotank_validation.usecases.diagnose import DiagnoseJob, stretches_text
+from twotank_validation.usecases.identify import IdentifyJob
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
@@ -38,6 +39,7 @@ __all__ = [
     "CalibrateJob",
     "DiagnoseJob",
     "ExitCode",
+    "IdentifyJob",
     "Level",
     "LoadedModel",
     "Message",
