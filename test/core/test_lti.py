@@ -7,6 +7,8 @@ of C (zI - A)^-1 B + D with a linear solve per frequency.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.signal
@@ -115,6 +117,14 @@ def test_static_transfer_function_is_stable_and_finite():
     lti.check_stable(sys, "constant tf")
     resp = lti.frequency_response(lti.discretise(sys, 1.0), np.array([0.0, 1.0]))
     np.testing.assert_allclose(resp[:, 0, 0], [0.5, 0.5])
+
+
+def test_a_zero_numerator_is_a_zero_gain_without_states_or_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sys = lti.from_transfer_function([0.0, 0.0], [0.5, 1.0])
+    assert sys.n_states == 0
+    np.testing.assert_allclose(sys.d, [[0.0]])
 
 
 def test_improper_transfer_function():

@@ -155,6 +155,8 @@ def from_transfer_function(num: Sequence[float], den: Sequence[float]) -> StateS
         )
     if den_a.size == 1:  # a constant: tf2ss would add a spurious state with a pole at 0
         return static_gain(float(num_a[-1]) / float(den_a[0]))
+    if not np.any(num_a):  # a zero weight (a block scaled to 0): no states, no warning
+        return static_gain(0.0)
     a, b, c, d = scipy.signal.tf2ss(num_a, den_a)
     return StateSpace(a, b, c, d)
 
