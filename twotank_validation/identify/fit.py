@@ -45,6 +45,8 @@ __all__ = ["RationalFit", "fit_rational", "select_order"]
 _VF_ITERATIONS = 12
 _TOP = 1.2
 """Largest resonance frequency of a fitted pair, relative to the band's top line."""
+_SUPPORT = 3.0
+"""A pole is supported when its standard deviation is below ``|p| / _SUPPORT``."""
 _SLOWEST = 1e-4
 """Smallest decay rate of a pole, relative to the band's top (rad/s per rad/s)."""
 
@@ -63,6 +65,7 @@ class RationalFit:
         cost: ``V = sum |H - G|^2 / var`` over lines and entries (``var`` the response's).
         n_eq: real equations (twice the complex ones).
         weighted: whether ``var`` came from the data (False: relative weights, no σ).
+        top_rad_s: the highest line's angular frequency (rad/s), the band's top.
     """
 
     poles: np.ndarray
@@ -72,6 +75,7 @@ class RationalFit:
     cost: float
     n_eq: int
     weighted: bool
+    top_rad_s: float
 
     @property
     def order(self) -> int:
@@ -121,6 +125,23 @@ class RationalFit:
         b = np.kron(np.eye(n_u), b_blk[:, None])
         c = np.concatenate([coeff[:, :, j].T for j in range(n_u)], axis=1)
         return StateSpace(a, b, c, self.d.astype(float))
+
+    @property
+    def supported(self) -> bool:
+        """Whether the data determine every pole inside the band.
+
+        A pole inside the band (``|p|`` at most the band's top) is supported when its
+        standard deviation is under a third of ``|p|`` and its decay rate is off the
+        refinement's lower bound (a pair pinned there is a spike fitted to one line). Poles
+        above the band shape the response's top and are not judged. True without σ, where
+        nothing can be said.
+        """
+        if not self.weighted:
+            return True
+        inside = np.abs(self.poles) <= self.top_rad_s
+        loose = np.abs(self.pole_std) >= np.abs(self.poles) / _SUPPORT
+        pinned = -self.poles.real <= 2.0 * _SLOWEST * self.top_rad_s
+        return not bool(np.any(inside & (loose | pinned)))
 
     def spurious(self, top_hz: float) -> list[complex]:
         """Lightly damped pairs (ζ < 0.3) resonating above ``1.2 x top_hz``."""
@@ -329,6 +350,7 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
         cost=float(np.sum(np.abs(r) ** 2)),
         n_eq=n_eq,
         weighted=weighted,
+        top_rad_s=scale,
     )
 
 
@@ -342,7 +364,10 @@ def _clip(poles: np.ndarray) -> np.ndarray:
 def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, list[RationalFit]]:
     """The fit of the order with the smallest MDL cost, and every order's fit.
 
-    ``V_mdl = V (1 + n_par ln(n_eq) / n_eq)``; orders the data cannot support are skipped.
+    ``V_mdl = V (1 + n_par ln(n_eq) / n_eq)`` among the fits whose every pole the data
+    determine (:attr:`RationalFit.supported`: a pole within three standard deviations of the
+    origin is noise fitted, not dynamics); orders with too few equations are skipped. Where no
+    order is supported, the lowest is taken.
 
     Raises:
         IdentificationError: no order in the range can be fitted.
@@ -358,5 +383,6 @@ def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, lis
             f"no order in {orders.start}..{orders.stop - 1} can be fitted to {fr.g.shape[0]} "
             "lines: lower the orders or excite more lines"
         )
-    best = min(fits, key=lambda f: f.cost * (1 + f.n_par * math.log(f.n_eq) / f.n_eq))
+    candidates = [f for f in fits if f.supported] or [min(fits, key=lambda f: f.order)]
+    best = min(candidates, key=lambda f: f.cost * (1 + f.n_par * math.log(f.n_eq) / f.n_eq))
     return best, fits
