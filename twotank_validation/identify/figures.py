@@ -106,8 +106,9 @@ def write_identify_report(
     for i in range(n_u):
         axes[-1, i].set_xlabel("frequency (Hz)")
     fig.suptitle(
-        f"measured response ({ident.estimator.value}) and the identified nominal; "
-        "shaded: the excited band"
+        f"measured response ({ident.estimator.value}) and the identified nominal\n"
+        "grey: the band identified",
+        fontsize=10,
     )
     fig.tight_layout()
     bode = out / "identify_bode.png"
