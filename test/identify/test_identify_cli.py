@@ -39,8 +39,8 @@ def _beta(path: Path, model: Path, tmp: Path, *options: str) -> list[float]:
     out = tmp / f"{path.stem}.{model.stem}.json"
     code = cli.main(
         [
-            "validate", str(path), "--map", str(path.with_suffix(".map.yaml")), "--model", str(model),
-            *options, "--quiet", "--json", str(out),
+            "validate", str(path), "--map", str(path.with_suffix(".map.yaml")),
+            "--model", str(model), *options, "--quiet", "--json", str(out),
         ]
     )  # fmt: skip
     assert code == cli.EXIT_OK
@@ -59,8 +59,8 @@ def test_an_identified_set_holds_on_held_out_data_and_fails_on_a_changed_plant(
     options = ["--ts", "0.1", "--period", "256"]
     code = cli.main(
         [
-            "identify", str(fit), "--map", str(fit.with_suffix(".map.yaml")), *options, "--orders", "1..5",
-            "--out-model", str(model), "--json", str(tmp_path / "id.json"),
+            "identify", str(fit), "--map", str(fit.with_suffix(".map.yaml")), *options,
+            "--orders", "1..5", "--out-model", str(model), "--json", str(tmp_path / "id.json"),
             "--report", str(report), "--quiet",
         ]
     )  # fmt: skip
@@ -121,8 +121,8 @@ def test_bad_requests_are_clear_errors(tmp_path: Path, capsys, extra: list[str],
     rec = tmp_path / "r.csv"
     _simulate(rec, "--noise-seed", "1")
     code = cli.main(
-        ["identify", str(rec), "--map", str(rec.with_suffix(".map.yaml")), "--ts", "0.1", "--period", "256",
-         "--quiet", *extra]
+        ["identify", str(rec), "--map", str(rec.with_suffix(".map.yaml")), "--ts", "0.1",
+         "--period", "256", "--quiet", *extra]
     )  # fmt: skip
     err = capsys.readouterr().err
     assert code == cli.EXIT_ERROR
