@@ -24,11 +24,15 @@ from twotank_validation.errors import DatumError
 __all__ = [
     "EXCITATION_KINDS",
     "ExcitationConfig",
+    "OddMultisineLines",
+    "crest_factor",
     "excitation_commands",
     "excitation_period",
     "filtered_noise_period",
+    "low_crest_multisine",
     "multisine_harmonics",
     "multisine_period",
+    "odd_multisine_lines",
     "record_slice",
 ]
 
@@ -372,3 +376,119 @@ def record_slice(config: ExcitationConfig) -> slice:
     """
     start = config.period_samples * config.settle_periods
     return slice(start, start + config.period_samples * config.record_periods)
+
+
+# ----------------------------------------------------------------- design for identification
+
+
+@dataclass(frozen=True)
+class OddMultisineLines:
+    """The lines of an odd random-phase multisine with detection lines (one period's DFT).
+
+    Attributes:
+        excited: (n_excited,) int, the odd lines carrying the signal.
+        detection: (n_detection,) int, the odd lines in the band left out: where odd
+            nonlinear distortion shows (the even lines show even distortion).
+        first: the band's first line.
+        last: the band's last line.
+    """
+
+    excited: NDArray[np.int64]
+    detection: NDArray[np.int64]
+    first: int
+    last: int
+
+
+def odd_multisine_lines(
+    n: int,
+    ts_s: float,
+    f_min_hz: float,
+    f_max_hz: float,
+    *,
+    group: int,
+    rng: np.random.Generator,
+) -> OddMultisineLines:
+    """The odd lines of the band, one in every ``group`` consecutive ones left out at random.
+
+    The design of Pintelon & Schoukens (2012, sec. 4.4): exciting odd lines only keeps even
+    distortion off the excited lines; leaving one odd line out in every group leaves room to
+    see odd distortion.
+
+    Args:
+        n: period length, samples.
+        ts_s: sample period, s.
+        f_min_hz: lowest frequency, Hz.
+        f_max_hz: highest frequency, Hz, below Nyquist.
+        group: odd lines per group (one left out in each; 0 or 1: none left out).
+        rng: draws which line of each group is left out.
+
+    Raises:
+        DatumError: no odd line in the band, or a group of 2 or more with fewer lines than
+            the group.
+    """
+    odd = multisine_harmonics(n, ts_s, f_min_hz, f_max_hz, odd_only=True)
+    if odd.size == 0:
+        raise DatumError(
+            f"the band {f_min_hz:.6g} .. {f_max_hz:.6g} Hz holds no odd line of "
+            f"1/(n ts) = {1.0 / (n * ts_s):.6g} Hz: widen the band or lengthen the period"
+        )
+    if group >= 2 and odd.size < group:
+        raise DatumError(
+            f"the band holds {odd.size} odd line(s), fewer than a group of {group}: widen "
+            "the band or make the groups smaller"
+        )
+    keep = np.ones(odd.size, dtype=bool)
+    if group >= 2:
+        for start in range(0, odd.size - group + 1, group):
+            keep[start + int(rng.integers(0, group))] = False
+    return OddMultisineLines(odd[keep], odd[~keep], int(odd[0]), int(odd[-1]))
+
+
+def crest_factor(x: FloatArray) -> float:
+    """``max|x| / rms(x)`` of one period (the peak the actuator must carry per unit RMS)."""
+    x = np.asarray(x, dtype=float)
+    return float(np.max(np.abs(x)) / np.sqrt(np.mean(x**2)))
+
+
+def low_crest_multisine(
+    n: int,
+    lines: NDArray[np.int64],
+    rng: np.random.Generator,
+    *,
+    iterations: int = 200,
+) -> FloatArray:
+    """One period of a multisine at ``lines`` with flat amplitudes and a low crest factor.
+
+    Random phases, then the clipping algorithm of van der Ouderaa, Schoukens and Renneboog
+    (IEEE Trans. Instrum. Meas. 37(2), 1988): clip the period at a level below its peak,
+    keep the phases the clipped period has at the lines and restore the amplitudes, repeat;
+    the period with the lowest crest factor seen is returned. The amplitude spectrum stays
+    exactly flat at the lines and zero elsewhere, so the crest factor comes from the phases
+    alone. Written by hand: scipy has no crest-factor minimisation.
+
+    Args:
+        n: period length, samples.
+        lines: (F,) int, lines ``1 <= k < n / 2``.
+        rng: draws the starting phases.
+        iterations: clipping steps.
+
+    Returns:
+        (n,) float, zero mean, unit RMS.
+    """
+    lines = np.asarray(lines, dtype=np.int64)
+    spec = np.zeros(n // 2 + 1, dtype=np.complex128)
+    spec[lines] = np.exp(2j * np.pi * rng.uniform(size=lines.size))
+    best = np.fft.irfft(spec, n=n)
+    best_cf = crest_factor(best)
+    x = best
+    for i in range(iterations):
+        level = (0.97 - 0.17 * i / max(iterations - 1, 1)) * np.max(np.abs(x))
+        clipped = np.clip(x, -level, level)
+        phases = np.angle(np.fft.rfft(clipped)[lines])
+        spec = np.zeros(n // 2 + 1, dtype=np.complex128)
+        spec[lines] = np.exp(1j * phases)
+        x = np.fft.irfft(spec, n=n)
+        cf = crest_factor(x)
+        if cf < best_cf:
+            best, best_cf = x, cf
+    return _unit_rms(best, "multisine")
