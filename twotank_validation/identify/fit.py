@@ -47,8 +47,8 @@ _TOP = 1.2
 """Largest resonance frequency of a fitted pair, relative to the band's top line."""
 _SUPPORT = 3.0
 """A pole is supported when its standard deviation is below ``|p| / _SUPPORT``."""
-_SLOWEST = 1e-4
-"""Smallest decay rate of a pole, relative to the band's top (rad/s per rad/s)."""
+_SLOWEST = 1e-2
+"""Smallest decay rate of a pole, relative to the lowest line's angular frequency."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,8 @@ class RationalFit:
         n_eq: real equations (twice the complex ones).
         weighted: whether ``var`` came from the data (False: relative weights, no σ).
         top_rad_s: the highest line's angular frequency (rad/s), the band's top.
+        slowest_rad_s: the smallest decay rate a pole may have (rad/s): a hundredth of the
+            lowest line's angular frequency; slower poles are not seen by the data.
     """
 
     poles: np.ndarray
@@ -76,6 +78,7 @@ class RationalFit:
     n_eq: int
     weighted: bool
     top_rad_s: float
+    slowest_rad_s: float
 
     @property
     def order(self) -> int:
@@ -140,7 +143,7 @@ class RationalFit:
             return True
         inside = np.abs(self.poles) <= self.top_rad_s
         loose = np.abs(self.pole_std) >= np.abs(self.poles) / _SUPPORT
-        pinned = -self.poles.real <= 2.0 * _SLOWEST * self.top_rad_s
+        pinned = -self.poles.real <= 2.0 * self.slowest_rad_s
         return not bool(np.any(inside & (loose | pinned)))
 
     def spurious(self, top_hz: float) -> list[complex]:
@@ -269,13 +272,23 @@ def _tidy(z: np.ndarray) -> np.ndarray:
     return np.concatenate([real.astype(complex), pairs])
 
 
-def _start_poles(order: int, top: float) -> np.ndarray:
-    """Complex pairs spread linearly over the band (scaled to top = 1), one real if odd."""
+def _start_sets(order: int, bottom: float) -> list[np.ndarray]:
+    """Starting poles (scaled: band top = 1), three sets; the fit keeps the best.
+
+    Complex pairs spread linearly over the band (a resonant plant); complex pairs and real
+    poles spread logarithmically from the band's bottom (a process plant whose poles lie at
+    the band's low end or below it).
+    """
     n_pairs = order // 2
-    beta = np.linspace(top / (n_pairs + 1), top, n_pairs) if n_pairs else np.array([])
-    pairs = -beta / 100 + 1j * beta
-    real = np.array([-top / 2]) if order % 2 else np.array([])
-    return np.concatenate([real.astype(complex), pairs])
+    real_odd = np.array([-0.5]) if order % 2 else np.array([])
+    lin = np.linspace(1.0 / (n_pairs + 1), 1.0, n_pairs) if n_pairs else np.array([])
+    log = np.geomspace(max(bottom, 1e-6), 1.0, n_pairs) if n_pairs else np.array([])
+    sets = [
+        np.concatenate([real_odd, -lin / 100 + 1j * lin]),
+        np.concatenate([real_odd, -log / 10 + 1j * log]),
+        -np.geomspace(max(bottom / 3, 1e-6), 1.0, order).astype(complex),
+    ]
+    return [_tidy(p.astype(complex)) for p in sets]
 
 
 def _pack(poles: np.ndarray) -> np.ndarray:
@@ -318,19 +331,15 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
         )
     scale = 2 * math.pi * float(np.max(fr.freqs_hz))
     s = 2j * math.pi * fr.freqs_hz / scale
-    poles = _start_poles(order, 1.0)
-    for _ in range(_VF_ITERATIONS):
-        poles = _clip(_vf_step(s, h, w, poles))
-    is_pair = poles.imag > 0
-    lower = np.concatenate([np.full(poles.size, -50.0), np.zeros(int(is_pair.sum()))])
-    upper = np.concatenate([np.full(poles.size, -_SLOWEST), np.full(int(is_pair.sum()), _TOP)])
-    x0 = np.clip(_pack(poles), lower + 1e-12, upper - 1e-12)
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        _, r, _ = _linear(s, h, w, _unpack(x, is_pair))
-        return _ri(r).ravel()
-
-    sol = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale="jac")
+    bottom = float(np.min(fr.freqs_hz)) * 2 * math.pi / scale
+    slowest = _SLOWEST * bottom  # a pole far below the band is not seen by the data
+    best = None
+    for start in _start_sets(order, bottom):
+        sol, is_pair = _refine(s, h, w, start, slowest)
+        if best is None or sol.cost < best[0].cost:
+            best = (sol, is_pair)
+    assert best is not None
+    sol, is_pair = best
     poles = _unpack(sol.x, is_pair)
     coef, r, _ = _linear(s, h, w, poles)
     order_rows = coef[:-1]
@@ -351,12 +360,33 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
         n_eq=n_eq,
         weighted=weighted,
         top_rad_s=scale,
+        slowest_rad_s=slowest * scale,
     )
 
 
-def _clip(poles: np.ndarray) -> np.ndarray:
+def _refine(
+    s: np.ndarray, h: np.ndarray, w: np.ndarray, start: np.ndarray, slowest: float
+) -> tuple[scipy.optimize.OptimizeResult, np.ndarray]:
+    """Vector fitting from ``start``, then the maximum-likelihood refinement in bounds."""
+    poles = start
+    for _ in range(_VF_ITERATIONS):
+        poles = _clip(_vf_step(s, h, w, poles), slowest)
+    is_pair = poles.imag > 0
+    lower = np.concatenate([np.full(poles.size, -50.0), np.zeros(int(is_pair.sum()))])
+    upper = np.concatenate([np.full(poles.size, -slowest), np.full(int(is_pair.sum()), _TOP)])
+    x0 = np.clip(_pack(poles), lower + 1e-12, upper - 1e-12)
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        _, r, _ = _linear(s, h, w, _unpack(x, is_pair))
+        return _ri(r).ravel()
+
+    sol = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale="jac")
+    return sol, is_pair
+
+
+def _clip(poles: np.ndarray, slowest: float) -> np.ndarray:
     """Poles held inside the refinement's bounds (scaled: band top = 1)."""
-    re = np.clip(poles.real, -50.0, -_SLOWEST)
+    re = np.clip(poles.real, -50.0, -slowest)
     im = np.clip(poles.imag, 0.0, _TOP)
     return _tidy(re + 1j * np.where(poles.imag > 0, im, 0.0))
 

@@ -192,6 +192,21 @@ def _periodic(
     if n_u == 1 and len(groups) > 1:
         bla = best_linear_approximation([[g] for g in groups], n, lines, ts)
         return bla.response, bla.var_noise, Estimator.BLA
+    if len(groups) < n_u:
+        # one input pattern for several inputs (every valve driven at once, as the rig's
+        # excitation does): the mean period, and the inputs told apart over neighbouring lines
+        # by the local polynomial method (their spectra differ from line to line)
+        up = u.reshape(-1, n, n_u).mean(axis=0)
+        yp = y.reshape(-1, n, y.shape[1]).mean(axis=0)
+        try:
+            fr = local_polynomial(up - up.mean(axis=0), yp - yp.mean(axis=0), lines, ts)
+        except IdentificationError as err:
+            raise IdentificationError(
+                f"{n_u} inputs excited together in one pattern, and the local polynomial "
+                f"method cannot tell them apart ({err}): record one experiment per input, or "
+                "an orthogonal multisine, or excite every line of the band"
+            ) from err
+        return fr, fr.var, Estimator.LPM
     fr = frf_from_experiments(groups, n, lines, ts)
     return fr, fr.var, Estimator.PERIODIC
 
