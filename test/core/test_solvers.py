@@ -107,7 +107,7 @@ def check_witness(
     assert np.linalg.norm(sol.w[0]) == pytest.approx(sol.upper[0], rel=1e-9, abs=1e-12)
 
 
-@settings(max_examples=12)
+@settings(max_examples=8)
 @given(
     seed=st.integers(0, 2**32 - 1),
     n_blocks=st.integers(1, 2),
@@ -169,10 +169,11 @@ def decoupled_problem(seed: int, n_bins: int = 16):
     return PlantResponse(p, blocks, nw, nu, ny), u, y
 
 
-@settings(max_examples=8)
+@settings(max_examples=4)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_closed_form_matches_sdp_and_brute_force(seed: int) -> None:
-    resp, u, y = decoupled_problem(seed)
+    # 10 bins keep an exactly explained bin (0, 4, 8) and an unexcited one (1, 6)
+    resp, u, y = decoupled_problem(seed, n_bins=10)
     structure, _ = solvers.decoupled_structure(resp)
     assert structure is not None
     cf = solvers.solve_closed_form(resp, u, y, structure)
@@ -184,7 +185,7 @@ def test_closed_form_matches_sdp_and_brute_force(seed: int) -> None:
     np.testing.assert_array_less(
         np.abs(sdp.upper - cf.lower), 1e-6 * np.maximum(cf.lower, 1e-3 * scale) + 1e-15
     )
-    for n in (0, 2, 3):
+    for n in (0, 3):  # an exactly explained bin and a general one (the brute force is slow)
         one = PlantResponse(resp.p[n : n + 1], resp.blocks, 2, 2, 2)
         brute = brute_force_scalar_blocks(one, u[n : n + 1], y[n : n + 1])
         unperturbed = lft_noise_norm(one, u[n : n + 1], y[n : n + 1], [np.zeros((1, 1))] * 2)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 import pytest
 
@@ -25,6 +27,7 @@ MODEL = "test/data/models/one_by_three.yaml"
 N = 512
 
 
+@cache
 def _window(seed: int, periods: int = 6, noise: float = 0.3, settle: int | None = None) -> Window:
     model = load_model(MODEL)
     cfg = ModelSimConfig(

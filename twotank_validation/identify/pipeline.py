@@ -27,6 +27,7 @@ import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -114,10 +115,6 @@ class Identification:
         fits: every order's fit.
         noise_rms: (n_y,) each output's noise RMS from the period spread (model units;
             NaN with one period).
-        shapes: per output, an output-multiplicative weight over the fit's relative error
-            ``|H - G| / |G|`` (largest over the inputs): the shape the calibration scales.
-        covers: per output, a weight over ``(|H - G| + 2 σ) / |G|`` times ``margin``: what the
-            response alone demands where nothing can be held out to calibrate on.
         ts_s: sample period (s).
         period_samples: samples per period.
         n_windows: windows used.
@@ -130,12 +127,28 @@ class Identification:
     fit: RationalFit
     fits: tuple[RationalFit, ...]
     noise_rms: np.ndarray
-    shapes: tuple[FittedWeight, ...]
-    covers: tuple[FittedWeight, ...]
     ts_s: float
     period_samples: int
     n_windows: int
+    config: IdentifyConfig = field(default_factory=IdentifyConfig)
     notes: tuple[str, ...] = ()
+
+    @cached_property
+    def shapes(self) -> tuple[FittedWeight, ...]:
+        """Per output, a weight over the fit's relative error: the shape calibrate scales.
+
+        Output-multiplicative, over ``|H - G| / |G|`` (largest over the inputs).
+        """
+        return _weights(self, cover=False)
+
+    @cached_property
+    def covers(self) -> tuple[FittedWeight, ...]:
+        """Per output, a weight over what the response alone demands.
+
+        Over ``(|H - G| + 2 σ) / |G|`` times the margin: where nothing can be held out to
+        calibrate on.
+        """
+        return _weights(self, cover=True)
 
     @property
     def relative_error(self) -> np.ndarray:
@@ -301,8 +314,6 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     else:
         y = np.concatenate([w.y for w in windows])
         noise = input_noise_rms(y, n)
-    shapes = _weights(fr, best, ts, n, config, cover=False)
-    covers = _weights(fr, best, ts, n, config, cover=True)
     return Identification(
         response=fr,
         estimator=est,
@@ -310,29 +321,22 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         fit=best,
         fits=tuple(fits),
         noise_rms=noise,
-        shapes=shapes,
-        covers=covers,
         ts_s=ts,
         period_samples=n,
         n_windows=len(windows),
+        config=config,
         notes=tuple(notes),
     )
 
 
-def _weights(
-    fr: FrequencyResponse,
-    fit: RationalFit,
-    ts_s: float,
-    n: int,
-    config: IdentifyConfig,
-    *,
-    cover: bool,
-) -> tuple[FittedWeight, ...]:
+def _weights(ident: Identification, *, cover: bool) -> tuple[FittedWeight, ...]:
     """Per output, a weight over the fit's relative error (largest over the inputs).
 
     ``cover``: over ``(|H - G| + 2 σ) / |G|`` times the margin (the response's uncertainty
     counted as error); else over ``|H - G| / |G|`` (a shape, margin 1).
     """
+    fr, fit, config = ident.response, ident.fit, ident.config
+    ts_s, n = ident.ts_s, ident.period_samples
     model = fit.response(fr.freqs_hz)
     spread = 2.0 * np.sqrt(fr.var) if cover else 0.0
     need = (np.abs(fr.g - model) + spread) / np.maximum(np.abs(model), 1e-300)
