@@ -231,7 +231,11 @@ def identification_text(
             f"on the {int((~held).sum())} fit window(s): max {float(made.beta[~held].max()):.3f}"
         )
     else:
-        lines.append(f"β on the {made.beta.size} window(s): max {float(made.beta.max()):.3f}")
+        lines.append(
+            f"β on the {made.beta.size} window(s) it was fitted on: max "
+            f"{float(made.beta.max()):.3f} (nothing could be held out: validate the model set "
+            "on another record)"
+        )
     if model_file:
         lines.append(f"model set written to {model_file}: validate with --model {model_file}")
     return lines
