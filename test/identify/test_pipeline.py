@@ -103,3 +103,16 @@ def test_two_valves_excited_together_are_told_apart_and_match_model_b():
     p23 = load_model("B").response(2 * np.pi * ident.response.lines / n, CONFIG.ts_s).p23
     z = np.abs(ident.response.g - p23) / np.sqrt(ident.response.var)
     assert np.mean(z < 3.0) > 0.9
+
+
+def test_one_window_of_several_periods_is_judged_on_its_held_out_half():
+    """A single window is split by periods (the first half sets the weights): the β and the
+    held-out flags describe the same halves."""
+    w = _window(1)
+    ident = identify_windows([w], IdentifyConfig(orders=range(1, 6)))
+    made = identified_model(ident, [w], "identified", ["pump"], ["p_in", "p_out", "flow"])
+    assert made.beta.shape == made.held_out.shape == (2,)
+    assert made.held_out.tolist() == [False, True]
+    half = w.periods(3, 3)
+    d = make_datum(half.u, half.y, ts_s=0.1, period_samples=N)
+    assert made.beta[1] == pytest.approx(validate(d, model_from_dict(made.document)).beta)

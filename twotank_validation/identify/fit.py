@@ -43,8 +43,12 @@ from twotank_validation.identify.nonparametric import FrequencyResponse
 __all__ = ["RationalFit", "fit_rational", "select_order"]
 
 _VF_ITERATIONS = 12
+_PATIENCE = 2
+"""Orders tried past the best supported one before the search stops."""
 _TOP = 1.2
 """Largest resonance frequency of a fitted pair, relative to the band's top line."""
+_GRAM_COND = 1e8
+"""Largest condition number of the normal equations solved as they are (else a QR)."""
 _SUPPORT = 3.0
 """A pole is supported when its standard deviation is below ``|p| / _SUPPORT``."""
 _SLOWEST = 1e-2
@@ -236,13 +240,22 @@ def _linear(
         residual (L, E).
     """
     phi = np.concatenate([_basis(s, poles), np.ones((s.size, 1))], axis=1)
-    coef = np.empty((phi.shape[1], h.shape[1]))
-    resid = np.empty(h.shape, complex)
-    for e in range(h.shape[1]):
-        a = _ri(w[:, e, None] * phi)
-        b = _ri(w[:, e] * h[:, e])
-        coef[:, e] = np.linalg.lstsq(a, b, rcond=None)[0]
-        resid[:, e] = w[:, e] * (phi @ coef[:, e] - h[:, e])
+    # every entry's weighted problem at once, by its normal equations
+    # Re(Phi^H W^2 Phi) c = Re(Phi^H W^2 h) (m x m per entry; numpy's lstsq, an SVD per
+    # entry, took most of a fit's time); a batched QR where they are ill-conditioned
+    w2 = w**2
+    gram = np.real(np.einsum("le,lm,ln->emn", w2, phi.conj(), phi, optimize=True))
+    rhs = np.real(np.einsum("le,lm,le->em", w2, phi.conj(), h, optimize=True))
+    if np.max(np.linalg.cond(gram)) < _GRAM_COND:
+        coef = np.linalg.solve(gram, rhs[:, :, None])[:, :, 0].T  # (m, E)
+    else:
+        ac = w.T[:, :, None] * phi[None, :, :]  # (E, L, m)
+        a = np.concatenate([ac.real, ac.imag], axis=1)  # (E, 2L, m)
+        bc = (w * h).T
+        b = np.concatenate([bc.real, bc.imag], axis=1)[:, :, None]
+        q, r = np.linalg.qr(a)
+        coef = np.linalg.solve(r, q.transpose(0, 2, 1) @ b)[:, :, 0].T
+    resid = w * (phi @ coef - h)
     return coef, resid, phi
 
 
@@ -333,13 +346,10 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
     s = 2j * math.pi * fr.freqs_hz / scale
     bottom = float(np.min(fr.freqs_hz)) * 2 * math.pi / scale
     slowest = _SLOWEST * bottom  # a pole far below the band is not seen by the data
-    best = None
-    for start in _start_sets(order, bottom):
-        sol, is_pair = _refine(s, h, w, start, slowest)
-        if best is None or sol.cost < best[0].cost:
-            best = (sol, is_pair)
-    assert best is not None
-    sol, is_pair = best
+    # vector fitting from each start; the refinement from the best of them only
+    starts = [_vector_fit(s, h, w, start, slowest) for start in _start_sets(order, bottom)]
+    costs = [float(np.sum(np.abs(_linear(s, h, w, p)[1]) ** 2)) for p in starts]
+    sol, is_pair = _refine(s, h, w, starts[int(np.argmin(costs))], slowest)
     poles = _unpack(sol.x, is_pair)
     coef, r, _ = _linear(s, h, w, poles)
     order_rows = coef[:-1]
@@ -364,13 +374,20 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
     )
 
 
-def _refine(
+def _vector_fit(
     s: np.ndarray, h: np.ndarray, w: np.ndarray, start: np.ndarray, slowest: float
-) -> tuple[scipy.optimize.OptimizeResult, np.ndarray]:
-    """Vector fitting from ``start``, then the maximum-likelihood refinement in bounds."""
+) -> np.ndarray:
+    """The poles after the vector-fitting iterations from ``start`` (scaled)."""
     poles = start
     for _ in range(_VF_ITERATIONS):
         poles = _clip(_vf_step(s, h, w, poles), slowest)
+    return poles
+
+
+def _refine(
+    s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray, slowest: float
+) -> tuple[scipy.optimize.OptimizeResult, np.ndarray]:
+    """The maximum-likelihood refinement of ``poles`` in the bounds."""
     is_pair = poles.imag > 0
     lower = np.concatenate([np.full(poles.size, -50.0), np.zeros(int(is_pair.sum()))])
     upper = np.concatenate([np.full(poles.size, -slowest), np.full(int(is_pair.sum()), _TOP)])
@@ -397,22 +414,36 @@ def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, lis
     ``V_mdl = V (1 + n_par ln(n_eq) / n_eq)`` among the fits whose every pole the data
     determine (:attr:`RationalFit.supported`: a pole within three standard deviations of the
     origin is noise fitted, not dynamics); orders with too few equations are skipped. Where no
-    order is supported, the lowest is taken.
+    order is supported, the lowest is taken. The orders are tried upwards and the search stops
+    once two orders in a row have not lowered the best supported cost (every fit tried is
+    returned).
 
     Raises:
         IdentificationError: no order in the range can be fitted.
     """
-    fits = []
+    fits: list[RationalFit] = []
+    best_mdl, since = math.inf, 0
     for order in orders:
         try:
-            fits.append(fit_rational(fr, order))
+            fit = fit_rational(fr, order)
         except IdentificationError:
             continue
+        fits.append(fit)
+        if fit.supported and _mdl(fit) < best_mdl:
+            best_mdl, since = _mdl(fit), 0
+        else:
+            since += 1
+        if since >= _PATIENCE:  # two orders in a row added nothing the data support
+            break
     if not fits:
         raise IdentificationError(
             f"no order in {orders.start}..{orders.stop - 1} can be fitted to {fr.g.shape[0]} "
             "lines: lower the orders or excite more lines"
         )
     candidates = [f for f in fits if f.supported] or [min(fits, key=lambda f: f.order)]
-    best = min(candidates, key=lambda f: f.cost * (1 + f.n_par * math.log(f.n_eq) / f.n_eq))
-    return best, fits
+    return min(candidates, key=_mdl), fits
+
+
+def _mdl(fit: RationalFit) -> float:
+    """Rissanen's MDL cost ``V (1 + n_par ln(n_eq) / n_eq)``."""
+    return fit.cost * (1 + fit.n_par * math.log(fit.n_eq) / fit.n_eq)

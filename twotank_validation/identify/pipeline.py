@@ -23,6 +23,7 @@ response at each line. :func:`model_document` writes the result as a model file 
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from collections.abc import Sequence
@@ -35,6 +36,7 @@ import numpy as np
 from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate
 from twotank_validation.calibrate.noise import noise_from_data
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
+from twotank_validation.core import lti
 from twotank_validation.core.band import Band, excited_lines
 from twotank_validation.core.datum import assess_periodicity, input_noise_rms, make_datum
 from twotank_validation.core.lti import Intersample
@@ -47,7 +49,7 @@ from twotank_validation.core.noise_budget import (
     noise_weights,
 )
 from twotank_validation.core.validate import validate, validation_band
-from twotank_validation.diagnose.inputs import Window
+from twotank_validation.diagnose.inputs import Window, split_windows
 from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
 from twotank_validation.identify.lpm import local_polynomial
@@ -341,19 +343,55 @@ def _weights(ident: Identification, *, cover: bool) -> tuple[FittedWeight, ...]:
     spread = 2.0 * np.sqrt(fr.var) if cover else 0.0
     need = (np.abs(fr.g - model) + spread) / np.maximum(np.abs(model), 1e-300)
     theta = 2 * math.pi * fr.lines / n
+    margin = config.margin if cover else 1.0
     out = []
     for c in range(fr.g.shape[1]):
-        out.append(
-            fit_weight(
-                theta,
-                np.max(need[:, c, :], axis=1),
-                ts_s,
-                margin=config.margin if cover else 1.0,
-                max_order=config.max_weight_order,
-                intersample=Intersample.EXACT,
-            )
+        required = np.max(need[:, c, :], axis=1)
+        # the weight's corners are fitted on at most _WEIGHT_LINES lines (each group's
+        # largest requirement), then its gain is raised until it covers every line
+        keep = _envelope(required, _WEIGHT_LINES)
+        fitted = fit_weight(
+            theta[keep],
+            required[keep],
+            ts_s,
+            margin=margin,
+            max_order=config.max_weight_order,
+            intersample=Intersample.EXACT,
         )
+        out.append(_covering(fitted, theta, required * margin, ts_s))
     return tuple(out)
+
+
+_WEIGHT_LINES = 60
+"""Most lines a weight's corner frequencies are fitted on (the fit is Nelder-Mead over every
+line given); the gain then covers every line."""
+
+
+def _envelope(required: np.ndarray, most: int) -> np.ndarray:
+    """(k,) int: the line of the largest requirement in each of ``most`` consecutive groups."""
+    if required.size <= most:
+        return np.arange(required.size)
+    groups = np.array_split(np.arange(required.size), most)
+    return np.array([g[int(np.argmax(required[g]))] for g in groups])
+
+
+def _covering(
+    fitted: FittedWeight, theta: np.ndarray, required: np.ndarray, ts_s: float
+) -> FittedWeight:
+    """``fitted`` with its gain raised (if need be) to cover ``required`` at every line."""
+    sys = lti.from_transfer_function(fitted.num, fitted.den)
+    mag = np.abs(lti.bin_response(sys, theta, ts_s, Intersample.EXACT)[:, 0, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        short = np.where(required > 0, required / mag, 0.0)
+    factor = max(float(np.max(short, initial=0.0)), 1.0)
+    if factor == 1.0 or not math.isfinite(factor):
+        return dataclasses.replace(fitted, magnitude=mag)
+    return dataclasses.replace(
+        fitted,
+        num=tuple(float(x) * factor for x in fitted.num),
+        gain=fitted.gain * factor,
+        magnitude=mag * factor,
+    )
 
 
 def _matrix(x: np.ndarray) -> list[list[float]]:
@@ -563,14 +601,16 @@ def identified_model(
         final_doc = model_document(
             ident, name, inputs, outputs, noise_weights=gains, shape_margin=margin
         )
+        fit_w, held_w = split_windows(windows)  # as calibrate split them
         final = model_from_dict(final_doc, name)
         beta = np.array(
             [
                 validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
-                for w in windows
+                for w in (*fit_w, *held_w)
             ]
         )
-        return IdentifiedModel(final_doc, fitted, beta, cal.judged.held_out, False)
+        held = np.array([False] * len(fit_w) + [True] * len(held_w))
+        return IdentifiedModel(final_doc, fitted, beta, held, False)
     if cal.document is None or cal.joint is None:
         raise IdentificationError(
             "no scaling of the perturbation weights explains the fit windows: the plant is "
