@@ -383,6 +383,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         args.bag,
         read_settings(args),
         orders=args.orders,
+        delays=args.delays,
         start=args.start,
         end=args.end,
         name=args.name,

@@ -381,6 +381,11 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
         default="1..8",
         help="the orders (states per input) tried, N or A..B; the MDL picks one (default 1..8)",
     )
+    parser.add_argument(
+        "--delays",
+        action="store_true",
+        help="fit a transport delay per output with the nominal (a process plant's dead time)",
+    )
     parser.add_argument("--name", default="identified", help="the identified model's name")
     parser.add_argument(
         "--start",

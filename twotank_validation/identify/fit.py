@@ -31,7 +31,7 @@ Units: frequencies in Hz, poles in rad/s, a response in output units per input u
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.optimize
@@ -72,6 +72,8 @@ class RationalFit:
         top_rad_s: the highest line's angular frequency (rad/s), the band's top.
         slowest_rad_s: the smallest decay rate a pole may have (rad/s): a hundredth of the
             lowest line's angular frequency; slower poles are not seen by the data.
+        delays_s: (n_y,) each output's transport delay (s; zeros when not fitted).
+        delay_std_s: (n_y,) their standard deviations (s).
     """
 
     poles: np.ndarray
@@ -83,6 +85,8 @@ class RationalFit:
     weighted: bool
     top_rad_s: float
     slowest_rad_s: float
+    delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    delay_std_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def order(self) -> int:
@@ -93,7 +97,8 @@ class RationalFit:
     def n_par(self) -> int:
         """Real parameters: the poles and every entry's residues and feedthrough."""
         n_y, n_u = self.d.shape
-        return self.order * (1 + n_y * n_u) + n_y * n_u
+        n_tau = n_y if np.any(self.delays_s) else 0
+        return self.order * (1 + n_y * n_u) + n_y * n_u + n_tau
 
     @property
     def dof(self) -> int:
@@ -117,6 +122,8 @@ class RationalFit:
             out += r[None] / (s[:, None, None] - p)
             if p.imag > 0:
                 out += np.conj(r)[None] / (s[:, None, None] - np.conj(p))
+        if self.delays_s.size and np.any(self.delays_s):
+            out *= np.exp(-s[:, None, None] * self.delays_s[None, :, None])
         return out
 
     def state_space(self) -> StateSpace:
@@ -131,7 +138,8 @@ class RationalFit:
         a = np.kron(np.eye(n_u), a_blk)
         b = np.kron(np.eye(n_u), b_blk[:, None])
         c = np.concatenate([coeff[:, :, j].T for j in range(n_u)], axis=1)
-        return StateSpace(a, b, c, self.d.astype(float))
+        delays = tuple(float(t) for t in self.delays_s) if np.any(self.delays_s) else ()
+        return StateSpace(a, b, c, self.d.astype(float), output_delays_s=delays)
 
     @property
     def supported(self) -> bool:
@@ -315,13 +323,20 @@ def _unpack(x: np.ndarray, is_pair: np.ndarray) -> np.ndarray:
     return out
 
 
-def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
+def fit_rational(fr: FrequencyResponse, order: int, *, delays: bool = False) -> RationalFit:
     """A stable rational model of ``order`` states per input fitted to the response.
+
+    With ``delays``, each output also gets a transport delay ``tau_c`` (``G_c(s) e^{-s tau_c}``,
+    a process plant's dead time): the delays start from a grid search per output (the
+    rational part fitted by vector fitting to the data with the trial delay undone) and are
+    refined with the poles; the residues stay linear (the delay undone from the data).
 
     Args:
         fr: the response; its ``var`` weights the fit (where it is NaN or zero, relative
             weights ``1 / |H|`` are used and :attr:`RationalFit.weighted` is False).
         order: states per input, ``1 <= order`` and fewer parameters than equations.
+        delays: fit one transport delay per output (0 to a quarter of the lowest line's
+            period).
 
     Raises:
         IdentificationError: an order the data cannot support (as many parameters as
@@ -336,7 +351,7 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
     floor = 1e-12 * float(np.max(np.abs(h)))
     w = 1.0 / np.sqrt(var) if weighted else 1.0 / np.maximum(np.abs(h), floor)
     n_eq = 2 * h.size
-    n_par = order * (1 + h.shape[1]) + h.shape[1]
+    n_par = order * (1 + h.shape[1]) + h.shape[1] + (n_y if delays else 0)
     if order < 1 or n_par >= n_eq:
         raise IdentificationError(
             f"order {order} needs {n_par} parameters and the response gives {n_eq} equations: "
@@ -346,12 +361,43 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
     s = 2j * math.pi * fr.freqs_hz / scale
     bottom = float(np.min(fr.freqs_hz)) * 2 * math.pi / scale
     slowest = _SLOWEST * bottom  # a pole far below the band is not seen by the data
+    omega = 2 * math.pi * fr.freqs_hz
+    tau_max = 0.25 / float(np.min(fr.freqs_hz)) if delays else 0.0
+    tau0 = (
+        _delay_grid(
+            s,
+            h,
+            w,
+            order=order,
+            bottom=bottom,
+            slowest=slowest,
+            omega=omega,
+            n_y=n_y,
+            n_u=n_u,
+            tau_max=tau_max,
+        )
+        if delays
+        else np.zeros(0)
+    )
+    h0 = _undelayed(h, omega, tau0, n_u)
     # vector fitting from each start; the refinement from the best of them only
-    starts = [_vector_fit(s, h, w, start, slowest) for start in _start_sets(order, bottom)]
-    costs = [float(np.sum(np.abs(_linear(s, h, w, p)[1]) ** 2)) for p in starts]
-    sol, is_pair = _refine(s, h, w, starts[int(np.argmin(costs))], slowest)
-    poles = _unpack(sol.x, is_pair)
-    coef, r, _ = _linear(s, h, w, poles)
+    starts = [_vector_fit(s, h0, w, start, slowest) for start in _start_sets(order, bottom)]
+    costs = [float(np.sum(np.abs(_linear(s, h0, w, p)[1]) ** 2)) for p in starts]
+    sol, is_pair = _refine(
+        s,
+        h,
+        w,
+        starts[int(np.argmin(costs))],
+        slowest,
+        omega=omega,
+        tau0=tau0,
+        n_u=n_u,
+        tau_max=tau_max,
+    )
+    n_tau = tau0.size
+    poles = _unpack(sol.x[: sol.x.size - n_tau], is_pair)
+    taus = sol.x[sol.x.size - n_tau :] if n_tau else np.zeros(0)
+    coef, r, _ = _linear(s, _undelayed(h, omega, taus, n_u), w, poles)
     order_rows = coef[:-1]
     residues = _residues(poles, order_rows.reshape(-1, n_y, n_u)) * scale
     # the variable-projection Jacobian gives the poles' covariance (Golub & Pereyra 2003);
@@ -360,7 +406,7 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
     cov = np.linalg.pinv(jac.T @ jac) / 2.0 * (1.0 if weighted else float("nan"))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
     std = sd[: poles.size].astype(complex)
-    std[is_pair] += 1j * sd[poles.size :]
+    std[is_pair] += 1j * sd[poles.size : sd.size - n_tau]
     return RationalFit(
         poles=poles * scale,
         pole_std=std,
@@ -371,7 +417,45 @@ def fit_rational(fr: FrequencyResponse, order: int) -> RationalFit:
         weighted=weighted,
         top_rad_s=scale,
         slowest_rad_s=slowest * scale,
+        delays_s=taus.copy() if n_tau else np.zeros(n_y),
+        delay_std_s=sd[sd.size - n_tau :] / scale if n_tau else np.zeros(n_y),
     )
+
+
+def _undelayed(h: np.ndarray, omega: np.ndarray, taus: np.ndarray, n_u: int) -> np.ndarray:
+    """(L, E) the entries with each output's delay undone (``h e^{+j omega tau_c}``)."""
+    if taus.size == 0:
+        return h
+    per_entry = np.repeat(taus, n_u)  # entry e = c n_u + i
+    return h * np.exp(1j * omega[:, None] * per_entry[None, :])
+
+
+def _delay_grid(
+    s: np.ndarray,
+    h: np.ndarray,
+    w: np.ndarray,
+    *,
+    order: int,
+    bottom: float,
+    slowest: float,
+    omega: np.ndarray,
+    n_y: int,
+    n_u: int,
+    tau_max: float,
+) -> np.ndarray:
+    """(n_y,) each output's starting delay: the best of a grid, its entries fitted alone."""
+    grid = np.linspace(0.0, tau_max, 25)
+    out = np.zeros(n_y)
+    for c in range(n_y):
+        cols = slice(c * n_u, (c + 1) * n_u)
+        costs = []
+        for tau in grid:
+            hc = h[:, cols] * np.exp(1j * omega * tau)[:, None]
+            start = _start_sets(order, bottom)[0]
+            poles = _vector_fit(s, hc, w[:, cols], start, slowest)
+            costs.append(float(np.sum(np.abs(_linear(s, hc, w[:, cols], poles)[1]) ** 2)))
+        out[c] = grid[int(np.argmin(costs))]
+    return out
 
 
 def _vector_fit(
@@ -385,16 +469,33 @@ def _vector_fit(
 
 
 def _refine(
-    s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray, slowest: float
+    s: np.ndarray,
+    h: np.ndarray,
+    w: np.ndarray,
+    poles: np.ndarray,
+    slowest: float,
+    *,
+    omega: np.ndarray,
+    tau0: np.ndarray,
+    n_u: int,
+    tau_max: float,
 ) -> tuple[scipy.optimize.OptimizeResult, np.ndarray]:
-    """The maximum-likelihood refinement of ``poles`` in the bounds."""
+    """The maximum-likelihood refinement of ``poles`` (and the delays ``tau0``) in bounds."""
     is_pair = poles.imag > 0
-    lower = np.concatenate([np.full(poles.size, -50.0), np.zeros(int(is_pair.sum()))])
-    upper = np.concatenate([np.full(poles.size, -slowest), np.full(int(is_pair.sum()), _TOP)])
-    x0 = np.clip(_pack(poles), lower + 1e-12, upper - 1e-12)
+    n_tau = tau0.size
+    lower = np.concatenate(
+        [np.full(poles.size, -50.0), np.zeros(int(is_pair.sum())), np.zeros(n_tau)]
+    )
+    upper = np.concatenate(
+        [np.full(poles.size, -slowest), np.full(int(is_pair.sum()), _TOP),
+         np.full(n_tau, max(tau_max, 1e-12))]
+    )  # fmt: skip
+    x0 = np.clip(np.concatenate([_pack(poles), tau0]), lower + 1e-12, upper - 1e-12)
 
     def residual(x: np.ndarray) -> np.ndarray:
-        _, r, _ = _linear(s, h, w, _unpack(x, is_pair))
+        taus = x[x.size - n_tau :] if n_tau else tau0
+        p = _unpack(x[: x.size - n_tau], is_pair)
+        _, r, _ = _linear(s, _undelayed(h, omega, taus, n_u), w, p)
         return _ri(r).ravel()
 
     sol = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale="jac")
@@ -408,7 +509,9 @@ def _clip(poles: np.ndarray, slowest: float) -> np.ndarray:
     return _tidy(re + 1j * np.where(poles.imag > 0, im, 0.0))
 
 
-def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, list[RationalFit]]:
+def select_order(
+    fr: FrequencyResponse, orders: range, *, delays: bool = False
+) -> tuple[RationalFit, list[RationalFit]]:
     """The fit of the order with the smallest MDL cost, and every order's fit.
 
     ``V_mdl = V (1 + n_par ln(n_eq) / n_eq)`` among the fits whose every pole the data
@@ -418,6 +521,9 @@ def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, lis
     once two orders in a row have not lowered the best supported cost (every fit tried is
     returned).
 
+    ``delays``: each order's fit also has one transport delay per output
+    (:func:`fit_rational`).
+
     Raises:
         IdentificationError: no order in the range can be fitted.
     """
@@ -425,7 +531,7 @@ def select_order(fr: FrequencyResponse, orders: range) -> tuple[RationalFit, lis
     best_mdl, since = math.inf, 0
     for order in orders:
         try:
-            fit = fit_rational(fr, order)
+            fit = fit_rational(fr, order, delays=delays)
         except IdentificationError:
             continue
         fits.append(fit)

@@ -95,6 +95,8 @@ class IdentifyConfig:
         lpm_degree: the local polynomials' degree.
         margin: the perturbation weight covers this times the fit's error (with 2 σ).
         max_weight_order: largest order of the perturbation weight.
+        delays: fit a transport delay per output with the nominal (a process plant's dead
+            time; written as the nominal's ``output_delays_s``).
     """
 
     orders: range = field(default_factory=lambda: range(1, 9))
@@ -102,6 +104,7 @@ class IdentifyConfig:
     lpm_degree: int = 2
     margin: float = 1.2
     max_weight_order: int = 2
+    delays: bool = False
 
 
 @dataclass(frozen=True)
@@ -299,7 +302,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     else:
         fr, var_noise, est = _periodic(windows, lines)
         notes.append(f"{est.value}: averaged over whole periods")
-    best, fits = select_order(fr, config.orders)
+    best, fits = select_order(fr, config.orders, delays=config.delays)
     if best.cost_ratio > 4.0:
         notes.append(
             f"the order-{best.order} fit leaves {best.cost_ratio:.1f} times the residual the "
@@ -434,6 +437,8 @@ def model_document(
         },
         "band": f"{float(freqs.min()):.6g}:{float(freqs.max()):.6g}",
     }
+    if ss.output_delays_s:
+        doc["nominal"]["ss"]["output_delays_s"] = [float(t) for t in ss.output_delays_s]
     perturbations = []
     weights = ident.covers if cover else ident.shapes
     for c, (out, w) in enumerate(zip(outputs, weights, strict=True)):

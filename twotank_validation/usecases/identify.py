@@ -63,6 +63,7 @@ class IdentifyJob:
         recording: the bag or table.
         read: how to read it (the interface map names the channels; no model is needed).
         orders: the orders tried (``"N"`` or ``"A..B"``).
+        delays: fit a transport delay per output with the nominal.
         start: use the windows from this time (s from the start, or ISO 8601); None: all.
         end: up to this time; None: to the end.
         name: the identified model's name.
@@ -74,6 +75,7 @@ class IdentifyJob:
     recording: str
     read: ReadSettings = field(default_factory=ReadSettings)
     orders: str = "1..8"
+    delays: bool = False
     start: float | str | None = None
     end: float | str | None = None
     name: str = "identified"
@@ -130,7 +132,7 @@ class IdentifyJob:
         first = f"{len(windows)} non-overlapping window(s) of whole periods in {self.recording}"
         if show is not None:
             show(first)
-        config = IdentifyConfig(orders=orders, band=band)
+        config = IdentifyConfig(orders=orders, band=band, delays=self.delays)
         ident = identify_windows(windows, config)
         made = identified_model(ident, windows, self.name, imap.input_names, imap.output_names)
         for note in ident.notes:
@@ -187,6 +189,8 @@ def identification_json(
             "poles_rad_s": _c(fit.poles),
             "pole_std_rad_s": _c(fit.pole_std),
             "cost_ratio": fit.cost_ratio,
+            "delays_s": fit.delays_s.tolist(),
+            "delay_std_s": fit.delay_std_s.tolist(),
             "relative_error_max": float(np.max(ident.relative_error)),
             "orders": [
                 {"order": f.order, "cost_ratio": f.cost_ratio, "n_par": f.n_par} for f in ident.fits
