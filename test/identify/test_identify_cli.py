@@ -128,3 +128,23 @@ def test_bad_requests_are_clear_errors(tmp_path: Path, capsys, extra: list[str],
     assert code == cli.EXIT_ERROR
     assert said in err
     assert "Traceback" not in err
+
+
+def test_delays_are_written_into_the_model_file_and_it_holds_on_held_out_data(
+    tmp_path: Path,
+) -> None:
+    """The delays fitted (here they absorb the hold's half sample and what order 3 leaves)
+    are the model file's ``output_delays_s``, and that file validates a held-out record."""
+    rec, held, js, model = (tmp_path / n for n in ("r.csv", "h.csv", "r.json", "m.yaml"))
+    _simulate(rec, "--noise-seed", "1")
+    _simulate(held, "--noise-seed", "2")
+    code = cli.main(
+        ["identify", str(rec), "--map", str(rec.with_suffix(".map.yaml")), "--ts", "0.1",
+         "--period", "256", "--orders", "2..3", "--delays", "--quiet", "--json", str(js),
+         "--out-model", str(model)]
+    )  # fmt: skip
+    assert code == cli.EXIT_OK
+    fit = json.loads(js.read_text())["fit"]
+    written = load_model(model).nominal.output_delays_s
+    assert written == pytest.approx(fit["delays_s"])
+    assert max(_beta(held, model, tmp_path, "--ts", "0.1", "--period", "256")) < 1.0
