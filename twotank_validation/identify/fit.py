@@ -446,12 +446,12 @@ def _delay_grid(
     """(n_y,) each output's starting delay: the best of a grid, its entries fitted alone."""
     grid = np.linspace(0.0, tau_max, 25)
     out = np.zeros(n_y)
+    start = _start_sets(order, bottom)[0]
     for c in range(n_y):
         cols = slice(c * n_u, (c + 1) * n_u)
         costs = []
         for tau in grid:
             hc = h[:, cols] * np.exp(1j * omega * tau)[:, None]
-            start = _start_sets(order, bottom)[0]
             poles = _vector_fit(s, hc, w[:, cols], start, slowest)
             costs.append(float(np.sum(np.abs(_linear(s, hc, w[:, cols], poles)[1]) ** 2)))
         out[c] = grid[int(np.argmin(costs))]

@@ -38,7 +38,7 @@ from twotank_validation.calibrate.noise import noise_from_data
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core import lti
 from twotank_validation.core.band import Band, excited_lines
-from twotank_validation.core.datum import assess_periodicity, input_noise_rms, make_datum
+from twotank_validation.core.datum import assess_periodicity
 from twotank_validation.core.lti import Intersample
 from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.core.noise_budget import (
@@ -118,8 +118,6 @@ class Identification:
             for the best linear approximation, where the rest is distortion).
         fit: the chosen nominal.
         fits: every order's fit.
-        noise_rms: (n_y,) each output's noise RMS from the period spread (model units;
-            NaN with one period).
         ts_s: sample period (s).
         period_samples: samples per period.
         n_windows: windows used.
@@ -131,7 +129,6 @@ class Identification:
     var_noise: np.ndarray
     fit: RationalFit
     fits: tuple[RationalFit, ...]
-    noise_rms: np.ndarray
     ts_s: float
     period_samples: int
     n_windows: int
@@ -314,18 +311,12 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         notes.append(f"the fit has resonances above the band: {best.spurious(top)}")
     n = windows[0].period_samples
     ts = windows[0].ts_s
-    if one_period:
-        noise = np.full(windows[0].y.shape[1], np.nan)
-    else:
-        y = np.concatenate([w.y for w in windows])
-        noise = input_noise_rms(y, n)
     return Identification(
         response=fr,
         estimator=est,
         var_noise=var_noise,
         fit=best,
         fits=tuple(fits),
-        noise_rms=noise,
         ts_s=ts,
         period_samples=n,
         n_windows=len(windows),
@@ -518,6 +509,11 @@ def _one_period_spread(fr: FrequencyResponse, n: int) -> NoiseSpread:
     return NoiseSpread(var, nearest, fr.noise_var, float(max(fr.n_periods - 1, 1)), 1)
 
 
+def _betas(windows: Sequence[Window], model: LFTModel) -> np.ndarray:
+    """(n,) β of the model on each window, its datum built as ``validate`` builds it."""
+    return np.array([validate(w.datum(), model).beta for w in windows])
+
+
 def _can_hold_out(windows: Sequence[Window]) -> bool:
     return len(windows) >= 2 or windows[0].n_periods >= 2
 
@@ -557,7 +553,7 @@ def identified_model(
                 windows, draft, quantile=quantile, budget=budget, source=name
             ).fit
         else:
-            first = make_datum(windows[0].u, windows[0].y, ts_s=ident.ts_s, period_samples=n)
+            first = windows[0].datum()
             fitted = noise_weights(
                 _one_period_spread(ident.response, n),
                 first.bin_weights,
@@ -571,24 +567,12 @@ def identified_model(
     gains = fitted.gains.tolist()
     if not _can_hold_out(windows):
         doc = model_document(ident, name, inputs, outputs, noise_weights=gains, cover=True)
-        final = model_from_dict(doc, name)
-        beta = np.array(
-            [
-                validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
-                for w in windows
-            ]
-        )
+        beta = _betas(windows, model_from_dict(doc, name))
         return IdentifiedModel(doc, fitted, beta, np.zeros(len(windows), bool), False)
     doc = model_document(ident, name, inputs, outputs, noise_weights=gains)
     blocks = [p["name"] for p in doc.get("perturbations", [])]
     if not blocks:
-        final = model_from_dict(doc, name)
-        beta = np.array(
-            [
-                validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
-                for w in windows
-            ]
-        )
+        beta = _betas(windows, model_from_dict(doc, name))
         return IdentifiedModel(doc, fitted, beta, np.zeros(len(windows), bool), False)
     try:
         cal = calibrate(
@@ -607,13 +591,7 @@ def identified_model(
             ident, name, inputs, outputs, noise_weights=gains, shape_margin=margin
         )
         fit_w, held_w = split_windows(windows)  # as calibrate split them
-        final = model_from_dict(final_doc, name)
-        beta = np.array(
-            [
-                validate(make_datum(w.u, w.y, ts_s=w.ts_s, period_samples=n), final).beta
-                for w in (*fit_w, *held_w)
-            ]
-        )
+        beta = _betas([*fit_w, *held_w], model_from_dict(final_doc, name))
         held = np.array([False] * len(fit_w) + [True] * len(held_w))
         return IdentifiedModel(final_doc, fitted, beta, held, False)
     if cal.document is None or cal.joint is None:
