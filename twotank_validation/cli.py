@@ -54,7 +54,9 @@ from twotank_validation.errors import (
 
 if TYPE_CHECKING:
     from twotank_validation.usecases import (
+        CalibrateJob,
         DiagnoseJob,
+        IdentifyJob,
         Message,
         Outcome,
         ValidateJob,
@@ -306,16 +308,21 @@ class _ReplayBar:
             self._bar.close()
 
 
+def _run_with_bar(job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob, quiet: bool) -> int:
+    """Run one recording's job with the replay's progress bar; print its outcome; the code."""
+    bar = _ReplayBar(quiet)
+    try:
+        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
+    finally:
+        bar.close()
+    return _show(outcome, bar.shown)
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
-    bar = _ReplayBar(args.quiet)
-    try:
-        outcome = _validate_job(args).run(say=_say, progress=bar.progress, show=bar.show)
-    finally:
-        bar.close()
-    return _show(outcome, bar.shown)
+    return _run_with_bar(_validate_job(args), args.quiet)
 
 
 def _diagnose_job(args: argparse.Namespace, *, fleet: bool = False) -> DiagnoseJob:
@@ -340,12 +347,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if not _single_recording(args):
         check_fleet_options(args)
         return _cmd_fleet(args, _diagnose_job(args, fleet=True))
-    bar = _ReplayBar(args.quiet)
-    try:
-        outcome = _diagnose_job(args).run(say=_say, progress=bar.progress, show=bar.show)
-    finally:
-        bar.close()
-    return _show(outcome, bar.shown)
+    return _run_with_bar(_diagnose_job(args), args.quiet)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -367,12 +369,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         noise_quantile=args.noise_quantile,
         noise_budget=args.noise_budget,
     )
-    bar = _ReplayBar(args.quiet)
-    try:
-        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
-    finally:
-        bar.close()
-    return _show(outcome, bar.shown)
+    return _run_with_bar(job, args.quiet)
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
@@ -391,12 +388,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         report_dir=args.report,
         out_model=args.out_model,
     )
-    bar = _ReplayBar(args.quiet)
-    try:
-        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
-    finally:
-        bar.close()
-    return _show(outcome, bar.shown)
+    return _run_with_bar(job, args.quiet)
 
 
 # --------------------------------------------------------------------------- many recordings
