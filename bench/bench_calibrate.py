@@ -30,7 +30,6 @@ where every bin with the block's weight at zero fell back to the per-bin SDP (ru
 from __future__ import annotations
 
 import argparse
-import copy
 import dataclasses
 import statistics
 import subprocess
@@ -42,12 +41,10 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
-import scipy.signal
-import yaml
 
+from tools import one_by_three_record
 from twotank_validation import bags, replay
 from twotank_validation.calibrate import calibrate, calibrate_recording
-from twotank_validation.core import lti
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.fast import dispatch
 from twotank_validation.core.model import load_model_document, model_from_dict
@@ -60,8 +57,7 @@ GOAL = 20.0  # calibration in validations' worth of time
 
 def _full_block_case(input_noise: float = 0.0) -> tuple[dict, list[Window]]:
     """The 1 x 3 model with a full 3 x 3 block and 4 windows of 16,384 samples (module doc)."""
-    root = Path(__file__).resolve().parent.parent
-    doc = yaml.safe_load((root / "test/data/models/one_by_three.yaml").read_text())
+    doc = one_by_three_record.model_document()
     doc["perturbations"] = [
         {
             "name": "outputs_3x3",
@@ -70,19 +66,8 @@ def _full_block_case(input_noise: float = 0.0) -> tuple[dict, list[Window]]:
             "weight": {"gain": 0.05},
         }
     ]
-    period, ts = 8192, 0.01
-    rng = np.random.default_rng(0)
-    lines = np.arange(2, 1500)
-    phase = rng.uniform(0.0, 2 * np.pi, lines.size)
-    k = np.arange(period)
-    one = np.cos(2 * np.pi * np.outer(k, lines) / period + phase).sum(axis=1)
-    u = np.tile(one / one.std(), 10)[:, None]
-    true = copy.deepcopy(doc)
-    true["nominal"]["ss"]["C"] = [[1.1, 0.0], [0.0, 0.9], [0.35, 0.6]]
-    sys = lti.discretise(model_from_dict(true, "true").nominal, ts)
-    _, y, _ = scipy.signal.dlsim((sys.a, sys.b, sys.c, sys.d, ts), u)
-    y = y + 0.005 * rng.standard_normal(y.shape)
-    u = u + input_noise * rng.standard_normal(u.shape)  # a measured input: every bin driven
+    period, ts = one_by_three_record.PERIOD, one_by_three_record.TS_S
+    u, y = one_by_three_record.record(10, input_noise)
     n = 2 * period
     windows = [
         Window(u[(i + 1) * n : (i + 2) * n], y[(i + 1) * n : (i + 2) * n], ts, period,

@@ -23,19 +23,14 @@ Prints the medians over the repeats and their ratio against the goal.
 from __future__ import annotations
 
 import argparse
-import copy
 import dataclasses
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-import scipy.signal
-import yaml
-
+from tools import one_by_three_record
 from twotank_validation import bags, replay
-from twotank_validation.core import lti
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model, model_from_dict
 from twotank_validation.core.validate import validate
@@ -91,20 +86,9 @@ def rig(args: argparse.Namespace) -> None:
 
 def one_by_three(args: argparse.Namespace) -> None:
     """The 8-period 1 x 3 record (module doc)."""
-    root = Path(__file__).resolve().parent.parent
-    doc = yaml.safe_load((root / "test/data/models/one_by_three.yaml").read_text())
-    period, ts = 8192, 0.01
-    rng = np.random.default_rng(0)
-    lines = np.arange(2, 1500)
-    phase = rng.uniform(0.0, 2 * np.pi, lines.size)
-    k = np.arange(period)
-    one = np.cos(2 * np.pi * np.outer(k, lines) / period + phase).sum(axis=1)
-    u = np.tile(one / one.std(), 10)[:, None]
-    true = copy.deepcopy(doc)
-    true["nominal"]["ss"]["C"] = [[1.1, 0.0], [0.0, 0.9], [0.35, 0.6]]
-    sys = lti.discretise(model_from_dict(true, "true").nominal, ts)
-    _, y, _ = scipy.signal.dlsim((sys.a, sys.b, sys.c, sys.d, ts), u)
-    y = y + 0.005 * rng.standard_normal(y.shape)
+    doc = one_by_three_record.model_document()
+    period, ts = one_by_three_record.PERIOD, one_by_three_record.TS_S
+    u, y = one_by_three_record.record(10)
     keep = slice(2 * period, 10 * period)  # 8 periods after 2 of settling
     window = Window(u[keep], y[keep], ts, period)
     model = model_from_dict(doc, "one_by_three")
