@@ -35,6 +35,12 @@ def _weight_magnitudes(made: IdentifiedModel, outputs: Sequence[str], f: np.ndar
     return out
 
 
+def _nominal_label(ident: Identification) -> str:
+    if ident.grey_box is not None:
+        return "nominal (grey box, linearised)"
+    return f"nominal (order {ident.fit.order})"
+
+
 def write_identify_report(
     ident: Identification,
     made: IdentifiedModel,
@@ -47,7 +53,7 @@ def write_identify_report(
     out.mkdir(parents=True, exist_ok=True)
     fr = ident.response
     f = fr.freqs_hz
-    model = ident.fit.response(f)
+    model = ident.nominal.response(f)
     n_y, n_u = fr.g.shape[1:]
     fig, axes = plt.subplots(
         2 * n_y, n_u, figsize=(5.5 * n_u, 3.2 * 2 * n_y), squeeze=False, sharex=True
@@ -81,9 +87,7 @@ def write_identify_report(
                 )
             mag_ax.loglog(f, mag, ".", color="C0", ms=3, label="measured")
             fit = np.abs(model[:, c, i])
-            mag_ax.loglog(
-                f, fit, "-", color="C3", lw=1.2, label=f"nominal (order {ident.fit.order})"
-            )
+            mag_ax.loglog(f, fit, "-", color="C3", lw=1.2, label=_nominal_label(ident))
             mag_ax.fill_between(
                 f,
                 fit * np.maximum(1 - wmag, 1e-3),

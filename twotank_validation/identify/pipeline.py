@@ -52,6 +52,13 @@ from twotank_validation.core.validate import validate, validation_band
 from twotank_validation.diagnose.inputs import Window, split_windows
 from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
+from twotank_validation.identify.greybox import (
+    ParameterStatus,
+    GreyBoxConfig,
+    GreyBoxFit,
+    GreyBoxModel,
+    fit_two_tank,
+)
 from twotank_validation.identify.lpm import local_polynomial
 from twotank_validation.identify.nonparametric import (
     FrequencyResponse,
@@ -97,6 +104,9 @@ class IdentifyConfig:
         max_weight_order: largest order of the perturbation weight.
         delays: fit a transport delay per output with the nominal (a process plant's dead
             time; written as the nominal's ``output_delays_s``).
+        grey_box: also fit this first-principles model's physical parameters to the response
+            and take its linearisation as the nominal (docs/theory.md §17); None: the
+            black-box fit is the nominal.
     """
 
     orders: range = field(default_factory=lambda: range(1, 9))
@@ -105,6 +115,7 @@ class IdentifyConfig:
     margin: float = 1.2
     max_weight_order: int = 2
     delays: bool = False
+    grey_box: GreyBoxModel | None = None
 
 
 @dataclass(frozen=True)
@@ -122,6 +133,9 @@ class Identification:
         period_samples: samples per period.
         n_windows: windows used.
         notes: what a user should know (the estimator's choice, a poor fit, dropped lines).
+        grey_box: the two-tank rig's physical parameters fitted to the response
+            (:mod:`twotank_validation.identify.greybox`); when set, its linearisation is the
+            nominal the document and the weights use (``fit`` stays the black-box fit).
     """
 
     response: FrequencyResponse
@@ -134,6 +148,21 @@ class Identification:
     n_windows: int
     config: IdentifyConfig = field(default_factory=IdentifyConfig)
     notes: tuple[str, ...] = ()
+    grey_box: GreyBoxFit | None = None
+
+    @property
+    def nominal(self) -> RationalFit | GreyBoxFit:
+        """The nominal the model set is built on: the grey box when fitted, else ``fit``."""
+        return self.fit if self.grey_box is None else self.grey_box
+
+    @property
+    def intersample(self) -> Intersample:
+        """The nominal's intersample assumption.
+
+        ``exact`` for a fit to the sampled response, ``zoh`` for the grey box (a continuous
+        plant driven by held commands).
+        """
+        return Intersample.EXACT if self.grey_box is None else self.grey_box.intersample
 
     @cached_property
     def shapes(self) -> tuple[FittedWeight, ...]:
@@ -155,7 +184,7 @@ class Identification:
     @property
     def relative_error(self) -> np.ndarray:
         """(L, n_y) the fit's largest relative error over the inputs at each line."""
-        model = self.fit.response(self.response.freqs_hz)
+        model = self.nominal.response(self.response.freqs_hz)
         err = np.abs(self.response.g - model)
         return np.max(err / np.maximum(np.abs(model), 1e-300), axis=2)
 
@@ -311,6 +340,22 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         notes.append(f"the fit has resonances above the band: {best.spurious(top)}")
     n = windows[0].period_samples
     ts = windows[0].ts_s
+    grey = None
+    if config.grey_box is GreyBoxModel.TWO_TANK:
+        # the operating point is measured: the outputs' mean over the windows
+        y = np.concatenate([w.y for w in windows])
+        grey = fit_two_tank(
+            fr, ts, GreyBoxConfig(height=float(y[:, 0].mean()), temperature=float(y[:, 1].mean()))
+        )
+        undetermined = [e.name for e in grey.estimates if e.status is ParameterStatus.UNDETERMINED]
+        notes.append(
+            f"grey box two-tank: residual {grey.cost_ratio:.2f} x what σ explains"
+            + (
+                f"; not determined by the data, pinned at the prior: {undetermined}"
+                if undetermined
+                else ""
+            )
+        )
     return Identification(
         response=fr,
         estimator=est,
@@ -322,6 +367,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         n_windows=len(windows),
         config=config,
         notes=tuple(notes),
+        grey_box=grey,
     )
 
 
@@ -331,7 +377,7 @@ def _weights(ident: Identification, *, cover: bool) -> tuple[FittedWeight, ...]:
     ``cover``: over ``(|H - G| + 2 σ) / |G|`` times the margin (the response's uncertainty
     counted as error); else over ``|H - G| / |G|`` (a shape, margin 1).
     """
-    fr, fit, config = ident.response, ident.fit, ident.config
+    fr, fit, config = ident.response, ident.nominal, ident.config
     ts_s, n = ident.ts_s, ident.period_samples
     model = fit.response(fr.freqs_hz)
     spread = 2.0 * np.sqrt(fr.var) if cover else 0.0
@@ -350,9 +396,9 @@ def _weights(ident: Identification, *, cover: bool) -> tuple[FittedWeight, ...]:
             ts_s,
             margin=margin,
             max_order=config.max_weight_order,
-            intersample=Intersample.EXACT,
+            intersample=ident.intersample,
         )
-        out.append(_covering(fitted, theta, required * margin, ts_s))
+        out.append(_covering(fitted, theta, required * margin, ts_s, ident.intersample))
     return tuple(out)
 
 
@@ -370,11 +416,15 @@ def _envelope(required: np.ndarray, most: int) -> np.ndarray:
 
 
 def _covering(
-    fitted: FittedWeight, theta: np.ndarray, required: np.ndarray, ts_s: float
+    fitted: FittedWeight,
+    theta: np.ndarray,
+    required: np.ndarray,
+    ts_s: float,
+    intersample: Intersample = Intersample.EXACT,
 ) -> FittedWeight:
     """``fitted`` with its gain raised (if need be) to cover ``required`` at every line."""
     sys = lti.from_transfer_function(fitted.num, fitted.den)
-    mag = np.abs(lti.bin_response(sys, theta, ts_s, Intersample.EXACT)[:, 0, 0])
+    mag = np.abs(lti.bin_response(sys, theta, ts_s, intersample)[:, 0, 0])
     with np.errstate(divide="ignore", invalid="ignore"):
         short = np.where(required > 0, required / mag, 0.0)
     factor = max(float(np.max(short, initial=0.0)), 1.0)
@@ -406,23 +456,31 @@ def model_document(
 
     The nominal is the fit's state space (continuous, s), evaluated exactly at the bins
     (``intersample: exact``): it was fitted to the sampled response as measured, so a hold
-    applied again would count the sampling twice (docs/theory.md §14, §16). One
+    applied again would count the sampling twice (docs/theory.md §14, §16). With a grey box
+    (:attr:`Identification.grey_box`) the nominal is the rig's linearisation, a continuous
+    plant driven by held commands (``intersample: zoh``, docs/theory.md §17). One
     output-multiplicative perturbation per output with its fitted weight; noise on every
     output with the flat weights ``noise_weights`` (model units, one per output); the band
     the identification used. ``cover``: the perturbation weights are the covers (what the
     response demands), else the shapes times ``shape_margin``.
     """
-    ss = ident.fit.state_space()
+    ss = ident.nominal.state_space()
     freqs = ident.response.freqs_hz
+    what = (
+        f"order {ident.fit.order} per input"
+        if ident.grey_box is None
+        else f"grey box two-tank linearised at h1={ident.grey_box.op.height:.4g}, "
+        f"t1={ident.grey_box.op.temperature:.4g}"
+    )
     doc: dict[str, Any] = {
         "name": name,
         "description": (
-            f"identified: order {ident.fit.order} per input, {ident.estimator.value}, "
+            f"identified: {what}, {ident.estimator.value}, "
             f"{freqs.size} lines {freqs.min():.4g}..{freqs.max():.4g} Hz"
         ),
         "inputs": list(inputs),
         "outputs": list(outputs),
-        "intersample": "exact",
+        "intersample": ident.intersample.value,
         "nominal": {
             "ss": {"A": _matrix(ss.a), "B": _matrix(ss.b), "C": _matrix(ss.c), "D": _matrix(ss.d)}
         },
