@@ -66,8 +66,10 @@ def experiment(
 
 @cache
 def windows(periods: int = 3, seed: int = 0) -> tuple[Window, Window]:
-    """The recorded periods of the two experiments, one window each (noise seeds 2 seed and
-    2 seed + 1)."""
+    """The recorded periods of the two experiments, one window each.
+
+    Their sensor noise seeds are ``2 seed`` and ``2 seed + 1``.
+    """
     out = []
     for k, sign in enumerate((1.0, -1.0)):
         u, y = experiment(sign, periods, 2 * seed + k)

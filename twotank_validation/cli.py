@@ -381,6 +381,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         read_settings(args),
         orders=args.orders,
         delays=args.delays,
+        grey_box=args.grey_box,
         start=args.start,
         end=args.end,
         name=args.name,

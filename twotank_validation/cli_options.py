@@ -386,6 +386,14 @@ def add_identify_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="fit a transport delay per output with the nominal (a process plant's dead time)",
     )
+    parser.add_argument(
+        "--grey-box",
+        metavar="MODEL",
+        help="fit this first-principles model's physical parameters (two-tank) to the "
+        "response and take "
+        "its linearisation as the nominal (two-tank: inputs hot, cold valve; outputs height, "
+        "temperature; docs/identify.md)",
+    )
     parser.add_argument("--name", default="identified", help="the identified model's name")
     parser.add_argument(
         "--start",

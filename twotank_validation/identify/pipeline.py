@@ -53,10 +53,10 @@ from twotank_validation.diagnose.inputs import Window, split_windows
 from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
 from twotank_validation.identify.greybox import (
-    ParameterStatus,
     GreyBoxConfig,
     GreyBoxFit,
     GreyBoxModel,
+    ParameterStatus,
     fit_two_tank,
 )
 from twotank_validation.identify.lpm import local_polynomial

@@ -13,6 +13,7 @@ from twotank_validation import replay
 from twotank_validation.core.band import parse_band
 from twotank_validation.errors import ExitCode, TwotankError, UsageError, interruption
 from twotank_validation.identify.figures import write_identify_report
+from twotank_validation.identify.greybox import GreyBoxModel, ParameterStatus
 from twotank_validation.identify.pipeline import (
     Identification,
     IdentifiedModel,
@@ -64,6 +65,8 @@ class IdentifyJob:
         read: how to read it (the interface map names the channels; no model is needed).
         orders: the orders tried (``"N"`` or ``"A..B"``).
         delays: fit a transport delay per output with the nominal.
+        grey_box: a first-principles model (``"two-tank"``) whose physical parameters are
+            fitted and linearised as the nominal; None: the black-box fit is the nominal.
         start: use the windows from this time (s from the start, or ISO 8601); None: all.
         end: up to this time; None: to the end.
         name: the identified model's name.
@@ -76,6 +79,7 @@ class IdentifyJob:
     read: ReadSettings = field(default_factory=ReadSettings)
     orders: str = "1..8"
     delays: bool = False
+    grey_box: str | None = None
     start: float | str | None = None
     end: float | str | None = None
     name: str = "identified"
@@ -108,6 +112,7 @@ class IdentifyJob:
 
     def _run(self, tell: Teller, progress: Progress | None, show: Show | None) -> Outcome:
         orders = parse_orders(self.orders)
+        grey = _grey_box(self.grey_box, self.read.interface)
         # the band (--band, the settings tree's) limits the lines the response and the fit use
         band = parse_band(self.read.monitor.band) if self.read.monitor.band else None
         imap = self.read.interface
@@ -132,7 +137,7 @@ class IdentifyJob:
         first = f"{len(windows)} non-overlapping window(s) of whole periods in {self.recording}"
         if show is not None:
             show(first)
-        config = IdentifyConfig(orders=orders, band=band, delays=self.delays)
+        config = IdentifyConfig(orders=orders, band=band, delays=self.delays, grey_box=grey)
         ident = identify_windows(windows, config)
         made = identified_model(ident, windows, self.name, imap.input_names, imap.output_names)
         for note in ident.notes:
@@ -157,6 +162,29 @@ class IdentifyJob:
         return Outcome(
             read, STATUS_OF_CODE[read], document, summary, tuple(tell.messages), tuple(text)
         )
+
+
+def _grey_box(name: str | None, imap: Any) -> GreyBoxModel | None:
+    """The grey box asked for, checked against the map's channels.
+
+    Raises:
+        UsageError: an unknown model, or a map that is not inputs [hot, cold] valve and
+            outputs [height, temperature] (two of each, in that order).
+    """
+    if name is None:
+        return None
+    try:
+        model = GreyBoxModel(name)
+    except ValueError as err:
+        kinds = ", ".join(m.value for m in GreyBoxModel)
+        raise UsageError(f"--grey-box {name!r} is not a known model; use one of: {kinds}") from err
+    if len(imap.input_names) != 2 or len(imap.output_names) != 2:
+        raise UsageError(
+            f"--grey-box {name} needs 2 inputs (hot, cold valve) and 2 outputs (height, "
+            f"temperature), in that order; the map has {list(imap.input_names)} and "
+            f"{list(imap.output_names)}: map them so, or leave out --grey-box"
+        )
+    return model
 
 
 def _c(x: np.ndarray) -> list[Any]:
@@ -209,6 +237,7 @@ def identification_json(
         },
         "beta": made.beta.tolist(),
         "held_out": made.held_out.tolist(),
+        "grey_box": None if ident.grey_box is None else ident.grey_box.to_json(),
         "notes": list(ident.notes),
         "model_file": model_file,
     }
@@ -228,6 +257,16 @@ def identification_text(
         f"{fit.cost_ratio:.2f} x what the response's σ explains, largest relative error "
         f"{float(np.max(ident.relative_error)):.3g}",
     ]
+    if ident.grey_box is not None:
+        fitted = ", ".join(
+            f"{e.name} {e.value:.4g} ± {e.std:.2g}"
+            for e in ident.grey_box.estimates
+            if e.status is ParameterStatus.FITTED
+        )
+        lines.append(
+            f"grey box {GreyBoxModel.TWO_TANK.value} (the nominal): {fitted}; residual "
+            f"{ident.grey_box.cost_ratio:.2f} x what σ explains"
+        )
     held = made.held_out
     if held.any():
         lines.append(
