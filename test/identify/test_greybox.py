@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tools import rig_experiments as rx
+from twotank_validation import cli
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.validate import validate
 from twotank_validation.diagnose.inputs import Window
@@ -26,6 +27,7 @@ from twotank_validation.identify.greybox import (
 from twotank_validation.identify.nonparametric import FrequencyResponse
 from twotank_validation.identify.pipeline import IdentifyConfig, identified_model, identify_windows
 from twotank_validation.sim.faults import parse_fault
+from twotank_validation.usecases.identify import identification_json
 
 INPUTS, OUTPUTS = ["hot", "cold"], ["height", "temperature"]
 
@@ -154,3 +156,32 @@ def test_the_operating_point_is_measured_not_assumed():
     y = np.concatenate([x.y for x in shifted])
     assert ident.grey_box.op.height == pytest.approx(y[:, 0].mean())
     assert ident.grey_box.op.temperature == pytest.approx(y[:, 1].mean())
+
+
+def test_the_json_holds_each_parameter_with_its_sigma(made):
+    ident, result = made
+    doc = identification_json(ident, result, None)["grey_box"]
+    by_name = {p["name"]: p for p in doc["parameters"]}
+    for e in ident.grey_box.estimates:
+        assert by_name[e.name]["value"] == e.value
+        assert by_name[e.name]["status"] == e.status.value
+    assert by_name["area"]["std"] == ident.grey_box.estimate("area").std
+    assert by_name["valve_tau_s"]["std"] is None  # pinned: no σ
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [("two-tank", "needs 2 inputs"), ("three-tank", "not a known model")],
+)
+def test_the_cli_refuses_a_grey_box_it_cannot_fit(capsys, name, message):
+    code = cli.main(
+        [
+            "identify", "test/data/cascaded_tanks/dataBenchmark.csv",
+            "--map", "test/data/cascaded_tanks/estimation.map.yaml", "--ts", "4",
+            "--period", "1024", "--grey-box", name, "--quiet",
+        ]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code != cli.EXIT_OK
+    assert message in err
+    assert "Traceback" not in err
