@@ -93,6 +93,8 @@ GREY_BOX_PARAMETERS: tuple[str, ...] = (
 
 _DETERMINED = 3.0
 """A parameter is determined when its standard deviation is below its scale / _DETERMINED."""
+_OFF_RANGE = 1e6
+"""Each weighted residual where the parameters leave the valves' range (far above any fit)."""
 _INPUTS = 2
 _OUTPUTS = 2
 
@@ -321,8 +323,9 @@ def fit_two_tank(fr: FrequencyResponse, ts_s: float, config: GreyBoxConfig) -> G
     except ModelError as err:
         raise IdentificationError(f"grey box: {err}") from err
     free = tuple(config.free)
+    start = config.prior
     while True:
-        fit = _fit(h, w, theta, ts_s, config, free)
+        fit = _fit(h, w, theta, ts_s, config, free, start)
         if fit is None:
             raise IdentificationError(
                 "grey box: the fit left the rig's valid range (a valve flow outside [0, 1] at "
@@ -337,6 +340,8 @@ def fit_two_tank(fr: FrequencyResponse, ts_s: float, config: GreyBoxConfig) -> G
         if not free or ratio[worst] < 1.0 / _DETERMINED:
             break
         free = free[:worst] + free[worst + 1 :]
+        # the next fit starts where this one ended, the pinned parameter back at its prior
+        start = _rig(config.prior, free, np.delete(x, worst))
     estimates = []
     for name in GREY_BOX_PARAMETERS:
         prior = float(getattr(config.prior, name))
@@ -367,27 +372,30 @@ def _fit(  # noqa: PLR0917 - private, one caller
     ts_s: float,
     config: GreyBoxConfig,
     free: tuple[str, ...],
+    start: RigParams,
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """``(x, cov, V)`` of the weighted least squares over ``free``; None off the valid range."""
     h0, t0 = config.height, config.temperature
 
     def residual(x: np.ndarray) -> np.ndarray:
         params = _rig(config.prior, free, x)
-        op = operating_point(params, h0, t0)
+        try:
+            op = operating_point(params, h0, t0)
+        except ModelError:  # the valves cannot hold the point: a step the trust region rejects
+            return np.full(2 * h.size, _OFF_RANGE)
         g = lti.bin_response(_state_space(params, op), theta, ts_s, Intersample.ZOH)
         r = w * (g.reshape(h.shape) - h)
         return np.concatenate([r.real, r.imag]).ravel()
 
-    x0 = np.array([float(getattr(config.prior, n)) for n in free])
+    x0 = np.array([float(getattr(start, n)) for n in free])
     if not free:
         r = residual(x0)
         return x0, np.zeros((0, 0)), float(np.sum(r**2) / 2)
     lo, hi = np.array([_bounds(n, h0, t0) for n in free]).T
     inside = 1e-9 * np.maximum(np.abs(x0), 1.0)
     x0 = np.clip(x0, np.where(np.isfinite(lo), lo + inside, lo), hi)
-    try:
-        sol = scipy.optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac")
-    except ModelError:
+    sol = scipy.optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac")
+    if np.any(sol.fun == _OFF_RANGE):
         return None
     cost = float(np.sum(sol.fun**2))  # V = sum |r|^2 over the complex residuals
     jac = sol.jac

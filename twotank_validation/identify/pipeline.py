@@ -66,6 +66,7 @@ from twotank_validation.identify.nonparametric import (
     frf_from_experiments,
     split_by_pattern,
 )
+from twotank_validation.sim.rig import RigParams
 
 __all__ = [
     "Estimator",
@@ -107,6 +108,8 @@ class IdentifyConfig:
         grey_box: also fit this first-principles model's physical parameters to the response
             and take its linearisation as the nominal (docs/theory.md §17); None: the
             black-box fit is the nominal.
+        grey_box_prior: the grey box's start and the value of what the data leave
+            undetermined (None: the paper's rig, ``RigParams()``).
     """
 
     orders: range = field(default_factory=lambda: range(1, 9))
@@ -116,6 +119,7 @@ class IdentifyConfig:
     max_weight_order: int = 2
     delays: bool = False
     grey_box: GreyBoxModel | None = None
+    grey_box_prior: RigParams | None = None
 
 
 @dataclass(frozen=True)
@@ -344,8 +348,11 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     if config.grey_box is GreyBoxModel.TWO_TANK:
         # the operating point is measured: the outputs' mean over the windows
         y = np.concatenate([w.y for w in windows])
+        prior = config.grey_box_prior or RigParams()
         grey = fit_two_tank(
-            fr, ts, GreyBoxConfig(height=float(y[:, 0].mean()), temperature=float(y[:, 1].mean()))
+            fr,
+            ts,
+            GreyBoxConfig(float(y[:, 0].mean()), float(y[:, 1].mean()), prior=prior),
         )
         undetermined = [e.name for e in grey.estimates if e.status is ParameterStatus.UNDETERMINED]
         notes.append(

@@ -253,7 +253,8 @@ def identification_text(
         f"response: {ident.estimator.value}, {fr.freqs_hz.size} lines "
         f"{fr.freqs_hz.min():.4g}..{fr.freqs_hz.max():.4g} Hz, median σ/|G| "
         f"{float(np.median(np.sqrt(fr.var) / np.maximum(np.abs(fr.g), 1e-300))):.3g}",
-        f"nominal: order {fit.order} per input (MDL over {len(ident.fits)} orders), residual "
+        f"{'nominal' if ident.grey_box is None else 'black-box fit (not the nominal)'}: "
+        f"order {fit.order} per input (MDL over {len(ident.fits)} orders), residual "
         f"{fit.cost_ratio:.2f} x what the response's σ explains, largest relative error "
         f"{float(np.max(ident.relative_error)):.3g}",
     ]
