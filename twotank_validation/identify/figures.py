@@ -107,7 +107,10 @@ def _bode(
             mag_ax, ph_ax = axes[2 * c, i], axes[2 * c + 1, i]
             g = nums.measured[:, c, i]
             mag, rad = np.abs(g), nums.radius[:, c, i]
-            floor = float(np.min(_db(mag))) - 40.0
+            levels = _db(
+                np.concatenate([mag, nums.std_noise[:, c, i], nums.std_distortion[:, c, i]])
+            )
+            floor = float(np.min(levels[np.isfinite(levels)])) - 10.0
             mag_ax.fill_between(
                 f,
                 np.maximum(_db(np.maximum(mag - rad, 0.0)), floor),
@@ -148,7 +151,9 @@ def _bode(
             for ax in (mag_ax, ph_ax):
                 ax.axvspan(float(f.min()), float(f.max()), **_BAND)
                 ax.grid(True, which="major", alpha=0.3, lw=0.4)
-    axes[0, 0].legend(loc="lower left", ncol=2, framealpha=0.9)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    height = fig.get_figheight()  # the title's two lines, then the legend, above the axes
+    fig.legend(handles, labels, loc="upper center", ncol=5, bbox_to_anchor=(0.5, 1 - 0.4 / height))
     for i in range(n_u):
         axes[-1, i].set_xlabel("frequency (Hz)")
         axes[-1, i].set_xlim(float(grid.min()), float(grid.max()))
@@ -159,7 +164,7 @@ def _bode(
         f"grey: the excited band {f.min():.3g}–{f.max():.3g} Hz; magnitudes in {units}",
         fontsize=8,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.65 / height))
     return _save(fig, folder, FIGURES[0])
 
 
