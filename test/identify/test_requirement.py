@@ -69,10 +69,12 @@ def test_the_lower_end_is_the_smallest_weight_some_perturbation_explains_brute_f
     for k in range(f.size):
         for c in range(2):
             for i in range(2):
-                err, gk = measured[k, c, i] - g[k, c, i], g[k, c, i]
+                err, gk, rk = measured[k, c, i] - g[k, c, i], g[k, c, i], rho[k, c, i]
 
-                def explains(w: float, err: complex = err, gk: complex = gk) -> bool:
-                    return bool(np.min(np.abs(err - w * delta * gk)) <= rho[k, c, i])
+                def explains(
+                    w: float, err: complex = err, gk: complex = gk, rk: float = rk
+                ) -> bool:
+                    return bool(np.min(np.abs(err - w * delta * gk)) <= rk)
 
                 lo, hi = 0.0, 1.0  # bisection: more weight never explains less
                 if explains(0.0):
@@ -116,9 +118,7 @@ def test_the_written_weights_cover_the_requirement_where_the_scaling_says_so(ide
         (c,) = p.outputs
         written[:, c] = np.abs(lti.bin_response(p.weight, theta, 0.1, model.intersample)[:, 0, 0])
     np.testing.assert_allclose(nums.weight, written, rtol=1e-9)
-    np.testing.assert_array_equal(
-        nums.covered, written >= nums.perturbation.required * (1 - 1e-9)
-    )
+    np.testing.assert_array_equal(nums.covered, written >= nums.perturbation.required * (1 - 1e-9))
     # the shapes cover the requirement; a factor of 1 or more on them keeps it covered
     factors = np.asarray(made.factors) * 1.2 if made.calibrated else np.full(len(OUTPUTS), 1.2)
     for c in range(len(OUTPUTS)):
