@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from test_pipeline import N, _window
 
+from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate
 from twotank_validation.core import lti
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.identify.figures import FIGURES, write_identify_report
@@ -26,6 +27,7 @@ from twotank_validation.identify.requirement import (
     output_noise_at_lines,
     perturbation_requirement,
     report_numbers,
+    validation_requirement,
 )
 from twotank_validation.usecases.identify import identification_json
 
@@ -64,7 +66,7 @@ def test_the_lower_end_is_the_smallest_weight_some_perturbation_explains_brute_f
     measured = (1.0 + a) * g
     rho = 0.03 * np.abs(g)
     req = perturbation_requirement(measured, rho, g)
-    r, phi = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0, 2 * np.pi, 2881))
+    r, phi = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0, 2 * np.pi, 1441))
     delta = (r * np.exp(1j * phi)).ravel()  # the unit disc, searched point by point
     for k in range(f.size):
         for c in range(2):
@@ -79,7 +81,7 @@ def test_the_lower_end_is_the_smallest_weight_some_perturbation_explains_brute_f
                 lo, hi = 0.0, 1.0  # bisection: more weight never explains less
                 if explains(0.0):
                     hi = 0.0
-                for _ in range(30):
+                for _ in range(20):
                     mid = 0.5 * (lo + hi)
                     lo, hi = (lo, mid) if explains(mid) else (mid, hi)
                 brute = hi
@@ -102,7 +104,14 @@ def identified():
     windows = [_window(1), _window(2)]
     ident = identify_windows(windows, IdentifyConfig(orders=range(1, 6)))
     made = identified_model(ident, windows, "identified", ["pump"], OUTPUTS)
-    nums = report_numbers(ident, made, OUTPUTS, output_noise_at_lines(ident, windows))
+    lines = ident.response.lines
+    nums = report_numbers(
+        ident,
+        made,
+        OUTPUTS,
+        output_noise_at_lines(ident, windows),
+        validation_requirement(windows, made.document, lines, OUTPUTS),
+    )
     return ident, made, nums
 
 
@@ -154,5 +163,42 @@ def test_the_report_writes_its_figures_and_the_json_holds_their_numbers(identifi
     np.testing.assert_allclose(pert["required"], ident.relative_error, rtol=1e-12)
     np.testing.assert_array_equal(pert["weight"], nums.weight)
     np.testing.assert_array_equal(pert["covered"], nums.covered)
+    assert nums.validation_required is not None
+    np.testing.assert_array_equal(pert["calibrate_required"], nums.validation_required)
+    np.testing.assert_array_equal(pert["calibrate_covered"], nums.validation_covered)
     np.testing.assert_array_equal(doc["noise"]["weight"], made.noise.gains)
     assert np.asarray(doc["noise"]["required"]).shape == (fr.freqs_hz.size, len(OUTPUTS))
+
+
+def test_calibrates_per_bin_requirement_is_reported_at_the_lines_and_marked_where_unmet():
+    """An order-1 nominal of the 1 x 3 plant: its error needs the perturbation weights."""
+    windows = [_window(1), _window(2)]
+    ident = identify_windows(windows, IdentifyConfig(orders=range(1, 2)))
+    made = identified_model(ident, windows, "identified", ["pump"], OUTPUTS)
+    assert made.calibrated
+    lines = ident.response.lines
+    need = validation_requirement(windows, made.document, lines, OUTPUTS)
+    nums = report_numbers(ident, made, OUTPUTS, None, need)
+    assert need is not None
+    assert nums.validation_covered is not None
+    # calibrate's own requirement on the first block, through its public entry
+    first = f"{OUTPUTS[0]}_multiplicative"
+    cal = calibrate(windows, made.document, CalibrationConfig(together=False), blocks=[first])
+    (block,) = cal.blocks
+    # (calibrate judges every bin with input power; the response keeps the excited lines)
+    mine = np.round(ident.response.freqs_hz * N * 0.1).astype(int)
+    theirs = np.round(block.freqs_hz * N * 0.1).astype(int)
+    common, at, there = np.intersect1d(mine, theirs, return_indices=True)
+    assert common.size == mine.size
+    np.testing.assert_allclose(need[at, 0], block.required[there], rtol=1e-9)
+    assert np.any(need[:, 0] > 0.0)
+    # the written weight (from the model file) against it, line by line
+    model = model_from_dict(made.document)
+    theta = 2 * np.pi * lines / N
+    for p in model.perturbations:
+        (c,) = p.outputs
+        mag = np.abs(lti.bin_response(p.weight, theta, 0.1, model.intersample)[:, 0, 0])
+        expect = mag >= np.nan_to_num(need[:, c], nan=0.0) * (1 - 1e-9)
+        np.testing.assert_array_equal(nums.validation_covered[:, c], expect)
+    # the fit windows stay valid, as calibrate's scaling promises
+    assert np.all(made.beta[~made.held_out] <= 1.0 + 1e-9)

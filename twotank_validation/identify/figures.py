@@ -180,9 +180,10 @@ def _weights(
     by_name = {name: (num, den) for name, num, den in made.weights()}
     n_y = len(outputs)
     fig, axes = plt.subplots(
-        n_y, 2, figsize=(WIDTH_IN, 0.6 + 2.0 * n_y), squeeze=False, sharex=True
+        n_y, 2, figsize=(WIDTH_IN, 1.0 + 2.0 * n_y), squeeze=False, sharex=True
     )
     req = nums.perturbation
+    checked = nums.validation_covered
     for c, out in enumerate(outputs):
         ax = axes[c, 0]
         central = _db(req.required[:, c])
@@ -196,7 +197,7 @@ def _weights(
             color="C0",
             alpha=0.2,
             lw=0,
-            label=f"its {LEVEL:.0%} interval",
+            label=f"required, {LEVEL:.0%} interval",
         )
         ax.semilogx(
             f,
@@ -204,33 +205,52 @@ def _weights(
             "o",
             color="C0",
             mfc="none",
-            label="required: max over inputs |Ĥ − G|/|G|",
+            label="required: max_i |Ĥ − G|/|G|",
         )
         if (tf := by_name.get(f"{out}_multiplicative")) is not None:
-            ax.semilogx(
-                grid, _db(weight_magnitude(*tf, grid)), "-", color="C3", label="|W| written"
-            )
+            written = _db(weight_magnitude(*tf, grid))
+            ax.semilogx(grid, written, "-", color="C3", label="|W| written")
         short = ~nums.covered[:, c]
+        title = f"{out}: perturbation weight; below the requirement at {int(short.sum())}"
         if np.any(short):
             ax.semilogx(
                 f[short], np.maximum(central[short], floor), "x", color="C3", ms=5,
-                label=f"not covered ({int(short.sum())} of {f.size})",
+                label="not covered",
             )  # fmt: skip
+        if nums.validation_required is not None and checked is not None:
+            need = nums.validation_required[:, c]
+            shown = np.isfinite(need) & (need > 0.0)
+            ax.semilogx(
+                f[shown],
+                _db(need[shown]),
+                "^",
+                color="C1",
+                mfc="none",
+                label="calibrate's per-bin requirement",
+            )
+            low = shown & ~checked[:, c]
+            if np.any(low):
+                ax.semilogx(f[low], _db(need[low]), "^", color="C3", label="… not met")
+            title += (
+                f", calibrate's at {int(np.sum(~checked[:, c]))} of {f.size} lines"
+                f"\n(0 at {int(np.sum(need == 0.0))}: the noise explains them; "
+                f"no weight at {int(np.sum(np.isinf(need)))})"
+            )
+        else:
+            title += f" of {f.size} lines"
         ax.set_xscale("log")
         ax.set_ylim(bottom=floor)
         ax.set_ylabel("|W| (dB)")
-        ax.set_title(f"{out}: output-multiplicative weight", loc="left")
-        ax.legend(loc="best", framealpha=0.9)
+        ax.set_title(title, loc="left", fontsize=7)
         nx = axes[c, 1]
         gain = float(nums.noise_gains[c])
         if nums.noise_required is not None:
-            nx.loglog(f, nums.noise_required[:, c], "o", color="C0", mfc="none",
-                      label="required at the line")  # fmt: skip
-        nx.axhline(gain, color="C3", label=f"flat weight {gain:.3g}")
+            nx.loglog(f, nums.noise_required[:, c], "s", color="C0", mfc="none",
+                      label="noise weight required")  # fmt: skip
+        nx.axhline(gain, color="C3", ls="--", label="noise weight written")
         nx.set_yscale("log")
         nx.set_ylabel(f"{out} per unit w")
-        nx.set_title(f"{out}: noise weight", loc="left")
-        nx.legend(loc="best", framealpha=0.9)
+        nx.set_title(f"{out}: noise weight {gain:.3g}", loc="left", fontsize=7)
         for a in (ax, nx):
             a.axvspan(float(f.min()), float(f.max()), **_BAND)
             a.grid(True, which="major", alpha=0.3, lw=0.4)
@@ -248,7 +268,16 @@ def _weights(
         "grey: the excited band",
         fontsize=8,
     )
-    fig.tight_layout()
+    seen: dict[str, Any] = {}
+    for a in axes.ravel():
+        for h, lab in zip(*a.get_legend_handles_labels(), strict=True):
+            seen.setdefault(lab, h)
+    height = fig.get_figheight()
+    fig.legend(
+        list(seen.values()), list(seen), loc="upper center", ncol=4,
+        bbox_to_anchor=(0.5, 1 - 0.4 / height),
+    )  # fmt: skip
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.62 / height))
     return _save(fig, folder, FIGURES[1])
 
 

@@ -16,10 +16,15 @@ output-multiplicative perturbation ``W_c δ_c`` (``|δ_c| <= 1``) and a flat noi
   noise's RMS; at line ``k`` the weight a noise of that line's level everywhere would need is
   ``N_c σ_c(k) / σ̄_c`` (``σ̄_c`` the RMS of ``σ_c`` over the lines). Lines above ``N_c``
   are where the flat weight is tight (the noise there spends more than its share of β).
-* :func:`report_numbers`: both, with the response, its σ's, the nominal and the written
+* :func:`validation_requirement`: calibrate's own per-bin requirement
+  (:func:`~twotank_validation.calibrate.scaling.bin_requirement`) for the written model set on
+  its fit windows: the smallest weight each line needs, with the noise weights as written,
+  for the window to stay valid within the line's equal share of β².
+* :func:`report_numbers`: all three, with the response, its σ's, the nominal and the written
   weights' magnitudes at the lines, as the report draws them and the JSON holds them.
 
-Pure functions over numpy arrays but :func:`output_noise_at_lines`, which reads windows.
+Pure functions over numpy arrays but :func:`output_noise_at_lines` and
+:func:`validation_requirement`, which read windows.
 Units: responses in output model units per input model unit; the perturbation weight
 dimensionless; the noise weight in output model units per unit of ``w``; frequencies in Hz.
 """
@@ -32,10 +37,18 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation.calibrate.calibration import CalibrationConfig
+from twotank_validation.calibrate.scaling import (
+    WindowProblem,
+    bin_requirement,
+    choose_blocks,
+    weight_gain,
+)
 from twotank_validation.core import lti
 from twotank_validation.core.datum import NormConvention
+from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.noise_budget import noise_spread
-from twotank_validation.diagnose.inputs import Window
+from twotank_validation.diagnose.inputs import DiagnosisError, Window, split_windows
 from twotank_validation.errors import DatumError
 from twotank_validation.identify.pipeline import Identification, IdentifiedModel
 
@@ -47,6 +60,7 @@ __all__ = [
     "output_noise_at_lines",
     "perturbation_requirement",
     "report_numbers",
+    "validation_requirement",
     "weight_magnitude",
 ]
 
@@ -145,6 +159,47 @@ def output_noise_at_lines(ident: Identification, windows: Sequence[Window]) -> n
     return ident.response.noise_var
 
 
+def validation_requirement(
+    windows: Sequence[Window],
+    document: dict[str, Any],
+    lines: np.ndarray,
+    outputs: Sequence[str],
+) -> np.ndarray | None:
+    """(L, n_y) calibrate's per-bin requirement on the written weights, at the lines.
+
+    For each output's block of the model ``document`` and each fit window (the first half,
+    as ``calibrate`` splits them), :func:`~twotank_validation.calibrate.scaling.bin_requirement`
+    gives the smallest factor on the written weight each excited bin needs, the other blocks
+    and the noise as written; times the weight's magnitude there, the largest over the fit
+    windows. 0: the line needs none of the weight (the noise explains it); inf: no weight
+    explains it within its share; NaN: not judged (no such block, or the line is not an
+    active bin). None: nothing can be held out (one window of one period).
+    """
+    try:
+        fit_w, _ = split_windows(windows)
+    except DiagnosisError:
+        return None
+    model = model_from_dict(document, "identified")
+    names = {p["name"] for p in document.get("perturbations", [])}
+    floor = CalibrationConfig().excitation_floor
+    out = np.full((lines.size, len(outputs)), np.nan)
+    problems = [WindowProblem.of(w.datum(), model) for w in fit_w]
+    line_of = {int(k): row for row, k in enumerate(lines)}
+    for col, name in enumerate(outputs):
+        if f"{name}_multiplicative" not in names:
+            continue
+        (block,) = choose_blocks(model, [f"{name}_multiplicative"])
+        for w, problem in zip(fit_w, problems, strict=True):
+            req = bin_requirement(problem, block, floor)
+            gain = weight_gain(block, problem.datum.theta[req.bins], w.ts_s)
+            for b, factor, g in zip(req.bins, req.factor, gain, strict=True):
+                # a window of P periods has line k at bin k P
+                row = line_of.get(int(b) // w.n_periods) if b % w.n_periods == 0 else None
+                if row is not None:
+                    out[row, col] = np.fmax(out[row, col], factor * g)
+    return out
+
+
 @dataclass(frozen=True)
 class ReportNumbers:
     """The numbers behind the report's figures, per excited line.
@@ -162,6 +217,7 @@ class ReportNumbers:
         covered: (L, n_y) bool, ``weight >= perturbation.required``.
         noise_required: (L, n_y) or None, :func:`noise_requirement`.
         noise_gains: (n_y,) the written flat noise weights.
+        validation_required: (L, n_y) or None, :func:`validation_requirement`.
     """
 
     freqs_hz: np.ndarray
@@ -175,12 +231,28 @@ class ReportNumbers:
     covered: np.ndarray
     noise_required: np.ndarray | None
     noise_gains: np.ndarray
+    validation_required: np.ndarray | None = None
+
+    @property
+    def validation_covered(self) -> np.ndarray | None:
+        """(L, n_y) bool: the written weight at least calibrate's requirement (NaN: True)."""
+        if self.validation_required is None:
+            return None
+        need = np.nan_to_num(self.validation_required, nan=0.0)
+        return np.asarray(self.weight >= need * (1.0 - 1e-9))
 
     def to_json(self) -> dict[str, Any]:
         """Plain lists: complex values as ``[re, im]`` pairs, per line first."""
 
         def c(x: np.ndarray) -> Any:
             return np.stack([x.real, x.imag], axis=-1).tolist()
+
+        def num(x: np.ndarray | None) -> Any:
+            """NaN as null, inf as the string "inf" (JSON has neither)."""
+            if x is None:
+                return None
+            return [[None if np.isnan(v) else ("inf" if np.isinf(v) else float(v)) for v in row]
+                    for row in x]  # fmt: skip
 
         p = self.perturbation
         return {
@@ -197,6 +269,10 @@ class ReportNumbers:
                 "required_hi": p.hi.tolist(),
                 "weight": self.weight.tolist(),
                 "covered": self.covered.tolist(),
+                "calibrate_required": num(self.validation_required),
+                "calibrate_covered": (
+                    None if self.validation_covered is None else self.validation_covered.tolist()
+                ),
             },
             "noise": {
                 "required": None if self.noise_required is None else self.noise_required.tolist(),
@@ -210,6 +286,7 @@ def report_numbers(
     made: IdentifiedModel,
     outputs: Sequence[str],
     noise_var: np.ndarray | None = None,
+    validation_required: np.ndarray | None = None,
 ) -> ReportNumbers:
     """The report's numbers from the identification and the written model set.
 
@@ -219,6 +296,7 @@ def report_numbers(
         outputs: the output names (the perturbation blocks are ``<output>_multiplicative``).
         noise_var: (L, n_y) the outputs' noise variance at the lines
             (:func:`output_noise_at_lines`); None: no noise requirement.
+        validation_required: (L, n_y) :func:`validation_requirement`, or None.
     """
     fr = ident.response
     f = fr.freqs_hz
@@ -245,4 +323,5 @@ def report_numbers(
         if noise_var is None
         else noise_requirement(noise_var, made.noise.gains),
         noise_gains=np.asarray(made.noise.gains, float),
+        validation_required=validation_required,
     )

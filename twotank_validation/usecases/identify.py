@@ -25,6 +25,7 @@ from twotank_validation.identify.requirement import (
     ReportNumbers,
     output_noise_at_lines,
     report_numbers,
+    validation_requirement,
 )
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
@@ -149,7 +150,14 @@ class IdentifyJob:
                 + yaml.safe_dump(made.document, sort_keys=False, width=100)
             )
             model_file = str(self.out_model)
-        nums = report_numbers(ident, made, imap.output_names, output_noise_at_lines(ident, windows))
+        outputs = imap.output_names
+        nums = report_numbers(
+            ident,
+            made,
+            outputs,
+            output_noise_at_lines(ident, windows),
+            validation_requirement(windows, made.document, ident.response.lines, outputs),
+        )
         document = identification_json(ident, made, model_file, nums)
         document["timing"] = timing.to_json()
         if self.report_dir:
