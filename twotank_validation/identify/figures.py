@@ -234,7 +234,8 @@ def _weights(
             title += (
                 f", calibrate's at {int(np.sum(~checked[:, c]))} of {f.size} lines"
                 f"\n(0 at {int(np.sum(need == 0.0))}: the noise explains them; "
-                f"no weight at {int(np.sum(np.isinf(need)))})"
+                f"no weight at {int(np.sum(np.isinf(need)))}; not judged at "
+                f"{int(np.sum(np.isnan(need)))})"
             )
         else:
             title += f" of {f.size} lines"
