@@ -69,7 +69,14 @@ def test_an_identified_set_holds_on_held_out_data_and_fails_on_a_changed_plant(
     assert "nominal: order" in out
     doc = json.loads((tmp_path / "id.json").read_text())
     assert doc["estimator"] == "periodic"
-    assert sorted(p.name for p in report.iterdir()) == ["identify_bode.png", "identify_orders.png"]
+    assert sorted(p.name for p in report.iterdir()) == sorted(
+        f"{s}.{e}" for s in ("identify_bode", "identify_orders", "identify_weights")
+        for e in ("pdf", "png")
+    )  # fmt: skip
+    assert sorted(doc["report"]) == sorted(
+        ["freqs_hz", "level", "measured", "std_noise", "std_distortion", "radius", "nominal",
+         "perturbation", "noise"]
+    )  # fmt: skip
     assert max(_beta(held, model, tmp_path, *options)) < 1.0
     assert min(_beta(changed, model, tmp_path, *options)) > 1.0
 

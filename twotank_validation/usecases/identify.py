@@ -22,6 +22,12 @@ from twotank_validation.identify.pipeline import (
     identify_windows,
     probe_model,
 )
+from twotank_validation.identify.requirement import (
+    ReportNumbers,
+    output_noise_at_lines,
+    report_numbers,
+    validation_requirement,
+)
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
@@ -149,11 +155,24 @@ class IdentifyJob:
                 + yaml.safe_dump(made.document, sort_keys=False, width=100)
             )
             model_file = str(self.out_model)
-        document = identification_json(ident, made, model_file)
+        outputs = imap.output_names
+        nums = report_numbers(
+            ident,
+            made,
+            outputs,
+            output_noise_at_lines(ident, windows),
+            validation_requirement(windows, made.document, ident.response.lines, outputs),
+        )
+        document = identification_json(ident, made, model_file, nums)
         document["timing"] = timing.to_json()
         if self.report_dir:
             document["figures"] = write_identify_report(
-                ident, made, self.report_dir, imap.input_names, imap.output_names
+                ident,
+                made,
+                nums,
+                self.report_dir,
+                inputs=imap.input_names,
+                outputs=imap.output_names,
             )
         if self.json_path:
             write_json(self.json_path, document)
@@ -196,12 +215,18 @@ def _c(x: np.ndarray) -> list[Any]:
 
 
 def identification_json(
-    ident: Identification, made: IdentifiedModel, model_file: str | None
+    ident: Identification,
+    made: IdentifiedModel,
+    model_file: str | None,
+    nums: ReportNumbers | None = None,
 ) -> dict[str, Any]:
-    """The identification as JSON: the response, the fit, the weights and the verdicts."""
+    """The identification as JSON: the response, the fit, the weights and the verdicts.
+
+    ``nums``: the report's numbers per line (``report``: what its figures draw).
+    """
     fr = ident.response
     fit = ident.fit
-    return {
+    document = {
         "estimator": ident.estimator.value,
         "ts_s": ident.ts_s,
         "period_samples": ident.period_samples,
@@ -241,6 +266,9 @@ def identification_json(
         "notes": list(ident.notes),
         "model_file": model_file,
     }
+    if nums is not None:
+        document["report"] = nums.to_json()
+    return document
 
 
 def identification_text(
