@@ -18,17 +18,12 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-import rclpy
-from rclpy.context import Context
-from rclpy.parameter import Parameter
-from sensor_msgs.msg import FluidPressure, Temperature
+from node_feed import feed_rig_record, validator_node
 
 from tools.streamfuzz import CONFIG, clean_record
 from twotank_validation import cli
 from twotank_validation.online import WindowReport
-from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.validator_node import ValidatorNode
 
 BAND = "0:0.3"
 LINE_HZ = 226 / (2 * CONFIG.period_samples * CONFIG.ts_s)  # above the band and every excited line
@@ -42,39 +37,14 @@ def _record() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _node_reports(stamps, u, y) -> list[tuple[WindowReport, object]]:
-    ctx = Context()
-    rclpy.init(context=ctx)
     out: list[tuple[WindowReport, object]] = []
-    try:
-        params = {"ts_s": CONFIG.ts_s, "period_samples": CONFIG.period_samples}
-        params |= {"models": ["B"], "band": BAND}
-        node = ValidatorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("use_sim_time", value=True),
-                *[Parameter(k, value=v) for k, v in params.items()],
-            ],
-        )
+    params = {"ts_s": CONFIG.ts_s, "period_samples": CONFIG.period_samples}
+    with validator_node(params | {"models": ["B"], "band": BAND}) as node:
         _, report_cls = messages.message_classes()
         node.report_listeners.append(
             lambda rep: out.append((rep, messages.report_message(rep, report_cls)))
         )
-        flow_cls, _ = messages.message_classes()
-        units = itf.RigUnits()
-        for k in range(len(stamps)):
-            f, h, t = flow_cls(), FluidPressure(), Temperature()
-            for msg in (f, h, t):
-                itf.set_stamp(msg.header.stamp, int(stamps[k]))
-            f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
-            h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
-            t.temperature = units.celsius_from_temperature(float(y[k, 1]))
-            node._on_message("flow_cmd", f)  # the subscription callbacks, as the executor calls
-            node._on_message("height", h)
-            node._on_message("temperature", t)
-            assert node.wait_idle()
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
+        feed_rig_record(node, stamps, u, y)
     return out
 
 

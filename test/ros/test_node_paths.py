@@ -10,18 +10,14 @@ import math
 import struct
 
 import numpy as np
-import rclpy
-from rclpy.context import Context
-from rclpy.parameter import Parameter
+from node_feed import feed_rig_record, validator_node
 from report_checks import assert_same_reports
-from sensor_msgs.msg import FluidPressure, Temperature
 
 from tools.streamfuzz import clean_record as rig_record
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, MonitorConfig, WindowReport, monitor_record
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.validator_node import ValidatorNode
 
 FAST = {"ts_s": 0.8, "period_samples": 256}
 
@@ -76,35 +72,12 @@ def test_node_history_is_bounded_and_listeners_get_every_report() -> None:
     """24 hours at 10 Hz are 844 reports: the node keeps only the latest; a listener sees
     all of them, equal to the core monitor's on the same samples."""
     stamps, u, y = rig_record(9)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    try:
-        node = ValidatorNode(
-            context=ctx,
-            keep_reports=3,
-            parameter_overrides=[
-                Parameter("use_sim_time", value=True),
-                *[Parameter(k, value=v) for k, v in {**FAST, "models": ["A", "B"]}.items()],
-            ],
-        )
+    with validator_node({**FAST, "models": ["A", "B"]}, keep_reports=3) as node:
         every: list[WindowReport] = []
         node.report_listeners.append(every.append)
-        flow_cls, _ = messages.message_classes()
-        units = itf.RigUnits()
-        for k in range(len(stamps)):
-            f, h, t = flow_cls(), FluidPressure(), Temperature()
-            for msg in (f, h, t):
-                itf.set_stamp(msg.header.stamp, int(stamps[k]))
-            f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
-            h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
-            t.temperature = units.celsius_from_temperature(float(y[k, 1]))
-            node._on_message(
-                "flow_cmd", f
-            )  # the subscription callbacks, as the executor calls them
-            node._on_message("height", h)
-            node._on_message("temperature", t)
-        assert node.wait_idle()
+        feed_rig_record(node, stamps, u, y, wait_each=False)
         cfg = MonitorConfig(ts_s=0.8, period_samples=256)
+        units = itf.RigUnits()
         y_rx = np.column_stack(  # what the node gets back from the messages' units
             [
                 [units.level_from_pressure(units.pressure_from_level(float(v))) for v in y[:, 0]],
@@ -120,6 +93,3 @@ def test_node_history_is_bounded_and_listeners_get_every_report() -> None:
         assert len(want) == len(every)
         assert_same_reports(every, want)
         assert list(node.reports) == every[-3:]
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)

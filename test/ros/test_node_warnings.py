@@ -11,17 +11,12 @@ loopback up, like test_ros_nodes.py (`scripts/run test` does).
 
 from __future__ import annotations
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.context import Context
-from rclpy.parameter import Parameter
-from sensor_msgs.msg import FluidPressure, Temperature
+from node_feed import feed_rig_record, validator_node
 
 from tools.streamfuzz import transient_record
 from twotank_validation.online import WindowReport
-from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.validator_node import ValidatorNode
 
 FAST = {"ts_s": 0.8, "period_samples": 256}
 
@@ -38,49 +33,25 @@ class _Recorder:
 
 def test_diagnostics_and_report_carry_the_warnings() -> None:
     stamps, u, y = transient_record(5)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    try:
-        node = ValidatorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("use_sim_time", value=True),
-                *[
-                    Parameter(k, value=v)
-                    for k, v in {**FAST, "models": ["B"], "settle_periods": 0}.items()
-                ],
-            ],
-        )
+    pairs: list[tuple[WindowReport, DiagnosticArray | None]] = []
+    params = {**FAST, "models": ["B"], "settle_periods": 0}
+    with validator_node(params) as node:
         diag = _Recorder()
         node._pub_diag = diag  # white-box: the node's /diagnostics publisher
-        pairs: list[tuple[WindowReport, DiagnosticArray | None]] = []
         # the diagnostics of a window go out after its report: pair each with the next one
         node.report_listeners.append(lambda rep: pairs.append((rep, None)))
-        flow_cls, report_cls = messages.message_classes()
-        units = itf.RigUnits()
-        seen = 0
-        for k in range(len(stamps)):
-            f, h, t = flow_cls(), FluidPressure(), Temperature()
-            for msg in (f, h, t):
-                itf.set_stamp(msg.header.stamp, int(stamps[k]))
-            f.hot, f.cold = float(u[k, 0]), float(u[k, 1])
-            h.fluid_pressure = units.pressure_from_level(float(y[k, 0]))
-            t.temperature = units.celsius_from_temperature(float(y[k, 1]))
-            node._on_message(
-                "flow_cmd", f
-            )  # the subscription callbacks, as the executor calls them
-            node._on_message("height", h)
-            node._on_message("temperature", t)
-            assert node.wait_idle()
-            if len(pairs) > seen:
-                assert len(pairs) == seen + 1  # one model, one report per window
+        seen = [0]
+
+        def pair(_k: int) -> None:
+            if len(pairs) > seen[0]:
+                assert len(pairs) == seen[0] + 1  # one model, one report per window
                 assert diag.published
                 pairs[-1] = (pairs[-1][0], diag.published[-1])
-                seen = len(pairs)
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
+                seen[0] = len(pairs)
 
+        feed_rig_record(node, stamps, u, y, after_each=pair)
+
+    _, report_cls = messages.message_classes()
     judged = [(rep, arr) for rep, arr in pairs if rep.judged]
     assert len(judged) >= 3
     assert judged[0][0].warnings  # the transient, from the first window on
