@@ -91,18 +91,26 @@ def test_a_band_without_excitation_is_refused():
         identify_windows([_window(1)], IdentifyConfig(band=Band(3.0, 4.0, False)))
 
 
-def test_two_valves_excited_together_are_told_apart_and_match_model_b():
+def test_two_valves_excited_together_have_honest_bounds_and_a_note_that_they_are_loose():
     """The rig drives both valves at once on the same lines (one input pattern): the local
-    polynomial method on the mean period separates them. Reference: Model B, the rig's
-    exact linearisation."""
+    polynomial method on the mean period separates them only as far as the response is
+    smooth over its window. Reference: Model B, the rig's exact linearisation. Its 95 %
+    discs cover Model B at about 95 % of the lines, but they are about as wide as the
+    response (σ/|G| near 1 at the median), and identify says so and names the fix."""
     _, u, y = clean_record(8)
     n = CONFIG.period_samples
     w = Window(u[2 * n :], y[2 * n :], CONFIG.ts_s, n)
     ident = identify_windows([w], IdentifyConfig(orders=range(1, 3)))
     assert ident.estimator is Estimator.LPM
-    p23 = load_model("B").response(2 * np.pi * ident.response.lines / n, CONFIG.ts_s).p23
-    z = np.abs(ident.response.g - p23) / np.sqrt(ident.response.var)
-    assert np.mean(z < 3.0) > 0.9
+    fr = ident.response
+    p23 = load_model("B").response(2 * np.pi * fr.lines / n, CONFIG.ts_s).p23
+    inside = np.abs(fr.g - p23) <= fr.radius(0.95)
+    assert inside.mean() > 0.85
+    rel = np.median(np.sqrt(fr.var) / np.abs(fr.g), axis=0)
+    assert np.all(rel > 0.5)
+    (note,) = [t for t in ident.notes if "hardly determine" in t]
+    assert "orthogonal multisines" in note
+    assert note.count("output ") == 4  # every entry named
 
 
 def test_one_window_of_several_periods_is_judged_on_its_held_out_half():

@@ -305,6 +305,32 @@ def _transient(windows: Sequence[Window]) -> bool:
     return False
 
 
+_POORLY_DETERMINED = 0.5
+"""Median σ/|G| of an entry above which identify says the data hardly determine it."""
+
+
+def _poorly_determined(fr: FrequencyResponse) -> list[str]:
+    """A note per input-output entry whose response the data hardly determine.
+
+    An entry is poorly determined when its median σ/|G| over the lines is above
+    :data:`_POORLY_DETERMINED`; the note names the fix.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.median(np.sqrt(fr.var) / np.abs(fr.g), axis=0)  # (n_y, n_u)
+    poor = [(c, i) for c, i in zip(*np.nonzero(~(rel <= _POORLY_DETERMINED)), strict=True)]
+    if not poor:
+        return []
+    entries = ", ".join(f"output {c + 1} / input {i + 1} ({rel[c, i]:.2g})" for c, i in poor)
+    fix = "record more periods or a larger excitation"
+    if fr.g.shape[2] > 1 and fr.n_experiments == 1:
+        fix = (
+            "excite the inputs in separate experiments or with orthogonal multisines "
+            "(the local polynomial method separates inputs on the same lines only where "
+            "the response is smooth over its window), or " + fix
+        )
+    return [f"the data hardly determine the response (median σ/|G|): {entries}: {fix}"]
+
+
 def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Identification:
     """The response, the nominal and the weights from the windows of one experiment.
 
@@ -332,6 +358,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     else:
         fr, var_noise, est = _periodic(windows, lines)
         notes.append(f"{est.value}: averaged over whole periods")
+    notes.extend(_poorly_determined(fr))
     best, fits = select_order(fr, config.orders, delays=config.delays)
     if best.cost_ratio > 4.0:
         notes.append(
