@@ -11,8 +11,9 @@ applied at the DFT bins) and a random-phase multisine with a flat amplitude spec
 
 from __future__ import annotations
 
+import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.signal
@@ -20,10 +21,14 @@ from numpy.typing import NDArray
 
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError
+from twotank_validation.settings import FlatSetting, check_settings, flat, setting
 
 __all__ = [
     "EXCITATION_KINDS",
+    "LINE_SETS",
     "ExcitationConfig",
+    "ExcitationDesign",
+    "ExcitationLines",
     "OddMultisineLines",
     "crest_factor",
     "excitation_commands",
@@ -492,3 +497,395 @@ def low_crest_multisine(
         if cf < best_cf:
             best, best_cf = x, cf
     return _unit_rms(best, "multisine")
+
+
+# ----------------------------------------------------------------- the excitation's design
+
+LINE_SETS: tuple[str, ...] = ("all", "odd", "odd_odd")
+"""The accepted values of ``ExcitationDesign.lines``: every grid line, the odd ones, or the
+odd-odd ones (``j = 1, 5, 9, ...`` times the grid step)."""
+
+_LINES_STREAM = 7
+"""Spawn key of the generator that picks the detection lines (the phases use the seed)."""
+
+
+def parse_detection(text: str) -> tuple[int, int]:
+    """``""`` -> ``(0, 0)`` (no detection line); ``"M/G"`` -> ``(M, G)``: M of every G
+    consecutive odd lines are left out (``1 <= M < G``).
+
+    Raises:
+        DatumError: not of that form.
+    """
+    text = str(text).strip()
+    if not text:
+        return 0, 0
+    m_text, sep, g_text = text.partition("/")
+    try:
+        m, g = int(m_text), int(g_text)
+    except ValueError:
+        m, g = 0, 0
+    if not sep or not 1 <= m < g:
+        raise DatumError(
+            f"detection={text!r}: write M/G, M of every G consecutive odd lines left out "
+            "(1 <= M < G), e.g. 1/3; empty for none"
+        )
+    return m, g
+
+
+@dataclass(frozen=True)
+class ExcitationLines:
+    """The DFT lines (bins of one period) of a design: excited, detection and even lines.
+
+    The grid is every ``step``-th bin ``k = step j``; the band's grid lines are ``j`` from
+    ``first / step`` to ``last / step``. An odd design excites odd ``j`` only: its even grid
+    lines (``even``) show even nonlinear distortion, its unexcited odd ones (``detection``:
+    left out per group, or the ``j = 3 mod 4`` lines of an odd-odd design) odd distortion.
+
+    Attributes:
+        excited: (F,) int, the excited bins, increasing.
+        detection: (D,) int, the odd grid lines in the band left unexcited.
+        even: (E,) int, the even grid lines in the band (empty for ``lines: all``).
+        first: the band's first grid line (bin).
+        last: the band's last grid line (bin).
+        step: the grid step (bins).
+    """
+
+    excited: NDArray[np.int64]
+    detection: NDArray[np.int64]
+    even: NDArray[np.int64]
+    first: int
+    last: int
+    step: int
+
+    def to_json(self) -> dict[str, object]:
+        """Plain data: the bins as lists."""
+        return {
+            "excited": self.excited.tolist(),
+            "detection": self.detection.tolist(),
+            "even": self.even.tolist(),
+            "first": self.first,
+            "last": self.last,
+            "step": self.step,
+        }
+
+
+@dataclass(frozen=True)
+class ExcitationDesign:
+    """The periodic excitation's design: its one definition (settings tree, flat names).
+
+    The excitation node, the controller node and the model plant node take these settings
+    as their parameters, ``simulate`` as its options, and scenarios and ``ModelExcitation``
+    build one (:func:`design_params`, :meth:`from_flat`). Amplitudes are not part of it: they
+    belong to each input (the rig's valves, a model's inputs, the setpoints).
+
+    Each realisation ``r`` of ``realisations`` is one period of random phases (or filtered
+    noise), applied for ``realisation_periods`` periods; then the next; after the last, the
+    first again. Each input gets its own realisation of the same lines. Realisation 0 is
+    drawn first from ``default_rng(seed)`` (one input after the other), then realisation 1,
+    and so on; a single realisation of ``lines: all`` or ``odd`` without ``line_step``,
+    ``detection`` or ``crest_min`` is exactly :func:`multisine_period` (or
+    :func:`filtered_noise_period`) drawn input after input.
+    """
+
+    kind: str = setting(
+        "filtered_noise",
+        "filtered_noise or multisine",
+        choices=EXCITATION_KINDS,
+        option="--excitation",
+    )
+    period_samples: int = setting(
+        PERIOD_SAMPLES, "excitation period (samples)", unit="samples", low=4, high=10_000_000
+    )
+    f_min_hz: float = setting(
+        1.0 / 204.8,
+        "multisine: lowest excited frequency (Hz; 0: the period's first line)",
+        unit="Hz",
+        low=0.0,
+        high=1e9,
+    )
+    f_max_hz: float = setting(
+        0.05,
+        "multisine: highest excited frequency (Hz; 0: 0.2 / ts_s)",
+        unit="Hz",
+        low=0.0,
+        high=1e9,
+    )
+    lines: str = setting(
+        "all",
+        "multisine: the grid lines excited: all, odd, or odd_odd (1, 5, 9, ... times the step)",
+        choices=LINE_SETS,
+        option="--lines",
+    )
+    line_step: int = setting(
+        1,
+        "multisine: the line grid, every line_step-th DFT bin of the period",
+        unit="bins",
+        low=1,
+        high=1_000_000,
+        option="--line-step",
+    )
+    detection: str = setting(
+        "",
+        "multisine with odd lines: M/G leaves M of every G consecutive odd lines out at random "
+        "(detection lines, where odd distortion shows); empty: none",
+        option="--detection",
+    )
+    crest_min: bool = setting(
+        False,
+        "multisine: minimise the crest factor (clipping algorithm; the same lines and amplitudes)",
+        option="--crest-min",
+    )
+    realisations: int = setting(
+        1,
+        "realisations: each a new random draw, applied for realisation_periods periods",
+        low=1,
+        high=10_000,
+        option="--realisations",
+    )
+    realisation_periods: int = setting(
+        0,
+        "periods each realisation is applied (its transient included); 0: one realisation "
+        "throughout, or simulate's settling and recorded periods",
+        unit="periods",
+        low=0,
+        high=1_000_000,
+        option="--realisation-periods",
+    )
+    cutoff_hz: float = setting(
+        0.006,
+        "filtered noise: low-pass cutoff (Hz; 0: 0.2 / ts_s)",
+        unit="Hz",
+        low=0.0,
+        high=1e9,
+        option="--cutoff",
+    )
+    order: int = setting(2, "filtered noise: Butterworth order", low=1, high=12)
+    seed: int = setting(2, "excitation seed", low=0, high=2**31 - 1)
+
+    def __post_init__(self) -> None:
+        check_settings(self, DatumError)
+        parse_detection(self.detection)
+        if self.kind != "multisine":
+            shaped = [
+                name
+                for name, on in (
+                    ("lines", self.lines != "all"),
+                    ("line_step", self.line_step != 1),
+                    ("detection", bool(self.detection.strip())),
+                    ("crest_min", self.crest_min),
+                )
+                if on
+            ]
+            if shaped:
+                raise DatumError(
+                    f"{', '.join(shaped)} shape a multisine, but kind is {self.kind!r}: set "
+                    "kind to multisine or leave them out"
+                )
+        if self.detection.strip() and self.lines != "odd":
+            raise DatumError(
+                f"detection={self.detection!r} leaves odd lines out of an odd multisine: set "
+                f"lines to odd (lines={self.lines!r}; odd_odd has its detection lines already)"
+            )
+
+    # ------------------------------------------------------------------ flat form
+
+    @classmethod
+    def settings(cls) -> tuple[FlatSetting, ...]:
+        """The design's settings, flat (the node parameters' names)."""
+        return flat(cls)
+
+    def to_flat(self) -> dict[str, object]:
+        """The design as flat (parameter) values: :func:`~twotank_validation.settings.from_flat`
+        of them is the design again."""
+        return {s.name: getattr(self, s.path[-1]) for s in flat(type(self))}
+
+    # ------------------------------------------------------------------ derived
+
+    @property
+    def cycle_periods(self) -> int:
+        """Periods before the excitation repeats: ``realisations realisation_periods`` (1 for
+        a single realisation)."""
+        return 1 if self.realisations == 1 else self.realisations * self.realisation_periods
+
+    def with_run(self, periods: int) -> ExcitationDesign:
+        """The design with ``realisation_periods`` set to ``periods`` where it is 0 and there
+        are several realisations (a simulation's settling and recorded periods)."""
+        if self.realisations > 1 and self.realisation_periods == 0:
+            return replace(self, realisation_periods=int(periods))
+        return self
+
+    def band_hz(self, ts_s: float) -> tuple[float, float]:
+        """``(f_min_hz, f_max_hz)`` with the zeros replaced by their defaults at ``ts_s``."""
+        f_min = self.f_min_hz or 1.0 / (self.period_samples * ts_s)
+        f_max = self.f_max_hz or 0.2 / ts_s
+        return f_min, f_max
+
+    def cutoff(self, ts_s: float) -> float:
+        """The filtered noise's cutoff (Hz) at ``ts_s`` (0: ``0.2 / ts_s``)."""
+        return self.cutoff_hz or 0.2 / ts_s
+
+    def excitation_lines(self, ts_s: float) -> ExcitationLines:
+        """The excited, detection and even lines of the multisine at sample period ``ts_s``.
+
+        The detection lines are drawn from a generator of their own
+        (``SeedSequence(seed, spawn_key=(7,))``): the same for every input and realisation.
+
+        Raises:
+            DatumError: a band outside ``(0, Nyquist)``, no line of the grid in it, or fewer
+                odd lines than a detection group.
+        """
+        n = self.period_samples
+        _check_period_args(n, ts_s)
+        f_min, f_max = self.band_hz(ts_s)
+        nyquist = 0.5 / ts_s
+        if not 0.0 < f_min <= f_max < nyquist:
+            raise DatumError(
+                f"multisine band f_min_hz={f_min:.6g} .. f_max_hz={f_max:.6g} must satisfy "
+                f"0 < f_min_hz <= f_max_hz < Nyquist = {nyquist:.6g} Hz"
+            )
+        step = self.line_step
+        bins = multisine_harmonics(n, ts_s, f_min, f_max, odd_only=False)
+        grid = bins[bins % step == 0]
+        empty = np.zeros(0, dtype=np.int64)
+        j = grid // step
+        if self.lines == "all":
+            excited, detection, even = grid, empty, empty
+        else:
+            odd = grid[j % 2 == 1]
+            even = grid[j % 2 == 0]
+            if self.lines == "odd_odd":
+                excited, detection = odd[(odd // step) % 4 == 1], odd[(odd // step) % 4 == 3]
+            else:
+                excited, detection = odd, empty
+                m, g = parse_detection(self.detection)
+                if g:
+                    if odd.size < g:
+                        raise DatumError(
+                            f"the band holds {odd.size} odd line(s), fewer than a detection "
+                            f"group of {g}: widen the band or make the groups smaller"
+                        )
+                    rng = np.random.default_rng(
+                        np.random.SeedSequence(self.seed, spawn_key=(_LINES_STREAM,))
+                    )
+                    keep = np.ones(odd.size, dtype=bool)
+                    for start in range(0, odd.size - g + 1, g):
+                        keep[start + rng.choice(g, size=m, replace=False)] = False
+                    excited, detection = odd[keep], odd[~keep]
+        if excited.size == 0:
+            raise DatumError(
+                f"the band {f_min:.6g} .. {f_max:.6g} Hz holds no {self.lines} line of the grid "
+                f"(every {step} bin(s) of 1/(n ts) = {1.0 / (n * ts_s):.6g} Hz): widen the "
+                "band, lengthen the period or take a finer line_step"
+            )
+        first = int(grid[0]) if grid.size else int(excited[0])
+        last = int(grid[-1]) if grid.size else int(excited[-1])
+        return ExcitationLines(
+            excited.astype(np.int64),
+            detection.astype(np.int64),
+            even.astype(np.int64),
+            first,
+            last,
+            step,
+        )
+
+    def _legacy(self) -> bool:
+        """A single realisation that :func:`multisine_period` draws alike."""
+        return (
+            self.lines in ("all", "odd")
+            and self.line_step == 1
+            and not (self.detection.strip() or self.crest_min)
+        )
+
+    def realisation_tables(self, ts_s: float, n_columns: int) -> FloatArray:
+        """One period of each realisation, each column zero mean and unit RMS.
+
+        Returns:
+            (realisations, period_samples, n_columns) float.
+
+        Raises:
+            DatumError: an empty band, a cutoff at or above Nyquist.
+        """
+        return self._draw(ts_s, n_columns)[0]
+
+    def crest_factors(self, ts_s: float, n_columns: int) -> tuple[FloatArray, FloatArray]:
+        """``(before, after)`` (realisations, n_columns): each period's crest factor with its
+        random phases and as applied (equal without ``crest_min``)."""
+        _, before, after = self._draw(ts_s, n_columns)
+        return before, after
+
+    def _draw(self, ts_s: float, n_columns: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        n = self.period_samples
+        rng = np.random.default_rng(self.seed)
+        out = np.zeros((self.realisations, n, n_columns))
+        before = np.zeros((self.realisations, n_columns))
+        if self.kind == "filtered_noise":
+            for r in range(self.realisations):
+                for i in range(n_columns):
+                    out[r, :, i] = filtered_noise_period(
+                        n, ts_s, self.cutoff(ts_s), self.order, rng
+                    )
+                    before[r, i] = crest_factor(out[r, :, i])
+            return out, before, before.copy()
+        f_min, f_max = self.band_hz(ts_s)
+        legacy = self._legacy()
+        lines = None if legacy else self.excitation_lines(ts_s).excited
+        for r in range(self.realisations):
+            for i in range(n_columns):
+                if lines is None:
+                    x = multisine_period(n, ts_s, f_min, f_max, self.lines == "odd", rng)
+                    before[r, i] = crest_factor(x)
+                elif self.crest_min:
+                    start = np.zeros(n // 2 + 1, dtype=np.complex128)
+                    start[lines] = np.exp(2j * np.pi * copy.deepcopy(rng).uniform(size=lines.size))
+                    before[r, i] = crest_factor(np.fft.irfft(start, n=n))
+                    x = low_crest_multisine(n, lines, rng)
+                else:
+                    spectrum = np.zeros(n // 2 + 1, dtype=np.complex128)
+                    spectrum[lines] = np.exp(1j * rng.uniform(0.0, 2.0 * np.pi, size=lines.size))
+                    x = _unit_rms(np.fft.irfft(spectrum, n=n), "multisine")
+                    before[r, i] = crest_factor(x)
+                out[r, :, i] = x
+        after = np.array(
+            [
+                [crest_factor(out[r, :, i]) for i in range(n_columns)]
+                for r in range(self.realisations)
+            ]
+        ).reshape(before.shape)
+        return out, before, after
+
+    def cycle(self, ts_s: float, scale: FloatArray) -> FloatArray:
+        """The deviations of one whole cycle: each realisation tiled over its periods.
+
+        Args:
+            ts_s: sample period, s.
+            scale: (n_columns,) RMS of each column.
+
+        Returns:
+            (cycle_periods period_samples, n_columns) float; sample k of a run uses row
+            ``k mod len``. One period for a single realisation.
+
+        Raises:
+            DatumError: several realisations with ``realisation_periods`` 0 (give it, or let
+                a simulation set it: :meth:`with_run`), or the draw's own errors.
+        """
+        if self.realisations > 1 and self.realisation_periods == 0:
+            raise DatumError(
+                f"{self.realisations} realisations need realisation_periods >= 1 (the periods "
+                "each is applied for, its transient included)"
+            )
+        scale = np.asarray(scale, dtype=np.float64)
+        tables = self.realisation_tables(ts_s, scale.size) * scale
+        if self.realisations == 1:
+            return np.asarray(tables[0])
+        return np.concatenate([np.tile(t, (self.realisation_periods, 1)) for t in tables])
+
+    def summary(self, ts_s: float, n_columns: int = 1) -> dict[str, object]:
+        """The design as plain data for a record: its settings, its lines and, for a
+        multisine, the crest factors before and after minimisation (per realisation and
+        input)."""
+        out: dict[str, object] = {"design": self.to_flat(), "ts_s": float(ts_s)}
+        if self.kind == "multisine":
+            out["lines"] = self.excitation_lines(ts_s).to_json()
+        before, after = self.crest_factors(ts_s, n_columns)
+        out["crest_factor"] = {"random_phase": before.tolist(), "applied": after.tolist()}
+        return out
