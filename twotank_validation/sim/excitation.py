@@ -13,15 +13,18 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import scipy.signal
+import yaml
 from numpy.typing import NDArray
 
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError
-from twotank_validation.settings import FlatSetting, check_settings, flat, setting
+from twotank_validation.settings import FlatSetting, check_settings, flat, from_flat, setting
 
 __all__ = [
     "EXCITATION_KINDS",
@@ -30,7 +33,10 @@ __all__ = [
     "ExcitationDesign",
     "ExcitationLines",
     "OddMultisineLines",
+    "RecordedDesign",
     "crest_factor",
+    "design_document",
+    "design_path",
     "excitation_commands",
     "excitation_period",
     "filtered_noise_period",
@@ -38,7 +44,11 @@ __all__ = [
     "multisine_harmonics",
     "multisine_period",
     "odd_multisine_lines",
+    "parse_detection",
+    "read_design",
     "record_slice",
+    "take_design",
+    "write_design",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -193,6 +203,43 @@ def multisine_period(  # noqa: PLR0917 - signature fixed by the package API
     return _unit_rms(np.fft.irfft(spectrum, n=n), "multisine")
 
 
+def take_design(owner: object, design: ExcitationDesign, error: type[Exception]) -> None:
+    """Set a config's short-form excitation fields from ``design``.
+
+    The short form (``kind``, ``period_samples``, ``f_min_hz``, ``f_max_hz``, ``odd_only``,
+    ``cutoff_hz``, ``order``, ``seed``) of :class:`ExcitationConfig` and of the model
+    simulator's ``ModelExcitation``; a field given too (not at its default) must agree.
+    Where the owner's default is None (the model simulator's "automatic"), a zero of the
+    design is None.
+
+    Raises:
+        error: ``design`` is no design, or a given field disagrees with it.
+    """
+    if not isinstance(design, ExcitationDesign):
+        raise error(f"excitation design must be an ExcitationDesign, got {design!r}")
+    fields = type(owner).__dataclass_fields__  # type: ignore[attr-defined]
+    short = {
+        "kind": design.kind,
+        "period_samples": design.period_samples,
+        "f_min_hz": design.f_min_hz,
+        "f_max_hz": design.f_max_hz,
+        "odd_only": design.lines != "all",
+        "cutoff_hz": design.cutoff_hz,
+        "order": design.order,
+        "seed": design.seed,
+    }
+    for key, value in short.items():
+        default = fields[key].default
+        wanted = None if default is None and not value else value
+        given = getattr(owner, key)
+        if given not in (default, wanted):
+            raise error(
+                f"excitation {key}={given!r} disagrees with its design's {wanted!r}: give "
+                "either the design or the short form"
+            )
+        object.__setattr__(owner, key, wanted)
+
+
 @dataclass(frozen=True)
 class ExcitationConfig:
     """Design of the periodic excitation of both valves.
@@ -213,6 +260,10 @@ class ExcitationConfig:
         f_max_hz: Multisine: highest excited frequency, Hz, below Nyquist.
         odd_only: Multisine: excite odd harmonics of the period only.
         seed: Seed of numpy's default_rng for the random noise or phases.
+        design: The whole design (:class:`ExcitationDesign`: odd lines, detection lines,
+            line grid, realisations, crest-factor minimisation). None: built of the fields
+            above (their short form); given: those fields are set from it (a field given
+            too must agree). Always set after construction: the signal is drawn from it.
     """
 
     kind: str = "filtered_noise"
@@ -227,8 +278,11 @@ class ExcitationConfig:
     f_max_hz: float = 0.05
     odd_only: bool = False
     seed: int = 0
+    design: ExcitationDesign | None = None
 
     def __post_init__(self) -> None:
+        if self.design is not None:
+            take_design(self, self.design, DatumError)
         if self.kind not in EXCITATION_KINDS:
             raise DatumError(f"kind={self.kind!r} is unknown; use one of {EXCITATION_KINDS}")
         _check_period_args(self.period_samples, self.ts_s)
@@ -281,6 +335,28 @@ class ExcitationConfig:
                     "lengthen the period"
                 )
 
+        if self.design is None:
+            object.__setattr__(
+                self,
+                "design",
+                ExcitationDesign(
+                    kind=self.kind,
+                    period_samples=self.period_samples,
+                    f_min_hz=self.f_min_hz,
+                    f_max_hz=self.f_max_hz,
+                    lines="odd" if self.odd_only else "all",
+                    cutoff_hz=self.cutoff_hz,
+                    order=self.order,
+                    seed=self.seed,
+                ),
+            )
+
+    @property
+    def the_design(self) -> ExcitationDesign:
+        """The design the signal is drawn from (never None after construction)."""
+        assert self.design is not None  # set by __post_init__
+        return self.design
+
     @property
     def period_s(self) -> float:
         """Length of one period, seconds."""
@@ -299,36 +375,20 @@ class ExcitationConfig:
 
 
 def excitation_period(config: ExcitationConfig) -> FloatArray:
-    """One period of the excitation of both valves.
+    """One cycle of the excitation of both valves: one period for a single realisation.
 
-    The two columns are drawn one after the other from ``default_rng(config.seed)`` (hot
-    first), so they are independent realisations.
+    Drawn by the design (:meth:`ExcitationDesign.cycle`): the two columns one after the
+    other from ``default_rng(config.seed)`` (hot first), so they are independent
+    realisations; with several realisations each is tiled over its periods.
 
     Args:
         config: Excitation design.
 
     Returns:
-        (period_samples, 2) float, model units: zero-mean deviations [hot, cold], column i
-        with RMS ``config.rms[i]``.
+        (cycle_periods period_samples, 2) float, model units: zero-mean deviations
+        [hot, cold], column i with RMS ``config.rms[i]``.
     """
-    rng = np.random.default_rng(config.seed)
-    columns = []
-    for rms in config.rms:
-        if config.kind == "filtered_noise":
-            x = filtered_noise_period(
-                config.period_samples, config.ts_s, config.cutoff_hz, config.order, rng
-            )
-        else:
-            x = multisine_period(
-                config.period_samples,
-                config.ts_s,
-                config.f_min_hz,
-                config.f_max_hz,
-                config.odd_only,
-                rng,
-            )
-        columns.append(rms * x)
-    return np.column_stack(columns)
+    return config.the_design.cycle(config.ts_s, np.asarray(config.rms, dtype=np.float64))
 
 
 def excitation_commands(config: ExcitationConfig, offset: FloatArray) -> FloatArray:
@@ -370,7 +430,8 @@ def excitation_commands(config: ExcitationConfig, offset: FloatArray) -> FloatAr
                 f"{valve} valve command leaves [0, 1] by {excess:.4g} (range {lo:.4g} .. "
                 f"{hi:.4g} around offset {off[i]:.4g}); {advice}"
             )
-    return np.asarray(off + np.tile(period, (config.settle_periods + config.record_periods, 1)))
+    total = config.total_samples
+    return np.asarray(off + np.tile(period, (-(-total // len(period)), 1))[:total])
 
 
 def record_slice(config: ExcitationConfig) -> slice:
@@ -510,8 +571,9 @@ _LINES_STREAM = 7
 
 
 def parse_detection(text: str) -> tuple[int, int]:
-    """``""`` -> ``(0, 0)`` (no detection line); ``"M/G"`` -> ``(M, G)``: M of every G
-    consecutive odd lines are left out (``1 <= M < G``).
+    """The detection setting as ``(M, G)``: M of every G consecutive odd lines left out.
+
+    ``""`` -> ``(0, 0)`` (no detection line); ``"1/3"`` -> ``(1, 3)``; ``1 <= M < G``.
 
     Raises:
         DatumError: not of that form.
@@ -695,21 +757,21 @@ class ExcitationDesign:
         return flat(cls)
 
     def to_flat(self) -> dict[str, object]:
-        """The design as flat (parameter) values: :func:`~twotank_validation.settings.from_flat`
-        of them is the design again."""
+        """The design as flat (parameter) values; ``from_flat`` of them is the design."""
         return {s.name: getattr(self, s.path[-1]) for s in flat(type(self))}
 
     # ------------------------------------------------------------------ derived
 
     @property
     def cycle_periods(self) -> int:
-        """Periods before the excitation repeats: ``realisations realisation_periods`` (1 for
-        a single realisation)."""
+        """Periods before the excitation repeats (1 for a single realisation)."""
         return 1 if self.realisations == 1 else self.realisations * self.realisation_periods
 
     def with_run(self, periods: int) -> ExcitationDesign:
-        """The design with ``realisation_periods`` set to ``periods`` where it is 0 and there
-        are several realisations (a simulation's settling and recorded periods)."""
+        """The design with ``realisation_periods`` 0 of several realisations set to ``periods``.
+
+        A simulation's settling and recorded periods.
+        """
         if self.realisations > 1 and self.realisation_periods == 0:
             return replace(self, realisation_periods=int(periods))
         return self
@@ -808,8 +870,11 @@ class ExcitationDesign:
         return self._draw(ts_s, n_columns)[0]
 
     def crest_factors(self, ts_s: float, n_columns: int) -> tuple[FloatArray, FloatArray]:
-        """``(before, after)`` (realisations, n_columns): each period's crest factor with its
-        random phases and as applied (equal without ``crest_min``)."""
+        """Each period's crest factor with its random phases and as applied.
+
+        Returns:
+            ``(before, after)``, (realisations, n_columns) each (equal without ``crest_min``).
+        """
         _, before, after = self._draw(ts_s, n_columns)
         return before, after
 
@@ -880,12 +945,123 @@ class ExcitationDesign:
         return np.concatenate([np.tile(t, (self.realisation_periods, 1)) for t in tables])
 
     def summary(self, ts_s: float, n_columns: int = 1) -> dict[str, object]:
-        """The design as plain data for a record: its settings, its lines and, for a
-        multisine, the crest factors before and after minimisation (per realisation and
-        input)."""
+        """The design as plain data for a record.
+
+        Its settings, its lines (a multisine's) and the crest factors before and after
+        minimisation (per realisation and input).
+        """
         out: dict[str, object] = {"design": self.to_flat(), "ts_s": float(ts_s)}
         if self.kind == "multisine":
             out["lines"] = self.excitation_lines(ts_s).to_json()
         before, after = self.crest_factors(ts_s, n_columns)
         out["crest_factor"] = {"random_phase": before.tolist(), "applied": after.tolist()}
         return out
+
+
+# ----------------------------------------------------------------- the design beside a record
+
+DESIGN_SUFFIX = ".excitation.yaml"
+"""Suffix of the excitation design written beside a recording (``run.csv`` ->
+``run.excitation.yaml``, a bag ``run`` -> ``run.excitation.yaml``)."""
+
+
+@dataclass(frozen=True)
+class RecordedDesign:
+    """The excitation design of a recording, as written beside it.
+
+    Attributes:
+        design: the design.
+        ts_s: the sample period it was applied at, s.
+        lines: its lines (None for filtered noise).
+        settle_periods: periods of each realisation before its recorded ones (transient).
+        recorded_periods: recorded periods of each realisation.
+        start_sample: the record's sample where realisation 0 starts.
+    """
+
+    design: ExcitationDesign
+    ts_s: float
+    lines: ExcitationLines | None
+    settle_periods: int
+    recorded_periods: int
+    start_sample: int = 0
+
+    @property
+    def realisation_periods(self) -> int:
+        """Periods of each realisation (settling and recorded)."""
+        return self.settle_periods + self.recorded_periods
+
+
+def design_path(recording: str | os.PathLike[str]) -> Path:
+    """Where the design of the recording at ``recording`` is written: beside it."""
+    path = Path(recording)
+    stem = path.stem if path.suffix.lower() == ".csv" else path.name  # as the interface map
+    return path.with_name(stem + DESIGN_SUFFIX)
+
+
+def design_document(
+    design: ExcitationDesign,
+    ts_s: float,
+    n_inputs: int,
+    settle_periods: int,
+    recorded_periods: int,
+) -> dict[str, object]:
+    """The design as plain data (:meth:`ExcitationDesign.summary` and the run's periods)."""
+    out = design.summary(ts_s, n_inputs)
+    out["run"] = {
+        "settle_periods": int(settle_periods),
+        "recorded_periods": int(recorded_periods),
+        "start_sample": 0,
+    }
+    return out
+
+
+def write_design(document: dict[str, object], recording: str | os.PathLike[str]) -> Path:
+    """Write :func:`design_document` beside the recording (never over an existing file).
+
+    Raises:
+        DatumError: the file exists.
+    """
+    path = design_path(recording)
+    if path.exists():
+        raise DatumError(f"{path} exists already; recordings are never overwritten")
+    path.write_text(yaml.safe_dump(document, sort_keys=False, width=100))
+    return path
+
+
+def read_design(recording: str | os.PathLike[str]) -> RecordedDesign | None:
+    """The design written beside ``recording``; None when there is none.
+
+    Raises:
+        DatumError: the file is there but is not a design (the message names it).
+    """
+    path = design_path(recording)
+    if not path.is_file():
+        return None
+    try:
+        doc = yaml.safe_load(path.read_text())
+        design = from_flat(ExcitationDesign, doc["design"])
+        run = doc.get("run", {})
+        lines = doc.get("lines")
+        recorded = RecordedDesign(
+            design=design,
+            ts_s=float(doc["ts_s"]),
+            lines=None
+            if lines is None
+            else ExcitationLines(
+                np.asarray(lines["excited"], dtype=np.int64),
+                np.asarray(lines["detection"], dtype=np.int64),
+                np.asarray(lines["even"], dtype=np.int64),
+                int(lines["first"]),
+                int(lines["last"]),
+                int(lines["step"]),
+            ),
+            settle_periods=int(run.get("settle_periods", 0)),
+            recorded_periods=int(run.get("recorded_periods", 0)),
+            start_sample=int(run.get("start_sample", 0)),
+        )
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
+        raise DatumError(
+            f"{path} is not an excitation design ({type(err).__name__}: {err}); remove it or "
+            "write it again with simulate"
+        ) from err
+    return recorded

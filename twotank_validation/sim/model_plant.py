@@ -172,7 +172,7 @@ class ModelExcitation:
 
     def __post_init__(self) -> None:
         if self.design is not None:
-            self._take_design(self.design)
+            excitation.take_design(self, self.design, ModelSimError)
         if self.kind not in excitation.EXCITATION_KINDS:
             raise ModelSimError(
                 f"excitation kind={self.kind!r} is unknown; use one of "
@@ -212,30 +212,6 @@ class ModelExcitation:
             except DatumError as err:
                 raise ModelSimError(f"excitation: {err}") from err
             object.__setattr__(self, "design", design)
-
-    def _take_design(self, design: excitation.ExcitationDesign) -> None:
-        """Set the short-form fields from ``design`` (each given one must agree with it)."""
-        if not isinstance(design, excitation.ExcitationDesign):
-            raise ModelSimError(f"excitation design must be an ExcitationDesign, got {design!r}")
-        short = {
-            "kind": design.kind,
-            "period_samples": design.period_samples,
-            "f_min_hz": design.f_min_hz or None,
-            "f_max_hz": design.f_max_hz or None,
-            "odd_only": design.lines != "all",
-            "cutoff_hz": design.cutoff_hz or None,
-            "order": design.order,
-            "seed": design.seed,
-        }
-        defaults = ModelExcitation.__dataclass_fields__
-        for key, value in short.items():
-            given = getattr(self, key)
-            if given != defaults[key].default and given != value:
-                raise ModelSimError(
-                    f"excitation {key}={given!r} disagrees with its design's {value!r}: give "
-                    "either the design or the short form"
-                )
-            object.__setattr__(self, key, value)
 
     @property
     def the_design(self) -> excitation.ExcitationDesign:
@@ -384,8 +360,10 @@ class ModelSimConfig:
         return np.array([float(op.get(n, 0.0)) for n in self.model.output_names])
 
     def command_table(self) -> FloatArray:
-        """(cycle, nu) absolute commands of one cycle (one period for a single realisation);
-        sample k uses row k mod its length."""
+        """(cycle, nu) absolute commands of one cycle; sample k uses row k mod its length.
+
+        One period for a single realisation.
+        """
         return np.asarray(self.offset) + self.excitation.deviations(self.ts_s, self.rms)
 
 
