@@ -54,11 +54,14 @@ from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
 from twotank_validation.identify.lpm import local_polynomial
 from twotank_validation.identify.nonparametric import (
+    Distortion,
     FrequencyResponse,
     best_linear_approximation,
+    distortion_lines,
     frf_from_experiments,
     split_by_pattern,
 )
+from twotank_validation.sim.excitation import ExcitationLines
 
 __all__ = [
     "Estimator",
@@ -97,6 +100,10 @@ class IdentifyConfig:
         max_weight_order: largest order of the perturbation weight.
         delays: fit a transport delay per output with the nominal (a process plant's dead
             time; written as the nominal's ``output_delays_s``).
+        lines: the excitation design's lines (the design written beside the recording,
+            :func:`~twotank_validation.sim.excitation.read_design`): the excited lines are
+            these, not those the input shows, and the outputs' power at the detection and
+            even lines is measured (:attr:`Identification.distortion`); None: no design.
     """
 
     orders: range = field(default_factory=lambda: range(1, 9))
@@ -105,6 +112,7 @@ class IdentifyConfig:
     margin: float = 1.2
     max_weight_order: int = 2
     delays: bool = False
+    lines: ExcitationLines | None = None
 
 
 @dataclass(frozen=True)
@@ -122,6 +130,9 @@ class Identification:
         period_samples: samples per period.
         n_windows: windows used.
         notes: what a user should know (the estimator's choice, a poor fit, dropped lines).
+        distortion: the outputs' power at the design's detection (odd) and even lines, the
+            mean over the windows of each window's (a realisation's) level; None without a
+            design's odd lines.
     """
 
     response: FrequencyResponse
@@ -134,6 +145,7 @@ class Identification:
     n_windows: int
     config: IdentifyConfig = field(default_factory=IdentifyConfig)
     notes: tuple[str, ...] = ()
+    distortion: Distortion | None = None
 
     @cached_property
     def shapes(self) -> tuple[FittedWeight, ...]:
@@ -177,12 +189,17 @@ def probe_model(inputs: Sequence[str], outputs: Sequence[str]) -> LFTModel:
     )
 
 
-def _lines(windows: Sequence[Window], band: Band | None) -> np.ndarray:
-    """The excited lines of the windows' mean input period, inside the band."""
+def _lines(
+    windows: Sequence[Window], band: Band | None, design: ExcitationLines | None = None
+) -> np.ndarray:
+    """The excited lines (the design's, else the windows' mean input period's) in the band."""
     n = windows[0].period_samples
-    periods = np.concatenate([w.u.reshape(-1, n, w.u.shape[1]) for w in windows])
-    spec = np.fft.rfft(periods.mean(axis=0), axis=0) / n
-    lines = np.flatnonzero(excited_lines(spec, 1))
+    if design is not None:
+        lines = np.asarray(design.excited, dtype=int)
+    else:
+        periods = np.concatenate([w.u.reshape(-1, n, w.u.shape[1]) for w in windows])
+        spec = np.fft.rfft(periods.mean(axis=0), axis=0) / n
+        lines = np.flatnonzero(excited_lines(spec, 1))
     if band is not None:
         f = lines / (n * windows[0].ts_s)
         lines = lines[(f >= band.min_hz) & (f <= band.max_hz)]
@@ -258,6 +275,31 @@ def _lpm(
     return fr, var, Estimator.LPM
 
 
+def _distortion(windows: Sequence[Window], design: ExcitationLines) -> Distortion | None:
+    """The outputs' power at the design's detection and even lines, over the windows.
+
+    Per window (one realisation: the distortion's phases change with the realisation, so
+    the periods are averaged within it only), then the mean level over the windows. None
+    for a design without unexcited odd or even lines, or off a grid of every line.
+    """
+    if design.step != 1 or not (design.detection.size or design.even.size):
+        return None
+    each = [
+        distortion_lines(
+            w.y - w.y.mean(axis=0), w.period_samples, design.excited, (design.first, design.last)
+        )
+        for w in windows
+    ]
+    return Distortion(
+        odd=np.mean([d.odd for d in each], axis=0),
+        even=np.mean([d.even for d in each], axis=0),
+        noise_odd=np.mean([d.noise_odd for d in each], axis=0),
+        noise_even=np.mean([d.noise_even for d in each], axis=0),
+        n_odd=each[0].n_odd,
+        n_even=each[0].n_even,
+    )
+
+
 def _transient(windows: Sequence[Window]) -> bool:
     """Whether a window of three or more periods shows a transient still decaying.
 
@@ -288,7 +330,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     """
     if not windows:
         raise IdentificationError("no window to identify from")
-    lines = _lines(windows, config.band)
+    lines = _lines(windows, config.band, config.lines)
     one_period = all(w.n_periods == 1 for w in windows)
     transient = not one_period and _transient(windows)
     notes = []
@@ -322,6 +364,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         n_windows=len(windows),
         config=config,
         notes=tuple(notes),
+        distortion=None if config.lines is None else _distortion(windows, config.lines),
     )
 
 

@@ -1024,7 +1024,7 @@ def write_design(document: dict[str, object], recording: str | os.PathLike[str])
     path = design_path(recording)
     if path.exists():
         raise DatumError(f"{path} exists already; recordings are never overwritten")
-    path.write_text(yaml.safe_dump(document, sort_keys=False, width=100))
+    path.write_text(yaml.safe_dump(document, sort_keys=False, width=100, default_flow_style=None))
     return path
 
 
