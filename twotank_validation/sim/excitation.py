@@ -14,7 +14,7 @@ from __future__ import annotations
 import copy
 import math
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -263,7 +263,8 @@ class ExcitationConfig:
         design: The whole design (:class:`ExcitationDesign`: odd lines, detection lines,
             line grid, realisations, crest-factor minimisation). None: built of the fields
             above (their short form); given: those fields are set from it (a field given
-            too must agree). Always set after construction: the signal is drawn from it.
+            too must agree). The signal is drawn from :attr:`the_design`, this or the short
+            form's.
     """
 
     kind: str = "filtered_noise"
@@ -279,6 +280,7 @@ class ExcitationConfig:
     odd_only: bool = False
     seed: int = 0
     design: ExcitationDesign | None = None
+    _design: ExcitationDesign = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.design is not None:
@@ -335,10 +337,12 @@ class ExcitationConfig:
                     "lengthen the period"
                 )
 
-        if self.design is None:
+        if self.design is not None:
+            object.__setattr__(self, "_design", self.design)
+        else:
             object.__setattr__(
                 self,
-                "design",
+                "_design",
                 ExcitationDesign(
                     kind=self.kind,
                     period_samples=self.period_samples,
@@ -353,9 +357,8 @@ class ExcitationConfig:
 
     @property
     def the_design(self) -> ExcitationDesign:
-        """The design the signal is drawn from (never None after construction)."""
-        assert self.design is not None  # set by __post_init__
-        return self.design
+        """The design the signal is drawn from: ``design``, or the short form's."""
+        return self._design
 
     @property
     def period_s(self) -> float:

@@ -154,8 +154,8 @@ class ModelExcitation:
         design: The whole design (:class:`~twotank_validation.sim.excitation.ExcitationDesign`:
             odd lines, detection lines, line grid, realisations, crest-factor minimisation).
             None: built of the fields above, which are the short form; given: those fields
-            are set from it (a field given too must agree with it). Always set after
-            construction: the one the signal is drawn from.
+            are set from it (a field given too must agree with it). The signal is drawn
+            from :attr:`the_design`, this or the short form's.
     """
 
     kind: str = "multisine"
@@ -169,6 +169,7 @@ class ModelExcitation:
     order: int = 2
     seed: int = 0
     design: excitation.ExcitationDesign | None = None
+    _design: excitation.ExcitationDesign = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.design is not None:
@@ -197,7 +198,8 @@ class ModelExcitation:
         object.__setattr__(self, "seed", _integer("excitation seed", self.seed, lo=0))
         if not isinstance(self.odd_only, bool):
             raise ModelSimError(f"excitation odd_only={self.odd_only!r} must be true or false")
-        if self.design is None:
+        design = self.design
+        if design is None:
             try:
                 design = excitation.ExcitationDesign(
                     kind=self.kind,
@@ -211,13 +213,12 @@ class ModelExcitation:
                 )
             except DatumError as err:
                 raise ModelSimError(f"excitation: {err}") from err
-            object.__setattr__(self, "design", design)
+        object.__setattr__(self, "_design", design)
 
     @property
     def the_design(self) -> excitation.ExcitationDesign:
-        """The design the signal is drawn from (never None after construction)."""
-        assert self.design is not None  # set by __post_init__
-        return self.design
+        """The design the signal is drawn from: ``design``, or the short form's."""
+        return self._design
 
     def band(self, ts_s: float) -> tuple[float, float, float]:
         """``(f_min_hz, f_max_hz, cutoff_hz)`` with the defaults for sample period ``ts_s``."""
