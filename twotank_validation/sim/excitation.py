@@ -29,6 +29,7 @@ from twotank_validation.settings import FlatSetting, check_settings, flat, from_
 __all__ = [
     "EXCITATION_KINDS",
     "LINE_SETS",
+    "RIG_DESIGN",
     "ExcitationConfig",
     "ExcitationDesign",
     "ExcitationLines",
@@ -959,6 +960,12 @@ class ExcitationDesign:
         before, after = self.crest_factors(ts_s, n_columns)
         out["crest_factor"] = {"random_phase": before.tolist(), "applied": after.tolist()}
         return out
+
+
+RIG_DESIGN = ExcitationDesign()
+"""The rig's excitation by default (scenarios, the excitation and controller nodes): the
+design's own defaults, filtered noise of cutoff 0.006 Hz and seed 2 (a multisine from
+1/204.8 Hz up to 0.05 Hz)."""
 
 
 # ----------------------------------------------------------------- the design beside a record

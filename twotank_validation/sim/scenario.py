@@ -108,9 +108,6 @@ def _integer(where: str, key: str, value: object, *, lo: int) -> int:
 
 _CC: Final = control.ControllerConfig()
 
-RIG_DESIGN: Final = excitation.ExcitationDesign()
-"""The rig's excitation design by default (the excitation and controller nodes' defaults)."""
-
 _DESIGN_KEYS: Final = tuple(
     s.name
     for s in excitation.ExcitationDesign.settings()
@@ -498,7 +495,7 @@ class Scenario:
         values: dict[str, Any] = {
             "kind": self.excitation_kind,
             "period_samples": self.period_samples,
-            "f_min_hz": RIG_DESIGN.f_min_hz,
+            "f_min_hz": excitation.RIG_DESIGN.f_min_hz,
             "f_max_hz": self.f_max_hz,
             "lines": "odd" if self.odd_only else "all",
             "cutoff_hz": self.cutoff_hz,
