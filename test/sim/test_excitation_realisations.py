@@ -225,3 +225,23 @@ def test_the_gate_still_flags_an_input_that_does_not_repeat(
 def test_a_realisation_shorter_than_a_window_is_refused() -> None:
     with pytest.raises(ValueError, match="shorter than a window and its settling"):
         MonitorConfig(periods_per_window=2, settle_periods=1, realisation_periods=2)
+
+
+def test_a_scenario_takes_the_design_in_its_excitation_mapping() -> None:
+    from twotank_validation.sim.scenario import Scenario, ScenarioError  # noqa: PLC0415
+
+    s = Scenario(
+        name="r", duration_s=1000.0, period_samples=128, excitation_kind="multisine",
+        rms_hot=0.02, rms_cold=0.05, f_max_hz=2.0,
+        excitation={"lines": "odd", "detection": "1/3", "realisations": 2,
+                    "realisation_periods": 3},
+    )  # fmt: skip
+    design = s.design()
+    assert (design.kind, design.lines, design.realisations, design.seed) == (
+        "multisine", "odd", 2, s.excitation_seed,
+    )  # fmt: skip
+    table = s.command_table() - s.operating_point().commands
+    np.testing.assert_allclose(table, design.cycle(s.ts_s, np.array([0.02, 0.05])), atol=1e-15)
+    assert s.with_design({"realisations": 3}).design().realisations == 3
+    with pytest.raises(ScenarioError, match="unknown key"):
+        Scenario(name="r", duration_s=10.0, excitation={"kind": "multisine"})
