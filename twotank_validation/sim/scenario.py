@@ -34,6 +34,7 @@ from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.online.streams import RigUnits
 from twotank_validation.settings import from_flat
 from twotank_validation.sim import control, excitation, rig, simulator
+from twotank_validation.sim.excitation import ExcitationConfig, ExcitationDesign
 from twotank_validation.sim.faults import MAX_FAULT_DELAY_S, Fault, parse_fault
 
 __all__ = [
@@ -486,7 +487,7 @@ class Scenario:
         """Equilibrium at (height, temperature)."""
         return rig.operating_point(self.rig_params(), self.height, self.temperature)
 
-    def design(self) -> excitation.ExcitationDesign:
+    def design(self) -> ExcitationDesign:
         """The excitation's design: the scenario's keys and its ``excitation`` mapping.
 
         Raises:
@@ -527,7 +528,7 @@ class Scenario:
         changes["excitation"] = dict(self.excitation) | rest
         return dataclasses.replace(self, **changes)
 
-    def excitation_config(self) -> excitation.ExcitationConfig:
+    def excitation_config(self) -> ExcitationConfig:
         """The excitation of one cycle, as the excitation node builds it.
 
         One period for a single realisation.
