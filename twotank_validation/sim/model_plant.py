@@ -571,7 +571,10 @@ class ModelSimResult:
 
     @property
     def record_slice(self) -> slice:
-        """The samples of the ``periods`` periods after settling."""
+        """The ``periods`` periods after settling (of the first realisation).
+
+        :meth:`recorded_realisations` gives each realisation's.
+        """
         start = self.settle_periods * self.period_samples
         return slice(start, start + self.periods * self.period_samples)
 

@@ -134,7 +134,7 @@ def timed_config(
 def with_recorded_design(read: ReadSettings, recording: Recording, tell: Teller) -> ReadSettings:
     """``read`` with what the excitation design beside the recording says, where not given.
 
-    The sample period and the period (for a table, which has no metadata); with several
+    The sample and excitation periods of a table (which has no metadata); with several
     realisations the monitor's ``realisation_periods`` and, where a window still fits after
     it, each realisation's settling as the windows' settling periods. Nothing that the user
     gave is replaced.
@@ -149,10 +149,17 @@ def with_recorded_design(read: ReadSettings, recording: Recording, tell: Teller)
     if rec is None:
         return read
     changes: dict[str, object] = {}
-    if read.ts_s is None:
-        changes["ts_s"] = rec.ts_s
-    if read.period_samples is None:
-        changes["period_samples"] = rec.design.period_samples
+    if recording.table is not None and (read.ts_s is None or read.period_samples is None):
+        # a table has no metadata: the design's periods, unless given (a bag's metadata wins)
+        if read.ts_s is None:
+            changes["ts_s"] = rec.ts_s
+        if read.period_samples is None:
+            changes["period_samples"] = rec.design.period_samples
+        tell(
+            Level.NOTE,
+            f"sample period {rec.ts_s:g} s and period {rec.design.period_samples} from the "
+            f"excitation design {design_path(recording.given)} (--ts, --period override)",
+        )
     monitor = read.monitor
     if rec.design.realisations > 1 and not monitor.realisation_periods:
         settle = monitor.settle_periods
