@@ -24,6 +24,7 @@ from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS, ValidatorSettings
 from twotank_validation.settings import FlatSetting, SettingError, flat, from_flat
+from twotank_validation.sim.excitation import RIG_DESIGN, ExcitationDesign
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 BY_NAME = {s.name: s for s in VALIDATOR_SETTINGS}
@@ -89,6 +90,7 @@ NOT_SETTINGS_OPTIONS = {
     "--member": "live: the model plant node's member of its set",
     "--noise-scale": "live: the model plant node's noise",
 }
+# (simulate's excitation design options are the design's settings: checked below)
 """Options of the checked commands that are not settings of the tree, and why."""
 
 COMMANDS = ("validate", "diagnose", "calibrate", "live", "demo")
@@ -440,3 +442,106 @@ def test_cli_docs_list_the_options_with_the_trees_defaults() -> None:
     debounce = bag["--debounce"][1]
     for name in ("alarm_windows", "alarm_evidence"):
         assert str(BY_NAME[name].default) in debounce, (name, debounce)
+
+
+# ------------------------------------------------------------------ the excitation design
+
+DESIGN = {s.name: s for s in ExcitationDesign.settings()}
+
+
+def test_the_design_round_trips_through_its_flat_form() -> None:
+    d = ExcitationDesign(
+        kind="multisine", lines="odd", detection="1/4", line_step=2, realisations=3,
+        realisation_periods=6, crest_min=True, seed=9,
+    )  # fmt: skip
+    assert from_flat(ExcitationDesign, d.to_flat()) == d
+    assert from_flat(ExcitationDesign, {}) == ExcitationDesign() == RIG_DESIGN
+
+
+@pytest.mark.parametrize("node", ["excitation", "controller", "model_plant"])
+def test_nodes_take_the_designs_settings_as_parameters(node: str) -> None:
+    """Name, description, range and choices are the design's; the default its context's."""
+    from twotank_validation.ros import (  # noqa: PLC0415
+        controller_node,
+        excitation_node,
+        model_plant_node,
+    )
+
+    params, context = {
+        "excitation": (excitation_node.EXCITATION_PARAMS, RIG_DESIGN),
+        "controller": (controller_node.CONTROLLER_PARAMS, RIG_DESIGN),
+        "model_plant": (model_plant_node.MODEL_PLANT_PARAMS, model_plant_node.MODEL_DESIGN),
+    }[node]
+    by_name = {p.name: p for p in params}
+    assert "odd_only" not in by_name  # lines replaces it
+    defaults = context.to_flat()
+    for name, s in DESIGN.items():
+        p = by_name[name]
+        assert (p.description, p.low, p.high, p.choices) == (
+            s.meta.description,
+            s.meta.low,
+            s.meta.high,
+            s.meta.choices,
+        ), (node, name)
+        assert p.default == defaults[name], (node, name)
+        assert type(p.default) is type(s.param_default), (node, name)
+    # the node's design of its defaults is its context's
+    from twotank_validation.ros.params import design_of  # noqa: PLC0415
+
+    assert design_of({p.name: p.default for p in params}) == context
+
+
+def test_simulate_offers_the_designs_options() -> None:
+    from twotank_validation.cli_models import DESIGN_BAND_OPTION  # noqa: PLC0415
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    options = _options(sub.choices["simulate"])
+    with_option = {s.meta.option: s for s in DESIGN.values() if s.meta.option}
+    assert set(with_option) | {DESIGN_BAND_OPTION} <= set(options)
+    for option, s in with_option.items():
+        action = options[option]
+        assert action.default is None, option  # the scenario's own, or --model's multisine
+        assert action.dest == option_dest(option)
+        if s.kind is bool:
+            assert action.nargs == 0, option
+        elif s.meta.choices:
+            assert tuple(action.choices or ()) == s.meta.choices, option
+        else:
+            assert action.type is s.kind, option
+    # the design's period and seed are simulate's --period and --seed; f_min/f_max its --band
+    assert {s.name for s in DESIGN.values() if not s.meta.option} == {
+        "period_samples", "f_min_hz", "f_max_hz", "order", "seed",
+    }  # fmt: skip
+    args = build_parser().parse_args(
+        ["simulate", "--model", "B", "--out", "x", "--band", "0.01..0.2", "--lines", "odd",
+         "--detection", "1/3", "--realisations", "4", "--crest-min", "--period", "256"]
+    )  # fmt: skip
+    from twotank_validation.cli_models import model_design  # noqa: PLC0415
+
+    assert model_design(args, 256) == ExcitationDesign(
+        kind="multisine", period_samples=256, f_min_hz=0.01, f_max_hz=0.2, lines="odd",
+        detection="1/3", realisations=4, crest_min=True, cutoff_hz=0.0, seed=0,
+    )  # fmt: skip
+
+
+def test_cli_docs_list_simulates_design_options() -> None:
+    header = "| option | default | meaning |"
+    tables = (DOCS / "cli.md").read_text().split(header)
+    rows = next(r for t in tables[1:] if "--detection" in (r := _rows_of(header + t)))
+    for s in DESIGN.values():
+        if s.meta.option:
+            assert s.meta.option in rows, s.meta.option
+    assert "--band" in rows
+
+
+def test_ros_docs_list_the_design_parameters_with_the_rigs_defaults() -> None:
+    header = "| design parameter | rig default | range | meaning |"
+    rows = _rows_of(header + (DOCS / "ros.md").read_text().split(header)[1])
+    for name, s in DESIGN.items():
+        assert name in rows, f"docs/ros.md's design table lacks {name}"
+        value = _doc_value(rows[name][0])
+        want = RIG_DESIGN.to_flat()[name]
+        assert value == pytest.approx(want) if isinstance(want, float) else value == want, name
+        low, high, choices = _doc_range(rows[name][1])
+        assert (low, high) == (s.meta.low, s.meta.high), name
+        assert choices == tuple(sorted(s.meta.choices)), name

@@ -27,7 +27,12 @@ from twotank_validation.cli_common import (
 )
 from twotank_validation.cli_common import loopback_only as _loopback_only
 from twotank_validation.cli_common import out as _out
-from twotank_validation.cli_models import add_live_model_options, add_simulate_model_options
+from twotank_validation.cli_models import (
+    add_live_model_options,
+    add_simulate_model_options,
+    design_text,
+    design_values,
+)
 from twotank_validation.cli_options import (
     absolute,
     add_calibrate_arguments,
@@ -227,12 +232,18 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     wanted = progress_wanted(args.quiet)
     path = simulate_command(
-        args.scenario, args.out, args.storage, progress=None if wanted else False
+        args.scenario,
+        args.out,
+        args.storage,
+        progress=None if wanted else False,
+        design=design_values(args),
     )
     if load_scenario(args.scenario).flow_meter_noise > 0.0:  # its map is beside the bag
         print(f"wrote {path} and its interface map {interface_map_path(path)}")
     else:
         print(f"wrote {path}")
+    if text := design_text(path):
+        print(text)
     return 0
 
 

@@ -8,14 +8,25 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import yaml
 
 from twotank_validation.cli_common import Interrupts, LiveOutput, live_end, loopback_only
+from twotank_validation.cli_options import option_dest
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
+from twotank_validation.settings import FlatSetting
+
+if TYPE_CHECKING:
+    from twotank_validation.sim.excitation import ExcitationDesign
 
 __all__ = [
     "SIM_NOISE_SCALE",
+    "add_design_options",
     "add_live_model_options",
     "add_simulate_model_options",
     "cmd_live_model",
@@ -193,7 +204,119 @@ def add_simulate_model_options(
         "RMS (N) instead of a scenario or a model; --out ends in .csv: the table, its map "
         "(the force kind: measured) and the linear model (<stem>.model.yaml) are written",
     )
+    add_design_options(sim)
     sim.set_defaults(func=functools.partial(cmd_simulate_model, scenario=scenario))
+
+
+DESIGN_BAND_OPTION = "--band"
+"""``simulate``'s option for the multisine's band, ``F1..F2`` Hz: the design's ``f_min_hz``
+and ``f_max_hz`` at once."""
+
+
+def design_option_settings() -> tuple[FlatSetting, ...]:
+    """The excitation design's settings that are ``simulate`` options (``--excitation`` ...)."""
+    from twotank_validation.sim.excitation import ExcitationDesign  # noqa: PLC0415
+
+    return tuple(s for s in ExcitationDesign.settings() if s.meta.option)
+
+
+def add_design_options(sim: argparse.ArgumentParser) -> None:
+    """``simulate``'s excitation design options, generated from ``ExcitationDesign``.
+
+    Each defaults to None: the scenario's own setting, or ``--model``'s multisine over its
+    first line .. ``0.2 / ts``; ``--period`` and ``--seed`` are the design's period and seed.
+    """
+    group = sim.add_argument_group(
+        "excitation design (--scenario, --model; docs/identify.md, designing an experiment)"
+    )
+    for s in design_option_settings():
+        kwargs: dict[str, Any] = {"default": None}
+        if s.kind is bool:
+            kwargs["action"] = "store_true"
+        elif s.meta.choices:
+            kwargs["choices"] = s.meta.choices
+        else:
+            kwargs["type"] = s.kind
+        group.add_argument(s.meta.option, help=s.meta.description, **kwargs)
+    group.add_argument(
+        DESIGN_BAND_OPTION,
+        metavar="F1..F2",
+        help="multisine: the band of excited lines (Hz), its f_min_hz and f_max_hz",
+    )
+
+
+def design_values(args: argparse.Namespace) -> dict[str, Any]:
+    """The design settings given on the command line, by their flat names.
+
+    Raises:
+        UsageError: a band not of the form ``F1..F2``.
+    """
+    values = {
+        s.name: getattr(args, option_dest(s.meta.option))
+        for s in design_option_settings()
+        if getattr(args, option_dest(s.meta.option)) is not None
+    }
+    if args.band is not None:
+        lo, sep, hi = str(args.band).partition("..")
+        try:
+            values["f_min_hz"], values["f_max_hz"] = float(lo), float(hi)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise UsageError(f"--band {args.band!r}: give F1..F2 in Hz, e.g. 0.002..0.05")
+    return values
+
+
+def model_design(args: argparse.Namespace, period_samples: int) -> ExcitationDesign | None:
+    """``simulate --model``'s design: the options given over its default multisine.
+
+    The default: a multisine over the first line .. 0.2 / ts. None when no design option is
+    given (the short form, the same samples).
+
+    Raises:
+        UsageError: an invalid design (the message names the setting).
+    """
+    from twotank_validation.settings import from_flat  # noqa: PLC0415
+    from twotank_validation.sim.excitation import ExcitationDesign  # noqa: PLC0415
+
+    given = design_values(args)
+    if not given:
+        return None
+    base = ExcitationDesign(
+        kind="multisine",
+        period_samples=period_samples,
+        f_min_hz=0.0,
+        f_max_hz=0.0,
+        cutoff_hz=0.0,
+        seed=args.seed,
+    )
+    try:
+        return from_flat(ExcitationDesign, base.to_flat() | given)
+    except ValueError as err:
+        raise UsageError(f"excitation design: {err}") from err
+
+
+def design_text(path: str | os.PathLike[str]) -> str | None:
+    """One line on the design written beside a recording (lines, realisations, crest)."""
+    from twotank_validation.sim.excitation import design_path, read_design  # noqa: PLC0415
+
+    rec = read_design(path)
+    if rec is None:
+        return None
+    d = rec.design
+    parts = [f"excitation {d.kind}"]
+    if rec.lines is not None:
+        parts.append(
+            f"{rec.lines.excited.size} excited line(s), {rec.lines.detection.size} detection "
+            f"line(s), {rec.lines.even.size} even line(s) unexcited"
+        )
+    if d.realisations > 1:
+        parts.append(f"{d.realisations} realisations of {rec.realisation_periods} periods")
+    doc = yaml.safe_load(design_path(path).read_text())
+    crest = doc.get("crest_factor", {})
+    before, after = np.max(crest.get("random_phase", [[0]])), np.max(crest.get("applied", [[0]]))
+    parts.append(f"crest factor {before:.3g} (random phase) -> {after:.3g} (applied)")
+    return f"{', '.join(parts)}; written to {design_path(path)}"
 
 
 def cmd_simulate_model(
@@ -220,29 +343,38 @@ def cmd_simulate_model(
             )
         return scenario(args)
     if args.structure is not None:
+        if design_values(args):
+            raise UsageError(
+                "the excitation design options are for --scenario and --model; --structure "
+                "drives its chain with its own multisine"
+            )
         return _simulate_structure(args)
     if args.storage != "mcap":
         raise UsageError("--storage is for --scenario; with --model give --format")
     from twotank_validation.bags.model_bag import simulate_model_command  # noqa: PLC0415
     from twotank_validation.sim.model_record import interface_map_path  # noqa: PLC0415
 
+    period = PERIOD_SAMPLES if args.period is None else args.period
     path = simulate_model_command(
         args.model,
         args.out,
         args.format or "mcap",
         ts_s=TS_S if args.ts is None else args.ts,
-        period_samples=PERIOD_SAMPLES if args.period is None else args.period,
+        period_samples=period,
         periods=args.periods,
         settle_periods=args.settle_periods,
         rms=args.rms,
         offset=args.offset,
         seed=args.seed,
+        design=model_design(args, period),
         member=args.member,
         noise_scale=args.noise_scale,
         noise_seed=args.noise_seed,
         faults=tuple(args.fault or ()),
     )
     print(f"wrote {path} and its interface map {interface_map_path(path)}")
+    if text := design_text(path):
+        print(text)
     return 0
 
 

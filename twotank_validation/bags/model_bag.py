@@ -22,6 +22,7 @@ from twotank_validation.bags.bag_errors import BagExistsError, BagWriteError
 from twotank_validation.bags.writer import STORAGES, BagWriter
 from twotank_validation.core.model import LFTModel, load_model
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
+from twotank_validation.sim.excitation import ExcitationDesign
 from twotank_validation.sim.model_plant import (
     ModelExcitation,
     ModelFault,
@@ -41,6 +42,7 @@ from twotank_validation.sim.model_record import (
     interface_map_path,
     write_interface_map,
     write_model_table,
+    write_result_design,
 )
 
 __all__ = ["CUSTOM_DATA_KEY", "FORMATS", "simulate_model_command", "write_model_bag"]
@@ -72,6 +74,7 @@ def run_settings(result: ModelSimResult) -> dict[str, Any]:
             "odd_only": exc.odd_only,
             "order": exc.order,
             "seed": exc.seed,
+            "design": exc.the_design.to_flat(),
         },
         "member": format_member(cfg.member),
         "noise_scale": cfg.noise_scale,
@@ -127,8 +130,10 @@ def write_model_bag(
                 for j, topic in enumerate(topics):
                     bag.write(topic, stamp, msg_cls(data=row[j]))
         write_interface_map(imap, map_path)
+        write_result_design(result, bag.path)
     except BaseException:
         shutil.rmtree(bag.path, ignore_errors=True)
+        map_path.unlink(missing_ok=True)
         raise
     return bag.path
 
@@ -150,6 +155,7 @@ def simulate_model_command(
     cutoff_hz: float | None = None,
     odd_only: bool = False,
     seed: int = 0,
+    design: ExcitationDesign | None = None,
     member: str = "nominal",
     noise_scale: float = 1.0,
     noise_seed: int = 0,
@@ -179,6 +185,9 @@ def simulate_model_command(
         cutoff_hz: Filtered noise cutoff (None: 0.2 / ts_s).
         odd_only: Multisine on odd harmonics only.
         seed: Excitation seed.
+        design: The whole excitation design (replaces ``kind`` .. ``seed`` and
+            ``period_samples``); written beside the recording
+            (:func:`~twotank_validation.sim.excitation.design_path`) with its lines.
         member: Member text (:func:`~twotank_validation.sim.model_plant.parse_member`).
         noise_scale: Noise as a fraction of what the model's weights admit.
         noise_seed: Noise seed.
@@ -216,7 +225,9 @@ def simulate_model_command(
             cutoff_hz=cutoff_hz,
             odd_only=odd_only,
             seed=seed,
-        ),
+        )
+        if design is None
+        else ModelExcitation(rms=rms, offset=offset, design=design),
         periods=periods,
         settle_periods=settle_periods,
         member=parse_member(member),

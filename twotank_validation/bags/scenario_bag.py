@@ -16,8 +16,9 @@ import json
 import os
 import shutil
 import sys
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 from tqdm import tqdm
 
@@ -39,6 +40,7 @@ from twotank_validation.online.streams import (
     TEMPERATURE,
     two_tank_map,
 )
+from twotank_validation.sim.excitation import design_document, write_design
 from twotank_validation.sim.model_record import interface_map_path, write_interface_map
 from twotank_validation.sim.scenario import Scenario, ScenarioError, iter_metered, load_scenario
 
@@ -155,19 +157,33 @@ def write_scenario_bag(
                 bar.update(n - bar.n)
         if metered:
             write_interface_map(metered_interface_map(scenario), map_path)
+        design = scenario.design()
+        if design.kind == "multisine" or design.realisations > 1:
+            write_design(
+                design_document(design, scenario.ts_s, 2, 0, max(design.realisation_periods, 1)),
+                bag.path,
+            )
     except BaseException:
         shutil.rmtree(bag.path, ignore_errors=True)
+        if metered:
+            map_path.unlink(missing_ok=True)
         raise
     return bag.path
 
 
 def simulate_command(
-    scenario: str, out: str, storage: str = "mcap", *, progress: bool | None = None
+    scenario: str,
+    out: str,
+    storage: str = "mcap",
+    *,
+    progress: bool | None = None,
+    design: Mapping[str, Any] | None = None,
 ) -> Path:
     """``twotank-validation simulate --scenario FILE|NAME --out BAG [--storage ...]``.
 
     Loads the scenario (file or shipped name) and writes its bag (``progress`` as
-    :func:`write_scenario_bag`'s).
+    :func:`write_scenario_bag`'s). ``design``: excitation design settings by their flat names
+    (``simulate``'s design options) in place of the scenario's (:meth:`Scenario.with_design`).
 
     Returns:
         The bag directory.
@@ -182,4 +198,7 @@ def simulate_command(
         raise BagExistsError(
             f"{out} exists already; bags are never overwritten: choose another --out"
         )
-    return write_scenario_bag(load_scenario(scenario), out, storage, progress=progress)
+    loaded = load_scenario(scenario)
+    if design:
+        loaded = loaded.with_design(design)
+    return write_scenario_bag(loaded, out, storage, progress=progress)

@@ -61,11 +61,14 @@ from twotank_validation.identify.greybox import (
 )
 from twotank_validation.identify.lpm import local_polynomial
 from twotank_validation.identify.nonparametric import (
+    Distortion,
     FrequencyResponse,
     best_linear_approximation,
+    distortion_lines,
     frf_from_experiments,
     split_by_pattern,
 )
+from twotank_validation.sim.excitation import ExcitationLines
 from twotank_validation.sim.rig import RigParams
 
 __all__ = [
@@ -110,6 +113,10 @@ class IdentifyConfig:
             black-box fit is the nominal.
         grey_box_prior: the grey box's start and the value of what the data leave
             undetermined (None: the paper's rig, ``RigParams()``).
+        lines: the excitation design's lines (the design written beside the recording,
+            :func:`~twotank_validation.sim.excitation.read_design`): the excited lines are
+            these, not those the input shows, and the outputs' power at the detection and
+            even lines is measured (:attr:`Identification.distortion`); None: no design.
     """
 
     orders: range = field(default_factory=lambda: range(1, 9))
@@ -120,6 +127,7 @@ class IdentifyConfig:
     delays: bool = False
     grey_box: GreyBoxModel | None = None
     grey_box_prior: RigParams | None = None
+    lines: ExcitationLines | None = None
 
 
 @dataclass(frozen=True)
@@ -140,6 +148,9 @@ class Identification:
         grey_box: the two-tank rig's physical parameters fitted to the response
             (:mod:`twotank_validation.identify.greybox`); when set, its linearisation is the
             nominal the document and the weights use (``fit`` stays the black-box fit).
+        distortion: the outputs' power at the design's detection (odd) and even lines, the
+            mean over the windows of each window's (a realisation's) level; None without a
+            design's odd lines.
     """
 
     response: FrequencyResponse
@@ -167,6 +178,7 @@ class Identification:
         plant driven by held commands).
         """
         return Intersample.EXACT if self.grey_box is None else self.grey_box.intersample
+    distortion: Distortion | None = None
 
     @cached_property
     def shapes(self) -> tuple[FittedWeight, ...]:
@@ -210,12 +222,17 @@ def probe_model(inputs: Sequence[str], outputs: Sequence[str]) -> LFTModel:
     )
 
 
-def _lines(windows: Sequence[Window], band: Band | None) -> np.ndarray:
-    """The excited lines of the windows' mean input period, inside the band."""
+def _lines(
+    windows: Sequence[Window], band: Band | None, design: ExcitationLines | None = None
+) -> np.ndarray:
+    """The excited lines (the design's, else the windows' mean input period's) in the band."""
     n = windows[0].period_samples
-    periods = np.concatenate([w.u.reshape(-1, n, w.u.shape[1]) for w in windows])
-    spec = np.fft.rfft(periods.mean(axis=0), axis=0) / n
-    lines = np.flatnonzero(excited_lines(spec, 1))
+    if design is not None:
+        lines = np.asarray(design.excited, dtype=int)
+    else:
+        periods = np.concatenate([w.u.reshape(-1, n, w.u.shape[1]) for w in windows])
+        spec = np.fft.rfft(periods.mean(axis=0), axis=0) / n
+        lines = np.flatnonzero(excited_lines(spec, 1))
     if band is not None:
         f = lines / (n * windows[0].ts_s)
         lines = lines[(f >= band.min_hz) & (f <= band.max_hz)]
@@ -291,6 +308,31 @@ def _lpm(
     return fr, var, Estimator.LPM
 
 
+def _distortion(windows: Sequence[Window], design: ExcitationLines) -> Distortion | None:
+    """The outputs' power at the design's detection and even lines, over the windows.
+
+    Per window (one realisation: the distortion's phases change with the realisation, so
+    the periods are averaged within it only), then the mean level over the windows. None
+    for a design without unexcited odd or even lines, or off a grid of every line.
+    """
+    if design.step != 1 or not (design.detection.size or design.even.size):
+        return None
+    each = [
+        distortion_lines(
+            w.y - w.y.mean(axis=0), w.period_samples, design.excited, (design.first, design.last)
+        )
+        for w in windows
+    ]
+    return Distortion(
+        odd=np.mean([d.odd for d in each], axis=0),
+        even=np.mean([d.even for d in each], axis=0),
+        noise_odd=np.mean([d.noise_odd for d in each], axis=0),
+        noise_even=np.mean([d.noise_even for d in each], axis=0),
+        n_odd=each[0].n_odd,
+        n_even=each[0].n_even,
+    )
+
+
 def _transient(windows: Sequence[Window]) -> bool:
     """Whether a window of three or more periods shows a transient still decaying.
 
@@ -347,7 +389,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
     """
     if not windows:
         raise IdentificationError("no window to identify from")
-    lines = _lines(windows, config.band)
+    lines = _lines(windows, config.band, config.lines)
     one_period = all(w.n_periods == 1 for w in windows)
     transient = not one_period and _transient(windows)
     notes = []
@@ -402,6 +444,7 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         config=config,
         notes=tuple(notes),
         grey_box=grey,
+        distortion=None if config.lines is None else _distortion(windows, config.lines),
     )
 
 

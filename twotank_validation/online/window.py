@@ -101,6 +101,11 @@ class MonitorConfig:
             judges overlapping windows more often and a fault is seen sooner. The alarm's
             window counts are scaled to the hop so that they weigh the same span of data
             (:func:`evidence_alarm`).
+        realisation_periods: periods of each realisation of a multi-realisation excitation
+            (a new random-phase draw every ``realisation_periods`` periods, counted from the
+            monitor's first sample); a window and its settling periods must lie within one
+            realisation (a span across a change is ``SETTLING``); 0: one excitation
+            throughout.
         band: the frequencies every model is claimed over, replacing the models' own
             (:func:`~twotank_validation.core.band.parse_band`): ``""`` each model's file's
             band (every bin without one), ``"all"`` every bin, ``"excited"``, ``"LO:HI"`` or
@@ -181,9 +186,31 @@ class MonitorConfig:
         "excited:LO:HI; default: each model file's band, else every bin",
     )
 
+    realisation_periods: int = setting(
+        0,
+        "periods of each realisation of a multi-realisation excitation (each a new random "
+        "draw; counted from the first sample): a window and its settling periods lie within "
+        "one realisation, a change of realisation is settling, not a non-periodic input; 0: "
+        "one excitation throughout",
+        unit="periods",
+        low=0,
+        high=1_000_000,
+        option="--realisation-periods",
+        cli_help="periods of each realisation of a multi-realisation excitation (from the "
+        "recording's excitation design where it has one); 0: one excitation throughout",
+    )
+
     def __post_init__(self) -> None:
         check_settings(self)
         self.band_of()  # a band that does not parse fails here, naming the forms
+        span = self.periods_per_window + self.settle_periods
+        if self.realisation_periods and self.realisation_periods < span:
+            raise ValueError(
+                f"realisation_periods = {self.realisation_periods} is shorter than a window "
+                f"and its settling ({self.periods_per_window} + {self.settle_periods} "
+                "periods): no window would lie within one realisation; record longer "
+                "realisations or use fewer periods per window"
+            )
         if not (
             self.hop_samples == 0
             or (
@@ -612,6 +639,26 @@ class WindowMonitor:
             rtol=cfg.input_periodic_rtol,
         )
 
+    def _settling(self) -> str | None:
+        """Why the span is still settling (too few periods, or a new realisation); None: not."""
+        cfg = self.config
+        L = cfg.period_samples
+        if self._count < cfg.span_samples:
+            return (
+                f"settling: {cfg.settle_periods} period(s) of periodic input are needed "
+                f"before the window ({self._count // L - cfg.periods_per_window} so far)"
+            )
+        if cfg.realisation_periods:
+            # samples of the current realisation seen so far (a whole one at its last sample)
+            into = (self._count - 1) % (cfg.realisation_periods * L) + 1
+            if into < cfg.span_samples:
+                return (
+                    f"settling: a new realisation of the excitation started {into / L:.3g} "
+                    f"period(s) ago; the window and {cfg.settle_periods} settling period(s) "
+                    "must lie within one realisation"
+                )
+        return None
+
     def _quality(
         self, rec: Recovery, flags: list[str | None]
     ) -> tuple[str, WindowQuality, float, float]:
@@ -635,16 +682,8 @@ class WindowMonitor:
                 return head + first, unusable, math.nan, math.nan
             return f"{head}: {rec.reason}{first}", unusable, math.nan, math.nan
         u = rec.u
-        if self._count < cfg.span_samples:
-            return (
-                (
-                    f"settling: {cfg.settle_periods} period(s) of periodic input are needed "
-                    f"before the window ({self._count // L - cfg.periods_per_window} so far)"
-                ),
-                WindowQuality(WindowState.SETTLING),
-                math.nan,
-                math.nan,
-            )
+        if (settling := self._settling()) is not None:
+            return settling, WindowQuality(WindowState.SETTLING), math.nan, math.nan
         rms = np.sqrt(column_mean(centred(u, column_mean(u)) ** 2))
         change = column_max_abs(u[L:] - u[:-L]) if span > L else np.zeros(self.n_inputs)
         meas = self._measured

@@ -33,7 +33,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import String
 
-from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
@@ -43,6 +43,8 @@ from twotank_validation.ros.params import (
     Param,
     ParameterError,
     declare,
+    design_of,
+    design_params,
     run_node,
 )
 from twotank_validation.sim import control, excitation, rig
@@ -57,7 +59,7 @@ _CC = control.ControllerConfig()
 
 CONTROLLER_PARAMS = (
     Param("ts_s", TS_S, "sample period (s)", 1e-3, 60.0),
-    Param("period_samples", PERIOD_SAMPLES, "excitation period (samples)", 4, 1_000_000),
+    *design_params(excitation.RIG_DESIGN),
     Param("height_setpoint", _CC.height_setpoint, "level setpoint (model units)", 0.15, 0.75),
     Param(
         "temperature_setpoint",
@@ -102,9 +104,6 @@ CONTROLLER_PARAMS = (
         _CC.excite_when_held,
         "safe mode: keep the output excitation on the held valves (the validator keeps judging)",
     ),
-    Param(
-        "kind", "filtered_noise", "filtered_noise or multisine", choices=excitation.EXCITATION_KINDS
-    ),
     Param("rms_hot", 0.05, "output entry: hot valve RMS deviation (model units)", 0.0, 0.5),
     Param("rms_cold", 0.2, "output entry: cold valve RMS deviation (model units)", 0.0, 0.5),
     Param(
@@ -117,10 +116,6 @@ CONTROLLER_PARAMS = (
         0.0,
         0.5,
     ),
-    Param("cutoff_hz", 0.006, "filtered noise: low-pass cutoff (Hz)", 1e-6, 1e3),
-    Param("f_max_hz", 0.05, "multisine: highest frequency (Hz)", 1e-6, 1e3),
-    Param("odd_only", False, "multisine: odd harmonics only"),
-    Param("seed", 2, "excitation seed", 0, 2**31 - 1),
     Param(
         "self_timed", True, "publish every ts_s on a timer (false: an external driver calls tick())"
     ),
@@ -159,22 +154,18 @@ class ControllerNode(Node):
                 if entry == "output"
                 else (float(v["setpoint_rms_height"]), float(v["setpoint_rms_temperature"]))
             )
+            design = design_of(v)
             exc_cfg = excitation.ExcitationConfig(
-                kind=str(v["kind"]),
                 ts_s=ts_s,
-                period_samples=period,
                 rms=rms,
-                cutoff_hz=float(v["cutoff_hz"]),
-                f_max_hz=float(v["f_max_hz"]),
-                odd_only=bool(v["odd_only"]),
-                seed=int(v["seed"]),
                 settle_periods=0,
-                record_periods=1,
+                record_periods=design.cycle_periods,
+                design=design,
             )
             op = rig.operating_point(rig.RigParams(), cfg.height_setpoint, cfg.temperature_setpoint)
             if entry == "output":  # checks that the excitation fits the valves at the setpoint
                 excitation.excitation_commands(exc_cfg, op.commands)
-            self.table = excitation.excitation_period(exc_cfg)  # (period, 2) deviations
+            self.table = excitation.excitation_period(exc_cfg)  # (cycle, 2) deviations
             self.controller = control.PIController(cfg, op.commands)
             self.units = itf.RigUnits(
                 float(v["pascal_per_unit"]),

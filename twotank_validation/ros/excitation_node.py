@@ -1,6 +1,6 @@
 """Excitation node: periodic valve commands (issue #2's generator) on ``flow_cmd``.
 
-Publishes ``offset + excitation_period[k mod period]`` every ``ts_s`` (or when an external
+Publishes ``offset + excitation_period[k mod cycle]`` every ``ts_s`` (or when an external
 driver calls :meth:`ExcitationNode.tick`), stamped with the node's clock.
 """
 
@@ -12,31 +12,33 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 
-from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
+from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import (
+    Param,
+    ParameterError,
+    declare,
+    design_of,
+    design_params,
+    run_node,
+)
 from twotank_validation.sim import excitation, rig
 
 EXCITATION_PARAMS = (
-    Param(
-        "kind", "filtered_noise", "filtered_noise or multisine", choices=excitation.EXCITATION_KINDS
-    ),
     Param("ts_s", TS_S, "sample period (s)", 1e-3, 60.0),
-    Param("period_samples", PERIOD_SAMPLES, "excitation period (samples)", 4, 1_000_000),
+    *design_params(excitation.RIG_DESIGN),
     Param("rms_hot", 0.05, "hot valve RMS deviation (model units)", 0.0, 0.5),
     Param("rms_cold", 0.2, "cold valve RMS deviation (model units)", 0.0, 0.5),
-    Param("cutoff_hz", 0.006, "filtered noise: low-pass cutoff (Hz)", 1e-6, 1e3),
-    Param("f_max_hz", 0.05, "multisine: highest frequency (Hz)", 1e-6, 1e3),
-    Param("odd_only", False, "multisine: odd harmonics only"),
-    Param("seed", 2, "excitation seed", 0, 2**31 - 1),
     Param("height", 0.47, "operating level the offsets are computed for (model units)", 0.15, 0.75),
     Param("temperature", 0.5, "operating temperature (model units)", 0.0, 1.0),
     Param(
         "self_timed", True, "publish every ts_s on a timer (false: an external driver calls tick())"
     ),
 )
+"""The excitation node's parameters: the design's (:func:`design_params`), the amplitudes
+and the operating point."""
 
 
 class ExcitationNode(Node):
@@ -46,22 +48,18 @@ class ExcitationNode(Node):
         super().__init__(name, **kwargs)
         v = declare(self, EXCITATION_PARAMS)
         try:
+            design = design_of(v)
             cfg = excitation.ExcitationConfig(
-                kind=str(v["kind"]),
                 ts_s=float(v["ts_s"]),
-                period_samples=int(v["period_samples"]),
                 rms=(float(v["rms_hot"]), float(v["rms_cold"])),
-                cutoff_hz=float(v["cutoff_hz"]),
-                f_max_hz=float(v["f_max_hz"]),
-                odd_only=bool(v["odd_only"]),
-                seed=int(v["seed"]),
                 settle_periods=0,
-                record_periods=1,
+                record_periods=design.cycle_periods,
+                design=design,
             )
             op = rig.operating_point(rig.RigParams(), float(v["height"]), float(v["temperature"]))
             self.table = excitation.excitation_commands(
                 cfg, op.commands
-            )  # (period, 2), checked in [0, 1]
+            )  # (cycle, 2): one period per realisation, checked in [0, 1]
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the excitation: {err}") from err
         self.ts_ns = round(float(v["ts_s"]) * NS_PER_S)

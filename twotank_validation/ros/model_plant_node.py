@@ -20,9 +20,16 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 
 from twotank_validation.core.model import load_model
-from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
+from twotank_validation.defaults import TS_S
 from twotank_validation.errors import TwotankError
-from twotank_validation.ros.params import Param, ParameterError, declare, run_node
+from twotank_validation.ros.params import (
+    Param,
+    ParameterError,
+    declare,
+    design_of,
+    design_params,
+    run_node,
+)
 from twotank_validation.sim import excitation
 from twotank_validation.sim.model_plant import (
     ModelExcitation,
@@ -34,18 +41,18 @@ from twotank_validation.sim.model_plant import (
 )
 from twotank_validation.sim.model_record import channel_topic, check_channel_names
 
+MODEL_DESIGN = excitation.ExcitationDesign(
+    kind="multisine", f_min_hz=0.0, f_max_hz=0.0, cutoff_hz=0.0, seed=0
+)
+"""A model plant's excitation by default: a multisine over the period's first line ..
+``0.2 / ts_s`` (filtered noise: cutoff ``0.2 / ts_s``), seed 0 (``ModelExcitation``'s)."""
+
 MODEL_PLANT_PARAMS = (
     Param("model", "", "model YAML file or built-in name (A, B)"),
     Param("ts_s", TS_S, "sample period (s)", 1e-6, 3600.0),
-    Param("kind", "multisine", "multisine or filtered_noise", choices=excitation.EXCITATION_KINDS),
-    Param("period_samples", PERIOD_SAMPLES, "excitation period (samples)", 4, 10_000_000),
+    *design_params(MODEL_DESIGN),
     Param("rms", [0.1], "RMS of each input's excitation (one value for all, or one per input)"),
     Param("offset", [0.0], "operating point of each input (one value for all, or one per input)"),
-    Param("f_min_hz", 0.0, "multisine: lowest frequency (Hz; 0: the first harmonic)", 0.0, 1e9),
-    Param("f_max_hz", 0.0, "multisine: highest frequency (Hz; 0: 0.2 / ts_s)", 0.0, 1e9),
-    Param("cutoff_hz", 0.0, "filtered noise: cutoff (Hz; 0: 0.2 / ts_s)", 0.0, 1e9),
-    Param("odd_only", False, "multisine: odd harmonics only"),
-    Param("seed", 0, "excitation seed", 0, 2**31 - 1),
     Param("member", "nominal", "nominal | gains=G[,G...] | random[,seed=S][,scale=R]"),
     Param("noise_scale", 1.0, "noise as a fraction of what the model's weights admit", 0.0, 1e6),
     Param("noise_seed", 0, "noise seed", 0, 2**31 - 1),
@@ -72,22 +79,13 @@ def config_from_parameters(values: dict[str, Any]) -> ModelSimConfig:
         raise ParameterError("parameter 'model' is empty: give a model YAML file or A or B")
     model = load_model(str(values["model"]))
 
-    def hz(key: str) -> float | None:
-        return float(values[key]) or None
-
     return ModelSimConfig(
         model=model,
         ts_s=float(values["ts_s"]),
         excitation=ModelExcitation(
-            kind=str(values["kind"]),
-            period_samples=int(values["period_samples"]),
             rms=_per_input(values["rms"]),
             offset=_per_input(values["offset"]),
-            f_min_hz=hz("f_min_hz"),
-            f_max_hz=hz("f_max_hz"),
-            cutoff_hz=hz("cutoff_hz"),
-            odd_only=bool(values["odd_only"]),
-            seed=int(values["seed"]),
+            design=design_of(values),
         ),
         member=parse_member(str(values["member"])),
         noise_scale=float(values["noise_scale"]),

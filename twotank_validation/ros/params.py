@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,7 +15,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.streams import RigUnits
-from twotank_validation.settings import FlatSetting
+from twotank_validation.settings import FlatSetting, from_flat, to_flat
+from twotank_validation.sim.excitation import ExcitationDesign
 
 LATCHED = QoSProfile(
     depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
@@ -52,6 +53,38 @@ def setting_params(settings: Sequence[FlatSetting]) -> tuple[Param, ...]:
         for s in settings
         if not s.meta.hidden
     )
+
+
+def design_params(defaults: ExcitationDesign) -> tuple[Param, ...]:
+    """The excitation design's settings as node parameters, with ``defaults``' values.
+
+    Name, description, range and choices are the design's settings'
+    (:class:`~twotank_validation.sim.excitation.ExcitationDesign`); the default is the
+    node's context's (the rig's excitation, a model's multisine). :func:`design_of` reads
+    them back.
+    """
+    values = defaults.to_flat()
+    return tuple(
+        Param(
+            s.name,
+            to_flat(s.kind, values[s.name]),
+            s.meta.description,
+            s.meta.low,
+            s.meta.high,
+            s.meta.choices,
+        )
+        for s in ExcitationDesign.settings()
+    )
+
+
+def design_of(values: Mapping[str, Any]) -> ExcitationDesign:
+    """The design of a node's declared parameter values (:func:`design_params`').
+
+    Raises:
+        DatumError: an invalid combination (the message names the setting).
+    """
+    names = {s.name for s in ExcitationDesign.settings()}
+    return from_flat(ExcitationDesign, {k: v for k, v in values.items() if k in names})
 
 
 _UNITS = RigUnits()

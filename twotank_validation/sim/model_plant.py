@@ -151,6 +151,11 @@ class ModelExcitation:
         cutoff_hz: Filtered noise: Butterworth -3 dB frequency, Hz; None: ``0.2 / ts_s``.
         order: Filtered noise: Butterworth order, >= 1.
         seed: Seed of the random phases or noise, >= 0.
+        design: The whole design (:class:`~twotank_validation.sim.excitation.ExcitationDesign`:
+            odd lines, detection lines, line grid, realisations, crest-factor minimisation).
+            None: built of the fields above, which are the short form; given: those fields
+            are set from it (a field given too must agree with it). The signal is drawn
+            from :attr:`the_design`, this or the short form's.
     """
 
     kind: str = "multisine"
@@ -163,8 +168,12 @@ class ModelExcitation:
     cutoff_hz: float | None = None
     order: int = 2
     seed: int = 0
+    design: excitation.ExcitationDesign | None = None
+    _design: excitation.ExcitationDesign = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        if self.design is not None:
+            excitation.take_design(self, self.design, ModelSimError)
         if self.kind not in excitation.EXCITATION_KINDS:
             raise ModelSimError(
                 f"excitation kind={self.kind!r} is unknown; use one of "
@@ -189,44 +198,54 @@ class ModelExcitation:
         object.__setattr__(self, "seed", _integer("excitation seed", self.seed, lo=0))
         if not isinstance(self.odd_only, bool):
             raise ModelSimError(f"excitation odd_only={self.odd_only!r} must be true or false")
+        design = self.design
+        if design is None:
+            try:
+                design = excitation.ExcitationDesign(
+                    kind=self.kind,
+                    period_samples=self.period_samples,
+                    f_min_hz=self.f_min_hz or 0.0,
+                    f_max_hz=self.f_max_hz or 0.0,
+                    lines="odd" if self.odd_only else "all",
+                    cutoff_hz=self.cutoff_hz or 0.0,
+                    order=self.order,
+                    seed=self.seed,
+                )
+            except DatumError as err:
+                raise ModelSimError(f"excitation: {err}") from err
+        object.__setattr__(self, "_design", design)
+
+    @property
+    def the_design(self) -> excitation.ExcitationDesign:
+        """The design the signal is drawn from: ``design``, or the short form's."""
+        return self._design
 
     def band(self, ts_s: float) -> tuple[float, float, float]:
         """``(f_min_hz, f_max_hz, cutoff_hz)`` with the defaults for sample period ``ts_s``."""
-        f_min = 1.0 / (self.period_samples * ts_s) if self.f_min_hz is None else self.f_min_hz
-        f_max = 0.2 / ts_s if self.f_max_hz is None else self.f_max_hz
-        cutoff = 0.2 / ts_s if self.cutoff_hz is None else self.cutoff_hz
-        return f_min, f_max, cutoff
+        f_min, f_max = self.the_design.band_hz(ts_s)
+        return f_min, f_max, self.the_design.cutoff(ts_s)
 
     def deviations(self, ts_s: float, rms: Sequence[float]) -> FloatArray:
-        """One period of the zero-mean deviations, one column per input.
+        """One cycle of the zero-mean deviations, one column per input.
+
+        One period for a single realisation; with several, each realisation tiled over its
+        ``realisation_periods`` periods, one after the other
+        (:meth:`~twotank_validation.sim.excitation.ExcitationDesign.cycle`).
 
         Args:
             ts_s: Sample period, s.
             rms: (nu,) RMS per input, model units.
 
         Returns:
-            (period_samples, nu) float, column i of RMS ``rms[i]``.
+            (cycle_periods period_samples, nu) float, column i of RMS ``rms[i]``.
 
         Raises:
             ModelSimError: An empty or invalid band (the message names the fix).
         """
-        f_min, f_max, cutoff = self.band(ts_s)
-        rng = np.random.default_rng(self.seed)
-        cols = []
         try:
-            for r in rms:
-                if self.kind == "multisine":
-                    x = excitation.multisine_period(
-                        self.period_samples, ts_s, f_min, f_max, self.odd_only, rng
-                    )
-                else:
-                    x = excitation.filtered_noise_period(
-                        self.period_samples, ts_s, cutoff, self.order, rng
-                    )
-                cols.append(r * x)
+            return self.the_design.cycle(ts_s, np.asarray(list(rms), dtype=np.float64))
         except DatumError as err:
             raise ModelSimError(f"excitation: {err}") from err
-        return np.column_stack(cols) if cols else np.zeros((self.period_samples, 0))
 
 
 # --------------------------------------------------------------------------- the configuration
@@ -311,7 +330,10 @@ class ModelSimConfig:
         for f in parsed:
             _check_fault(f, self.model, self.ts_s)
         put(self, "faults", parsed)
-        self.excitation.deviations(self.ts_s, self.rms)  # an empty band fails here, not later
+        try:  # an empty band fails here, not later
+            self.excitation.the_design.realisation_tables(self.ts_s, len(self.rms))
+        except DatumError as err:
+            raise ModelSimError(f"excitation: {err}") from err
 
     @property
     def ts_ns(self) -> int:
@@ -339,7 +361,10 @@ class ModelSimConfig:
         return np.array([float(op.get(n, 0.0)) for n in self.model.output_names])
 
     def command_table(self) -> FloatArray:
-        """(period_samples, nu) absolute commands of one period; sample k uses row k mod N."""
+        """(cycle, nu) absolute commands of one cycle; sample k uses row k mod its length.
+
+        One period for a single realisation.
+        """
         return np.asarray(self.offset) + self.excitation.deviations(self.ts_s, self.rms)
 
 
@@ -546,7 +571,10 @@ class ModelSimResult:
 
     @property
     def record_slice(self) -> slice:
-        """The samples of the ``periods`` periods after settling."""
+        """The ``periods`` periods after settling (of the first realisation).
+
+        :meth:`recorded_realisations` gives each realisation's.
+        """
         start = self.settle_periods * self.period_samples
         return slice(start, start + self.periods * self.period_samples)
 
@@ -554,6 +582,21 @@ class ModelSimResult:
         """``(u, y)`` of the periods after settling (whole periods, for ``make_datum``)."""
         s = self.record_slice
         return self.u[s], self.y[s]
+
+    @property
+    def realisations(self) -> int:
+        """Realisations in the run (each: settling periods, then the recorded ones)."""
+        return self.config.excitation.the_design.realisations
+
+    def recorded_realisations(self) -> list[tuple[FloatArray, FloatArray]]:
+        """``(u, y)`` of each realisation's recorded periods (after its settling), in order."""
+        block = (self.settle_periods + self.periods) * self.period_samples
+        out = []
+        for r in range(self.realisations):
+            start = r * block + self.settle_periods * self.period_samples
+            s = slice(start, start + self.periods * self.period_samples)
+            out.append((self.u[s], self.y[s]))
+        return out
 
 
 def simulate_model(config: ModelSimConfig) -> ModelSimResult:
@@ -578,7 +621,10 @@ def simulate_model(config: ModelSimConfig) -> ModelSimResult:
         if config.settle_periods is None
         else config.settle_periods
     )
-    n = (settle + config.periods) * config.period_samples
+    design = config.excitation.the_design.with_run(settle + config.periods)
+    if design is not config.excitation.the_design:  # each realisation: settling, then recorded
+        config = replace(config, excitation=replace(config.excitation, design=design))
+    n = (settle + config.periods) * config.period_samples * design.realisations
     plant = ModelPlant(config, system)
     model = config.model
     stamps = np.empty(n, dtype=np.int64)

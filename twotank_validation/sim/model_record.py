@@ -23,8 +23,10 @@ import numpy as np
 import yaml
 
 from twotank_validation.defaults import NS_PER_S
+from twotank_validation.errors import DatumError
 from twotank_validation.online.interface_map import InterfaceMap
 from twotank_validation.online.sources import STAMP_RECEIVE, InterfaceMapError, Source, TimeColumn
+from twotank_validation.sim.excitation import design_document, write_design
 from twotank_validation.sim.model_plant import ModelSimError, ModelSimResult
 
 __all__ = [
@@ -39,6 +41,7 @@ __all__ = [
     "table_interface_map",
     "write_interface_map",
     "write_model_table",
+    "write_result_design",
 ]
 
 CHANNEL_TYPE: Final = "std_msgs/msg/Float64"
@@ -188,7 +191,33 @@ def write_model_table(result: ModelSimResult, out: str | os.PathLike[str]) -> Pa
         frame.to_csv(fh, index=False)  # shortest text that reads back to the same float
     try:
         write_interface_map(imap, map_path)
+        write_result_design(result, path)
     except BaseException:
         path.unlink(missing_ok=True)
+        map_path.unlink(missing_ok=True)
         raise
     return path
+
+
+def write_result_design(result: ModelSimResult, recording: str | os.PathLike[str]) -> Path:
+    """Write the run's excitation design beside its recording (``<stem>.excitation.yaml``).
+
+    The design, its lines (excited, detection, even), the crest factors and each
+    realisation's settling and recorded periods
+    (:func:`~twotank_validation.sim.excitation.design_document`): what ``validate`` and
+    ``identify`` read back (:func:`~twotank_validation.sim.excitation.read_design`).
+
+    Raises:
+        ModelSimError: the file exists.
+    """
+    doc = design_document(
+        result.config.excitation.the_design,
+        result.ts_s,
+        len(result.input_names),
+        result.settle_periods,
+        result.periods,
+    )
+    try:
+        return write_design(doc, recording)
+    except DatumError as err:
+        raise ModelSimError(str(err)) from err

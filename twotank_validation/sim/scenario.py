@@ -32,7 +32,9 @@ from numpy.typing import NDArray
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import DatumError, ModelError
 from twotank_validation.online.streams import RigUnits
+from twotank_validation.settings import from_flat
 from twotank_validation.sim import control, excitation, rig, simulator
+from twotank_validation.sim.excitation import ExcitationConfig, ExcitationDesign
 from twotank_validation.sim.faults import MAX_FAULT_DELAY_S, Fault, parse_fault
 
 __all__ = [
@@ -106,6 +108,15 @@ def _integer(where: str, key: str, value: object, *, lo: int) -> int:
 
 
 _CC: Final = control.ControllerConfig()
+
+_DESIGN_KEYS: Final = tuple(
+    s.name
+    for s in excitation.ExcitationDesign.settings()
+    if s.name not in ("kind", "period_samples", "f_max_hz", "cutoff_hz", "seed")
+)
+"""The design settings a scenario takes in its ``excitation`` mapping (the others are its
+own keys: ``excitation_kind``, ``period_samples``, ``f_max_hz``, ``cutoff_hz``,
+``excitation_seed``)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -238,6 +249,11 @@ class Scenario:
             excitation node).
         odd_only: Multisine: odd harmonics only.
         excitation_seed: Seed of the excitation's random draws, >= 0.
+        excitation: The rest of the excitation's design (:meth:`design`), by the names of
+            :class:`~twotank_validation.sim.excitation.ExcitationDesign`: ``f_min_hz``,
+            ``lines``, ``line_step``, ``detection``, ``crest_min``, ``realisations``,
+            ``realisation_periods``, ``order`` (the keys above set the others; ``lines``
+            replaces ``odd_only``).
         noise_std_height: Level sensor noise, standard deviation, >= 0.
         noise_std_temperature: Temperature sensor noise, standard deviation, >= 0.
         mixing_delay_s: The rig's unmodelled transport delay of the measured temperature at
@@ -287,6 +303,7 @@ class Scenario:
     f_max_hz: float = 0.05
     odd_only: bool = False
     excitation_seed: int = 2
+    excitation: Mapping[str, Any] = field(default_factory=dict)
     noise_std_height: float = 0.003
     noise_std_temperature: float = 0.01
     mixing_delay_s: float = 15.0
@@ -343,6 +360,24 @@ class Scenario:
         if not isinstance(self.odd_only, bool):
             raise ScenarioError(f"{where}: odd_only={self.odd_only!r} must be true or false")
         put(self, "excitation_seed", _integer(where, "excitation_seed", self.excitation_seed, lo=0))
+        if not isinstance(self.excitation, Mapping):
+            raise ScenarioError(
+                f"{where}: excitation={self.excitation!r} must be a mapping of design settings "
+                f"({', '.join(_DESIGN_KEYS)})"
+            )
+        put(self, "excitation", dict(self.excitation))
+        bad = sorted(set(map(str, self.excitation)) - set(_DESIGN_KEYS))
+        if bad:
+            raise ScenarioError(
+                f"{where}: unknown key(s) {bad} in excitation; allowed: {', '.join(_DESIGN_KEYS)} "
+                "(kind, period, band top, cutoff and seed are the scenario's own keys)"
+            )
+        if self.odd_only and "lines" in self.excitation:
+            raise ScenarioError(f"{where}: give either odd_only or excitation.lines, not both")
+        try:
+            self.design()
+        except DatumError as err:
+            raise ScenarioError(f"{where}: excitation: {err}") from err
         put(self, "seed", _integer(where, "seed", self.seed, lo=0))
         put(
             self,
@@ -452,25 +487,65 @@ class Scenario:
         """Equilibrium at (height, temperature)."""
         return rig.operating_point(self.rig_params(), self.height, self.temperature)
 
-    def excitation_config(self) -> excitation.ExcitationConfig:
-        """The excitation of one period (as the excitation node builds it)."""
+    def design(self) -> ExcitationDesign:
+        """The excitation's design: the scenario's keys and its ``excitation`` mapping.
+
+        Raises:
+            DatumError: an invalid combination (the message names the setting).
+        """
+        values: dict[str, Any] = {
+            "kind": self.excitation_kind,
+            "period_samples": self.period_samples,
+            "f_min_hz": excitation.RIG_DESIGN.f_min_hz,
+            "f_max_hz": self.f_max_hz,
+            "lines": "odd" if self.odd_only else "all",
+            "cutoff_hz": self.cutoff_hz,
+            "seed": self.excitation_seed,
+        }
+        return from_flat(excitation.ExcitationDesign, values | dict(self.excitation))
+
+    def with_design(self, values: Mapping[str, Any]) -> Scenario:
+        """The scenario with these design settings (flat names) in place of its own.
+
+        ``kind``, ``period_samples``, ``f_max_hz``, ``cutoff_hz`` and ``seed`` set the
+        scenario's keys (``excitation_kind``, ..., ``excitation_seed``), ``lines`` replaces
+        ``odd_only``, the rest go into its ``excitation`` mapping.
+
+        Raises:
+            ScenarioError, DatumError: the result is not a valid scenario.
+        """
+        own = {
+            "kind": "excitation_kind",
+            "period_samples": "period_samples",
+            "f_max_hz": "f_max_hz",
+            "cutoff_hz": "cutoff_hz",
+            "seed": "excitation_seed",
+        }
+        changes: dict[str, Any] = {own[k]: v for k, v in values.items() if k in own}
+        rest = {k: v for k, v in values.items() if k not in own}
+        if "lines" in rest:
+            changes["odd_only"] = False
+        changes["excitation"] = dict(self.excitation) | rest
+        return dataclasses.replace(self, **changes)
+
+    def excitation_config(self) -> ExcitationConfig:
+        """The excitation of one cycle, as the excitation node builds it.
+
+        One period for a single realisation.
+        """
+        design = self.design()
         return excitation.ExcitationConfig(
-            kind=self.excitation_kind,
             ts_s=self.ts_s,
-            period_samples=self.period_samples,
             settle_periods=0,
-            record_periods=1,
+            record_periods=design.cycle_periods,
             rms=(self.rms_hot, self.rms_cold),
-            cutoff_hz=self.cutoff_hz,
-            f_max_hz=self.f_max_hz,
-            odd_only=self.odd_only,
-            seed=self.excitation_seed,
+            design=design,
         )
 
     def command_table(self) -> FloatArray:
-        """(period_samples, 2) absolute [hot, cold] commands of one period.
+        """(cycle, 2) absolute [hot, cold] commands of one cycle (a period if one realisation).
 
-        Sample k of the run uses row k mod period_samples (the excitation starts at t = 0).
+        Sample k of the run uses row k mod its length (the excitation starts at t = 0).
         """
         return excitation.excitation_commands(
             self.excitation_config(), self.operating_point().commands
@@ -531,6 +606,7 @@ class Scenario:
         out["faults"] = list(self.faults)
         out["setpoints"] = list(self.setpoints)
         out["units"] = dataclasses.asdict(self.units)
+        out["excitation"] = dict(self.excitation)
         if self.closed_loop is not None:
             out["closed_loop"] = dataclasses.asdict(self.closed_loop)
         return out
@@ -599,6 +675,8 @@ def scenario_from_dict(doc: object, source: str, default_name: str = "") -> Scen
         kwargs["faults"] = ()
     if kwargs.get("setpoints") is None:
         kwargs["setpoints"] = ()
+    if kwargs.get("excitation", {}) is None:
+        kwargs["excitation"] = {}
     if "closed_loop" in kwargs:
         kwargs["closed_loop"] = closed_loop_from(kwargs["closed_loop"], source)
     if "units" in kwargs:

@@ -28,6 +28,7 @@ from twotank_validation.identify.requirement import (
     report_numbers,
     validation_requirement,
 )
+from twotank_validation.sim.excitation import read_design
 from twotank_validation.usecases.outcome import (
     STATUS_OF_CODE,
     Level,
@@ -143,7 +144,11 @@ class IdentifyJob:
         first = f"{len(windows)} non-overlapping window(s) of whole periods in {self.recording}"
         if show is not None:
             show(first)
-        config = IdentifyConfig(orders=orders, band=band, delays=self.delays, grey_box=grey)
+        design = read_design(self.recording)  # simulate's, beside the recording
+        lines = None if design is None else design.lines
+        config = IdentifyConfig(
+            orders=orders, band=band, delays=self.delays, grey_box=grey, lines=lines
+        )
         ident = identify_windows(windows, config)
         made = identified_model(ident, windows, self.name, imap.input_names, imap.output_names)
         for note in ident.notes:
@@ -265,6 +270,16 @@ def identification_json(
         "grey_box": None if ident.grey_box is None else ident.grey_box.to_json(),
         "notes": list(ident.notes),
         "model_file": model_file,
+        "distortion": None
+        if (d := ident.distortion) is None
+        else {
+            "odd": d.odd.tolist(),
+            "even": d.even.tolist(),
+            "noise_odd": d.noise_odd.tolist(),
+            "noise_even": d.noise_even.tolist(),
+            "n_odd": d.n_odd,
+            "n_even": d.n_even,
+        },
     }
     if nums is not None:
         document["report"] = nums.to_json()
@@ -295,6 +310,13 @@ def identification_text(
         lines.append(
             f"grey box {GreyBoxModel.TWO_TANK.value} (the nominal): {fitted}; residual "
             f"{ident.grey_box.cost_ratio:.2f} x what σ explains"
+        )
+    if (d := ident.distortion) is not None:
+        lines.append(
+            "output power at the design's unexcited lines, per output (noise there): odd "
+            f"{np.array2string(d.odd, precision=3)} ({np.array2string(d.noise_odd, precision=3)}) "
+            f"over {d.n_odd} detection line(s), even {np.array2string(d.even, precision=3)} "
+            f"({np.array2string(d.noise_even, precision=3)}) over {d.n_even}"
         )
     held = made.held_out
     if held.any():

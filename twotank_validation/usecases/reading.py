@@ -17,6 +17,7 @@ from twotank_validation import replay
 from twotank_validation.bags import BagEmptyError
 from twotank_validation.core.band import parse_band
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
+from twotank_validation.errors import DatumError
 from twotank_validation.online import MonitorConfig
 from twotank_validation.online.channels import match_channels
 from twotank_validation.online.interface_map import InterfaceMap
@@ -28,6 +29,7 @@ from twotank_validation.replay import (
     is_table_input,
     resolve_timing,
 )
+from twotank_validation.sim.excitation import design_path, read_design
 from twotank_validation.usecases.outcome import Level, Teller, UsageError
 
 
@@ -112,9 +114,14 @@ def timed_config(
     The options win; else the bag's metadata, else what the data show
     (``replay.resolve_timing``). What was taken is told as notes, contradictions as warnings.
 
+    An excitation design written beside the recording (``simulate``'s
+    ``<stem>.excitation.yaml``, :func:`with_recorded_design`) gives the periods where
+    nothing else does and, for several realisations, the windows' realisation boundaries.
+
     Raises:
         UsageError: settings that do not hold with the periods resolved.
     """
+    read = with_recorded_design(read, recording, tell)
     base = read.replay_config(read.monitor.ts_s, read.monitor.period_samples)
     timing = resolve_timing(recording, base, ts_s=read.ts_s, period_samples=read.period_samples)
     for note in timing.notes:
@@ -122,6 +129,54 @@ def timed_config(
     for conflict in timing.conflicts:
         tell(Level.WARNING, conflict)
     return read.replay_config(timing.ts_s, timing.period_samples, timing.oversampling), timing
+
+
+def with_recorded_design(read: ReadSettings, recording: Recording, tell: Teller) -> ReadSettings:
+    """``read`` with what the excitation design beside the recording says, where not given.
+
+    The sample and excitation periods of a table (which has no metadata); with several
+    realisations the monitor's ``realisation_periods`` and, where a window still fits after
+    it, each realisation's settling as the windows' settling periods. Nothing that the user
+    gave is replaced.
+
+    Raises:
+        UsageError: the design file is there but cannot be read.
+    """
+    try:
+        rec = read_design(recording.given)
+    except DatumError as err:
+        raise UsageError(str(err)) from err
+    if rec is None:
+        return read
+    changes: dict[str, object] = {}
+    if recording.table is not None and (read.ts_s is None or read.period_samples is None):
+        # a table has no metadata: the design's periods, unless given (a bag's metadata wins)
+        if read.ts_s is None:
+            changes["ts_s"] = rec.ts_s
+        if read.period_samples is None:
+            changes["period_samples"] = rec.design.period_samples
+        tell(
+            Level.NOTE,
+            f"sample period {rec.ts_s:g} s and period {rec.design.period_samples} from the "
+            f"excitation design {design_path(recording.given)} (--ts, --period override)",
+        )
+    monitor = read.monitor
+    if rec.design.realisations > 1 and not monitor.realisation_periods:
+        settle = monitor.settle_periods
+        if rec.settle_periods + monitor.periods_per_window <= rec.realisation_periods:
+            settle = min(max(settle, rec.settle_periods), 64)
+        monitor = dataclasses.replace(
+            monitor, realisation_periods=rec.realisation_periods, settle_periods=settle
+        )
+        changes["monitor"] = monitor
+        tell(
+            Level.NOTE,
+            f"excitation design {design_path(recording.given)}: {rec.design.realisations} "
+            f"realisations of {rec.realisation_periods} periods; windows lie within one, "
+            f"after {settle} settling period(s) (--realisation-periods, --settle-periods "
+            "override)",
+        )
+    return dataclasses.replace(read, **changes) if changes else read  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
