@@ -210,3 +210,21 @@ def test_live_usage_errors_are_exit_2(capsys) -> None:
     ):
         assert cli.main(["live", *args]) == cli.EXIT_ERROR
         assert message in capsys.readouterr().err
+
+
+def test_simulate_model_writes_a_table_when_out_ends_in_csv(tmp_path: Path, capsys) -> None:
+    """--out x.csv without --format is a CSV table (read back by pandas), not a bag folder
+    named x.csv; a bag format with a .csv name is refused."""
+    import pandas as pd  # noqa: PLC0415
+
+    model = str(Path(__file__).parent / "data" / "models" / "one_by_three.yaml")
+    out = tmp_path / "run.csv"
+    args = ["simulate", "--model", model, "--ts", "0.5", "--period", "16", "--periods", "2"]
+    args += ["--settle-periods", "1"]
+    assert cli.main([*args, "--out", str(out)]) == cli.EXIT_OK, capsys.readouterr().err
+    assert out.is_file()
+    frame = pd.read_csv(out)
+    assert len(frame) == (1 + 2) * 16  # the settling period and the two recorded
+    code = cli.main([*args, "--out", str(tmp_path / "b.csv"), "--format", "mcap"])
+    assert code == cli.EXIT_ERROR
+    assert "names a CSV table" in capsys.readouterr().err

@@ -140,9 +140,9 @@ def add_simulate_model_options(
         "--format",
         choices=["mcap", "sqlite3", "csv"],
         default=None,
-        help="--model: a rosbag2 bag (one std_msgs/Float64 topic per channel) or a CSV table "
-        "(--out ends in .csv); the interface map is written beside it (<out>.map.yaml, "
-        "<stem>.map.yaml for a table); default: mcap",
+        help="--model: a rosbag2 bag (one std_msgs/Float64 topic per channel) or a CSV table; "
+        "the interface map is written beside it (<out>.map.yaml, <stem>.map.yaml for a "
+        "table); default: csv when --out ends in .csv, else mcap",
     )
     group.add_argument(
         "--ts",
@@ -355,10 +355,16 @@ def cmd_simulate_model(
     from twotank_validation.sim.model_record import interface_map_path  # noqa: PLC0415
 
     period = PERIOD_SAMPLES if args.period is None else args.period
+    table = str(args.out).lower().endswith(".csv")
+    if table and args.format not in (None, "csv"):
+        raise UsageError(
+            f"--out {args.out} names a CSV table but --format is {args.format}: drop --format "
+            "or give --out a bag directory name"
+        )
     path = simulate_model_command(
         args.model,
         args.out,
-        args.format or "mcap",
+        args.format or ("csv" if table else "mcap"),
         ts_s=TS_S if args.ts is None else args.ts,
         period_samples=period,
         periods=args.periods,

@@ -178,6 +178,7 @@ class Identification:
         plant driven by held commands).
         """
         return Intersample.EXACT if self.grey_box is None else self.grey_box.intersample
+
     distortion: Distortion | None = None
 
     @cached_property
