@@ -48,7 +48,8 @@ _PATIENCE = 2
 _TOP = 1.2
 """Largest resonance frequency of a fitted pair, relative to the band's top line."""
 _GRAM_COND = 1e8
-"""Largest condition number of the normal equations solved as they are (else a QR)."""
+"""Largest condition number of the normal equations (scaled to a unit diagonal) solved as they
+are (else a QR)."""
 _SUPPORT = 3.0
 """A pole is supported when its standard deviation is below ``|p| / _SUPPORT``."""
 _SLOWEST = 1e-2
@@ -232,6 +233,85 @@ def _ri(x: np.ndarray) -> np.ndarray:
     return np.concatenate([x.real, x.imag], axis=0)
 
 
+@dataclass(frozen=True)
+class _Projection:
+    """The weighted linear problem at fixed poles, solved for every entry at once.
+
+    Attributes:
+        a: (E, 2 L, m) real, the weighted basis ``w_e Phi`` stacked real over imaginary.
+        coef: (m, E) real, the coefficients (last row the feedthrough).
+        resid: (L, E) complex, the weighted residual ``w (Phi c - h)``.
+        gram: (E, m, m) the normal equations' matrix scaled to unit diagonal
+            (``G / (d d^T)``) where they were solved; None where a QR was (``q``, ``r``).
+        norms: (E, m) the columns' norms ``d``.
+        q: (E, 2 L, m), r: (E, m, m): the QR of ``a`` when the normal equations were
+            ill-conditioned; else None.
+    """
+
+    a: np.ndarray
+    coef: np.ndarray
+    resid: np.ndarray
+    gram: np.ndarray | None
+    norms: np.ndarray
+    q: np.ndarray | None
+    r: np.ndarray | None
+
+    def removed(self, v: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(E, 2 L, K): ``v - A G^-1 (A^T v + t)`` per entry (``G = A^T A``).
+
+        The variable-projection Jacobian's columns (Golub & Pereyra 1973): ``v`` (E, 2 L, K)
+        less its projection on the basis, less ``(A^+)^T t`` for ``t`` (E, m, K).
+        """
+        if self.gram is not None:
+            d = self.norms[:, :, None]
+            z = np.linalg.solve(self.gram, (self.a.transpose(0, 2, 1) @ v + t) / d) / d
+            out: np.ndarray = v - self.a @ z
+            return out
+        assert self.q is not None
+        assert self.r is not None
+        qt = self.q.transpose(0, 2, 1)
+        # (A^+)^T t = Q R^-T t
+        zt = np.linalg.solve(self.r.transpose(0, 2, 1), t)
+        out = v - self.q @ (qt @ v) - self.q @ zt
+        return out
+
+
+def _stack(x: np.ndarray) -> np.ndarray:
+    """(E, L, ...) complex as (E, 2 L, ...) real: real parts over imaginary ones."""
+    return np.concatenate([x.real, x.imag], axis=1)
+
+
+def _project(phi: np.ndarray, h: np.ndarray, w: np.ndarray) -> _Projection:
+    """The weighted least-squares coefficients of every entry on the basis ``phi``.
+
+    Args:
+        phi: (L, m) complex, the basis (the last column the feedthrough's ones).
+        h: (L, E) complex, the entries.
+        w: (L, E) float, weights ``1 / sigma``.
+    """
+    a = _stack(w.T[:, :, None] * phi[None, :, :])  # (E, 2L, m)
+    b = _stack((w * h).T[:, :, None])  # (E, 2L, 1)
+    at = a.transpose(0, 2, 1)
+    # every entry's problem by its normal equations A^T A c = A^T b (m x m per entry: numpy's
+    # lstsq, an SVD per entry, took most of a fit's time; a QR of the tall A is as slow on a
+    # machine with threaded BLAS); a batched QR where they are ill-conditioned
+    gram = at @ a
+    # scaled to unit columns (a slow pole's column is far larger than a fast one's): the
+    # scaled matrix's condition decides and its solve loses no more than it says
+    d = np.sqrt(np.diagonal(gram, axis1=1, axis2=2))  # (E, m)
+    scaled = gram / (d[:, :, None] * d[:, None, :]) if np.all(d > 0) else None
+    if scaled is not None and np.max(np.linalg.cond(scaled)) < _GRAM_COND:
+        coef = (np.linalg.solve(scaled, (at @ b) / d[:, :, None]) / d[:, :, None])[:, :, 0].T
+        q = r = None
+        kept: np.ndarray | None = scaled
+    else:
+        q, r = np.linalg.qr(a)
+        coef = np.linalg.solve(r, q.transpose(0, 2, 1) @ b)[:, :, 0].T
+        kept = None
+    resid = w * (phi @ coef - h)
+    return _Projection(a, coef, resid, kept, d, q, r)
+
+
 def _linear(
     s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -245,41 +325,41 @@ def _linear(
 
     Returns:
         coefficients (order + 1, E) real (last row the feedthrough), the weighted complex
-        residual (L, E).
+        residual (L, E), the basis (L, order + 1).
     """
     phi = np.concatenate([_basis(s, poles), np.ones((s.size, 1))], axis=1)
-    # every entry's weighted problem at once, by its normal equations
-    # Re(Phi^H W^2 Phi) c = Re(Phi^H W^2 h) (m x m per entry; numpy's lstsq, an SVD per
-    # entry, took most of a fit's time); a batched QR where they are ill-conditioned
-    w2 = w**2
-    gram = np.real(np.einsum("le,lm,ln->emn", w2, phi.conj(), phi, optimize=True))
-    rhs = np.real(np.einsum("le,lm,le->em", w2, phi.conj(), h, optimize=True))
-    if np.max(np.linalg.cond(gram)) < _GRAM_COND:
-        coef = np.linalg.solve(gram, rhs[:, :, None])[:, :, 0].T  # (m, E)
-    else:
-        ac = w.T[:, :, None] * phi[None, :, :]  # (E, L, m)
-        a = np.concatenate([ac.real, ac.imag], axis=1)  # (E, 2L, m)
-        bc = (w * h).T
-        b = np.concatenate([bc.real, bc.imag], axis=1)[:, :, None]
-        q, r = np.linalg.qr(a)
-        coef = np.linalg.solve(r, q.transpose(0, 2, 1) @ b)[:, :, 0].T
-    resid = w * (phi @ coef - h)
-    return coef, resid, phi
+    proj = _project(phi, h, w)
+    return proj.coef, proj.resid, phi
 
 
 def _vf_step(s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray) -> np.ndarray:
-    """One vector-fitting pole relocation: the zeros of ``sigma(s) = 1 + sum c_i phi_i``."""
+    """One vector-fitting pole relocation: the zeros of ``sigma(s) = 1 + sum c_i phi_i``.
+
+    Per entry ``e`` the linearised problem ``[w full, -w h phi] [c_e; c_sigma] ~ w h`` is
+    reduced to ``c_sigma``'s rows: the block ``R22`` and right-hand side ``r2`` of the
+    triangular factor of ``[A1 A2 b]`` (``A1`` the entry's own columns). The factor comes
+    from the Cholesky factor of the normal equations (the same ``R`` as a QR's, up to the
+    rows' signs, which the stacked solve for ``c_sigma`` does not see) where they are
+    well-conditioned, else from a QR.
+    """
     phi = _basis(s, poles)
     full = np.concatenate([phi, np.ones((s.size, 1))], axis=1)
-    rows, rhs = [], []
-    for e in range(h.shape[1]):
-        a = _ri(np.concatenate([w[:, e, None] * full, -(w[:, e] * h[:, e])[:, None] * phi], 1))
-        b = _ri(w[:, e] * h[:, e])
-        q, r = np.linalg.qr(a)
-        k = full.shape[1]
-        rows.append(r[k:, k:])
-        rhs.append((q.T @ b)[k:])
-    c_sigma = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+    k, n = full.shape[1], phi.shape[1]
+    wt, wh = w.T[:, :, None], (w * h).T[:, :, None]  # (E, L, 1)
+    m = _stack(np.concatenate([wt * full[None], -wh * phi[None], wh], axis=2))  # (E, 2L, k+n+1)
+    gram = m.transpose(0, 2, 1) @ m
+    lead = gram[:, : k + n, : k + n]
+    d = np.sqrt(np.diagonal(lead, axis1=1, axis2=2))  # the columns' norms: cond unscaled
+    if np.all(d > 0) and np.max(np.linalg.cond(lead / (d[:, :, None] * d[:, None, :]))) < (
+        _GRAM_COND
+    ):
+        low = np.linalg.cholesky(lead)  # lead = low low^T, R = low^T
+        r_last = np.linalg.solve(low, gram[:, : k + n, -1:])  # R's last column
+        r22, r2 = low.transpose(0, 2, 1)[:, k:, k:], r_last[:, k:, 0]
+    else:
+        r_full: np.ndarray = np.linalg.qr(m, mode="r")  # type: ignore[assignment]
+        r22, r2 = r_full[:, k : k + n, k : k + n], r_full[:, k : k + n, -1]
+    c_sigma = np.linalg.lstsq(r22.reshape(-1, n), r2.reshape(-1), rcond=None)[0]
     a_blk, b_blk = _pole_blocks(poles)
     return _tidy(np.linalg.eigvals(a_blk - np.outer(b_blk, c_sigma)))
 
@@ -468,6 +548,80 @@ def _vector_fit(
     return poles
 
 
+def _basis_derivatives(s: np.ndarray, poles: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """Per pole parameter (``_pack``'s order), the basis columns it moves and their derivative.
+
+    Returns:
+        one ``(first column, (L, k) complex)`` per parameter: the derivatives of the ``k``
+        consecutive basis columns (:func:`_basis`) from ``first column`` on.
+
+    A real pole ``a``: ``d/da 1/(s-a) = 1/(s-a)^2``. A pair ``p = x + jy`` with
+    ``d1 = 1/(s-p)^2``, ``d2 = 1/(s-p*)^2``: its columns ``1/(s-p) + 1/(s-p*)`` and
+    ``j/(s-p) - j/(s-p*)`` move by ``(d1 + d2, j d1 - j d2)`` in ``x`` and by
+    ``(j d1 - j d2, -d1 - d2)`` in ``y``.
+    """
+    re_part: list[tuple[int, np.ndarray]] = []
+    im_part: list[tuple[int, np.ndarray]] = []
+    col = 0
+    for p in poles:
+        if p.imag > 0:
+            d1, d2 = 1 / (s - p) ** 2, 1 / (s - np.conj(p)) ** 2
+            re_part.append((col, np.stack([d1 + d2, 1j * d1 - 1j * d2], axis=1)))
+            im_part.append((col, np.stack([1j * d1 - 1j * d2, -d1 - d2], axis=1)))
+            col += 2
+        else:
+            re_part.append((col, (1 / (s - p.real) ** 2)[:, None]))
+            col += 1
+    return re_part + im_part
+
+
+def _jacobian(
+    s: np.ndarray,
+    h_und: np.ndarray,
+    w: np.ndarray,
+    poles: np.ndarray,
+    proj: _Projection,
+    *,
+    omega: np.ndarray,
+    n_tau: int,
+    n_u: int,
+) -> np.ndarray:
+    """(2 L E, n_x) the exact Jacobian of the refinement's residual (variable projection).
+
+    The residual is ``r = -P b`` with ``P = I - A A^+`` (``A = w Phi`` real-stacked, ``b``
+    the weighted entries with the delays undone). Golub & Pereyra (1973):
+    ``dr/dx_k = P (dA/dx_k) c - (A^+)^T (dA/dx_k)^T r`` for a pole parameter; a delay moves
+    ``b`` alone (``db/dtau_c = j omega b`` on output ``c``'s entries), ``dr = -P db``.
+
+    Args:
+        s: (L,) complex, ``j omega`` (scaled).
+        w: (L, E) float, weights ``1 / sigma``.
+        poles: (n,) complex, scaled.
+        h_und: (L, E) the entries with the delays undone.
+        proj: :func:`_project` at ``poles`` and ``h_und``.
+        omega: (L,) rad/s, the lines (the delays' unit is s).
+        n_tau: delays (0 or one per output).
+        n_u: inputs.
+
+    Rows as the residual's (real parts of every line and entry, then imaginary parts).
+    """
+    lines, n_e = h_und.shape
+    derivs = _basis_derivatives(s, poles)
+    n_x = len(derivs) + n_tau
+    m = proj.coef.shape[0]
+    v = np.zeros((n_e, lines, n_x), complex)  # dA_k c per entry
+    t = np.zeros((n_e, m, n_x))  # dA_k^T r per entry
+    for k, (col, d) in enumerate(derivs):
+        wd = w.T[:, :, None] * d[None]  # (E, L, cols)
+        v[:, :, k] = np.einsum("elc,ce->el", wd, proj.coef[col : col + d.shape[1]])
+        t[:, col : col + d.shape[1], k] = np.real(np.einsum("elc,le->ec", wd.conj(), proj.resid))
+    for c in range(n_tau):
+        cols = slice(c * n_u, (c + 1) * n_u)
+        v[cols, :, len(derivs) + c] = -(1j * omega * w[:, cols].T * h_und[:, cols].T)
+    jac = proj.removed(_stack(v), t)  # (E, 2L, n_x)
+    return jac.transpose(1, 0, 2).reshape(-1, n_x)
+
+
 def _refine(
     s: np.ndarray,
     h: np.ndarray,
@@ -480,7 +634,11 @@ def _refine(
     n_u: int,
     tau_max: float,
 ) -> tuple[scipy.optimize.OptimizeResult, np.ndarray]:
-    """The maximum-likelihood refinement of ``poles`` (and the delays ``tau0``) in bounds."""
+    """The maximum-likelihood refinement of ``poles`` (and the delays ``tau0``) in bounds.
+
+    ``least_squares`` with the residual's exact Jacobian (:func:`_jacobian`); each point's
+    linear solve is shared by the residual and the Jacobian.
+    """
     is_pair = poles.imag > 0
     n_tau = tau0.size
     lower = np.concatenate(
@@ -491,14 +649,29 @@ def _refine(
          np.full(n_tau, max(tau_max, 1e-12))]
     )  # fmt: skip
     x0 = np.clip(np.concatenate([_pack(poles), tau0]), lower + 1e-12, upper - 1e-12)
+    last: dict[bytes, tuple[np.ndarray, np.ndarray, _Projection]] = {}
+
+    def solved(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, _Projection]:
+        key = x.tobytes()
+        if key not in last:
+            taus = x[x.size - n_tau :] if n_tau else tau0
+            p = _unpack(x[: x.size - n_tau], is_pair)
+            h_und = _undelayed(h, omega, taus, n_u)
+            phi = np.concatenate([_basis(s, p), np.ones((s.size, 1))], axis=1)
+            last.clear()
+            last[key] = (p, h_und, _project(phi, h_und, w))
+        return last[key]
 
     def residual(x: np.ndarray) -> np.ndarray:
-        taus = x[x.size - n_tau :] if n_tau else tau0
-        p = _unpack(x[: x.size - n_tau], is_pair)
-        _, r, _ = _linear(s, _undelayed(h, omega, taus, n_u), w, p)
-        return _ri(r).ravel()
+        return _ri(solved(x)[2].resid).ravel()
 
-    sol = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale="jac")
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        p, h_und, proj = solved(x)
+        return _jacobian(s, h_und, w, p, proj, omega=omega, n_tau=n_tau, n_u=n_u)
+
+    sol = scipy.optimize.least_squares(
+        residual, x0, jac=jacobian, bounds=(lower, upper), x_scale="jac"
+    )
     return sol, is_pair
 
 
