@@ -148,8 +148,15 @@ def fit_weight(
             x = np.zeros(0)
         else:
             best = None
-            # starts: the zeros and poles at distinct corners spread across the band
+            # starts: the zeros and poles at distinct corners spread across the band; the
+            # excess is symmetric in the zeros and in the poles, so a start that only reorders
+            # them repeats a search (its iterates reordered): each is run once
+            tried = set()
             for combo in itertools.islice(itertools.permutations(starts, 2 * order), 24):
+                key = (tuple(sorted(combo[:order])), tuple(sorted(combo[order:])))
+                if key in tried:
+                    continue
+                tried.add(key)
                 res = scipy.optimize.minimize(
                     excess, np.array(combo), method="Nelder-Mead",
                     options={"xatol": 1e-4, "fatol": 1e-7, "maxiter": 400 * order},
