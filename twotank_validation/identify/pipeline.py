@@ -34,13 +34,13 @@ from typing import Any
 import numpy as np
 
 from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate
-from twotank_validation.calibrate.noise import noise_from_data
+from twotank_validation.calibrate.noise import fitted_noise_weights
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core import lti
 from twotank_validation.core.band import Band, excited_lines
 from twotank_validation.core.datum import assess_periodicity
 from twotank_validation.core.lti import Intersample
-from twotank_validation.core.model import LFTModel, model_from_dict
+from twotank_validation.core.model import LFTModel, PlantResponse, model_from_dict
 from twotank_validation.core.noise_budget import (
     NOISE_BUDGET,
     NOISE_QUANTILE,
@@ -48,7 +48,7 @@ from twotank_validation.core.noise_budget import (
     NoiseWeights,
     noise_weights,
 )
-from twotank_validation.core.validate import validate, validation_band
+from twotank_validation.core.validate import validate_beta, validation_band
 from twotank_validation.diagnose.inputs import Window, split_windows
 from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
@@ -510,8 +510,20 @@ def _one_period_spread(fr: FrequencyResponse, n: int) -> NoiseSpread:
 
 
 def _betas(windows: Sequence[Window], model: LFTModel) -> np.ndarray:
-    """(n,) β of the model on each window, its datum built as ``validate`` builds it."""
-    return np.array([validate(w.datum(), model).beta for w in windows])
+    """(n,) β of the model on each window, its datum built as ``validate`` builds it.
+
+    :func:`~twotank_validation.core.validate.validate_beta` (β without the witness); windows
+    with the same bins share the model's response at them (evaluated once).
+    """
+    responses: dict[tuple[float, bytes], PlantResponse] = {}
+    out = []
+    for w in windows:
+        datum = w.datum()
+        key = (datum.ts_s, datum.theta.tobytes())
+        if key not in responses:
+            responses[key] = model.response(datum.theta, datum.ts_s)
+        out.append(validate_beta(datum, model, response=responses[key]).beta)
+    return np.array(out)
 
 
 def _can_hold_out(windows: Sequence[Window]) -> bool:
@@ -532,7 +544,7 @@ def identified_model(
     """The model set: the nominal, noise weights from the data, then the perturbations.
 
     1. Noise weights: with two or more periods per window from the period-to-period spread
-       of the fit windows (:func:`~twotank_validation.calibrate.noise.noise_from_data`); with
+       of the fit windows (:func:`~twotank_validation.calibrate.noise.fitted_noise_weights`); with
        one period from the local polynomials' residual.
     2. Perturbation weights: where windows can be held out, the weight shapes (the fit's
        relative error) scaled together by ``calibrate`` on the fit windows, the smallest
@@ -549,9 +561,9 @@ def identified_model(
     n = windows[0].period_samples
     try:
         if all(w.n_periods >= 2 for w in windows):
-            fitted = noise_from_data(
-                windows, draft, quantile=quantile, budget=budget, source=name
-            ).fit
+            fitted = fitted_noise_weights(
+                windows, model_from_dict(draft, name), quantile=quantile, budget=budget
+            )
         else:
             first = windows[0].datum()
             fitted = noise_weights(
