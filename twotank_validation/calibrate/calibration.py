@@ -487,14 +487,20 @@ def calibrate(
     document = _calibrated_document(doc, current, results) if fitted_any else None
     judged_d = fit_d + held_d
     after_model = current_model if fitted_any else model
+    # several windows: the judged ones are `windows` in order, whose beta is known
+    before = (
+        window_beta.copy()
+        if len(windows) > 1
+        else np.array([validate(d, model, method=cfg.method).beta for d in judged_d])
+    )
     judged = Judged(
         start_s=np.array([w.start_s for w in (*fit_w, *held_w)]),
         held_out=np.array([False] * len(fit_d) + [True] * len(held_d)),
-        # several windows: the judged ones are `windows` in order, whose beta is known
-        beta=window_beta.copy()
-        if len(windows) > 1
-        else np.array([validate(d, model, method=cfg.method).beta for d in judged_d]),
-        beta_after=np.array([validate(d, after_model, method=cfg.method).beta for d in judged_d]),
+        beta=before,
+        # one window and nothing fitted: the stated model's β, just computed
+        beta_after=before.copy()
+        if after_model is model and len(windows) == 1
+        else np.array([validate(d, after_model, method=cfg.method).beta for d in judged_d]),
     )
     return Calibration(
         model=model.name,
