@@ -4,8 +4,9 @@ A block of the model set is a perturbation ``Delta_i`` (its weight acts on ``v_i
 channel (its weight acts on ``w``). Scaling the block's weight by ``s`` is scaling the columns
 of the generalised plant ``P`` that the block feeds (``P[:, :, v_i]`` or ``P[:, :, w_j]``), so
 every search here works on the plant response evaluated once per window, with the window
-solver :func:`~twotank_validation.core.validate.solve_bins` (closed form, fast path or SDP, as
-:func:`~twotank_validation.core.validate.validate` would take).
+solver's lower bounds :func:`~twotank_validation.core.validate.lower_bins` (closed form, fast
+path or SDP, as :func:`~twotank_validation.core.validate.validate` would take; the closed form
+without its witness).
 
 ``beta`` never grows as a block's weight grows (the model set only gets larger), which makes
 the searches below one-dimensional root finding.
@@ -25,7 +26,7 @@ from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.validate import (
     check_compatible,
-    solve_bins,
+    lower_bins,
     total_beta,
     validation_band,
 )
@@ -169,8 +170,7 @@ class WindowProblem:
         p[:, :, block.columns] *= f[:, None, None] if f.ndim else f
         resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
                              self.response.ny)  # fmt: skip
-        sol = solve_bins(resp, u, y, method=self.method)
-        lower: np.ndarray = sol.lower
+        lower: np.ndarray = lower_bins(resp, u, y, method=self.method)
         return lower
 
     def beta(self, block: Block, factor: float) -> float:
@@ -198,7 +198,7 @@ class WindowProblem:
             if bins is None
             else (d.u_bins[bins], d.y_bins[bins], d.bin_weights[bins])
         )
-        return total_beta(solve_bins(resp, u, y, method=self.method).lower, w)
+        return total_beta(lower_bins(resp, u, y, method=self.method), w)
 
 
 def window_scaling(problem: WindowProblem, block: Block, guess: float | None = None) -> float:
