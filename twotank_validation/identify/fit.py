@@ -548,31 +548,37 @@ def _vector_fit(
     return poles
 
 
-def _basis_derivatives(s: np.ndarray, poles: np.ndarray) -> list[tuple[int, np.ndarray]]:
-    """Per pole parameter (``_pack``'s order), the basis columns it moves and their derivative.
+def _basis_derivatives(s: np.ndarray, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pole parameter (``_pack``'s order), the two basis columns it moves and how.
 
     Returns:
-        one ``(first column, (L, k) complex)`` per parameter: the derivatives of the ``k``
-        consecutive basis columns (:func:`_basis`) from ``first column`` on.
+        ``cols`` (n_x, 2) int, the columns (:func:`_basis`) each parameter moves (a real
+        pole moves one: its second is the feedthrough's, with a zero derivative), and
+        ``d`` (L, n_x, 2) complex, their derivatives.
 
     A real pole ``a``: ``d/da 1/(s-a) = 1/(s-a)^2``. A pair ``p = x + jy`` with
     ``d1 = 1/(s-p)^2``, ``d2 = 1/(s-p*)^2``: its columns ``1/(s-p) + 1/(s-p*)`` and
     ``j/(s-p) - j/(s-p*)`` move by ``(d1 + d2, j d1 - j d2)`` in ``x`` and by
     ``(j d1 - j d2, -d1 - d2)`` in ``y``.
     """
-    re_part: list[tuple[int, np.ndarray]] = []
-    im_part: list[tuple[int, np.ndarray]] = []
+    order = int(np.sum(np.where(poles.imag > 0, 2, 1)))
+    re_part: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    im_part: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    zero = np.zeros(s.size, complex)
     col = 0
     for p in poles:
         if p.imag > 0:
             d1, d2 = 1 / (s - p) ** 2, 1 / (s - np.conj(p)) ** 2
-            re_part.append((col, np.stack([d1 + d2, 1j * d1 - 1j * d2], axis=1)))
-            im_part.append((col, np.stack([1j * d1 - 1j * d2, -d1 - d2], axis=1)))
+            re_part.append((col, col + 1, d1 + d2, 1j * d1 - 1j * d2))
+            im_part.append((col, col + 1, 1j * d1 - 1j * d2, -d1 - d2))
             col += 2
         else:
-            re_part.append((col, (1 / (s - p.real) ** 2)[:, None]))
+            re_part.append((col, order, 1 / (s - p.real) ** 2, zero))
             col += 1
-    return re_part + im_part
+    every = re_part + im_part
+    cols = np.array([(a, b) for a, b, _, _ in every], dtype=int).reshape(-1, 2)
+    d = np.stack([np.stack([da, db], axis=1) for _, _, da, db in every], axis=1)
+    return cols, d
 
 
 def _jacobian(
@@ -606,18 +612,23 @@ def _jacobian(
     Rows as the residual's (real parts of every line and entry, then imaginary parts).
     """
     lines, n_e = h_und.shape
-    derivs = _basis_derivatives(s, poles)
-    n_x = len(derivs) + n_tau
+    cols, d = _basis_derivatives(s, poles)
+    n_p = cols.shape[0]
+    n_x = n_p + n_tau
     m = proj.coef.shape[0]
     v = np.zeros((n_e, lines, n_x), complex)  # dA_k c per entry
     t = np.zeros((n_e, m, n_x))  # dA_k^T r per entry
-    for k, (col, d) in enumerate(derivs):
-        wd = w.T[:, :, None] * d[None]  # (E, L, cols)
-        v[:, :, k] = np.einsum("elc,ce->el", wd, proj.coef[col : col + d.shape[1]])
-        t[:, col : col + d.shape[1], k] = np.real(np.einsum("elc,le->ec", wd.conj(), proj.resid))
+    cf = proj.coef[cols]  # (n_p, 2, E): the coefficients of the moved columns
+    dc = d[:, :, 0, None] * cf[None, :, 0, :] + d[:, :, 1, None] * cf[None, :, 1, :]
+    v[:, :, :n_p] = (w[:, None, :] * dc).transpose(2, 0, 1)
+    moved = np.real(d.reshape(lines, -1).conj().T @ (w * proj.resid))  # (n_p 2, E)
+    moved = moved.reshape(n_p, 2, n_e).transpose(2, 0, 1)  # (E, n_p, 2)
+    k = np.arange(n_p)
+    t[:, cols[:, 0], k] = moved[:, :, 0]
+    t[:, cols[:, 1], k] += moved[:, :, 1]  # zero where a real pole's second is the feedthrough
     for c in range(n_tau):
-        cols = slice(c * n_u, (c + 1) * n_u)
-        v[cols, :, len(derivs) + c] = -(1j * omega * w[:, cols].T * h_und[:, cols].T)
+        out = slice(c * n_u, (c + 1) * n_u)
+        v[out, :, n_p + c] = -(1j * omega * w[:, out].T * h_und[:, out].T)
     jac = proj.removed(_stack(v), t)  # (E, 2L, n_x)
     return jac.transpose(1, 0, 2).reshape(-1, n_x)
 
