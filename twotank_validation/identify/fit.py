@@ -43,6 +43,8 @@ from twotank_validation.identify.nonparametric import FrequencyResponse
 __all__ = ["RationalFit", "fit_rational", "select_order"]
 
 _VF_ITERATIONS = 12
+_VF_SETTLED = 1e-10
+"""A vector-fitting iteration that moves no pole by more than this (relative) ends them."""
 _PATIENCE = 2
 """Orders tried past the best supported one before the search stops."""
 _TOP = 1.2
@@ -541,10 +543,23 @@ def _delay_grid(
 def _vector_fit(
     s: np.ndarray, h: np.ndarray, w: np.ndarray, start: np.ndarray, slowest: float
 ) -> np.ndarray:
-    """The poles after the vector-fitting iterations from ``start`` (scaled)."""
+    """The poles after the vector-fitting iterations from ``start`` (scaled).
+
+    At most :data:`_VF_ITERATIONS`; fewer once an iteration moves no pole by more than
+    :data:`_VF_SETTLED` of the largest (the relocation has reached its fixed point, and the
+    refinement starts from there).
+    """
     poles = start
     for _ in range(_VF_ITERATIONS):
-        poles = _clip(_vf_step(s, h, w, poles), slowest)
+        new = _clip(_vf_step(s, h, w, poles), slowest)
+        settled = (
+            new.shape == poles.shape
+            and np.array_equal(new.imag > 0, poles.imag > 0)
+            and float(np.max(np.abs(new - poles))) <= _VF_SETTLED * float(np.max(np.abs(new)))
+        )
+        poles = new
+        if settled:
+            break
     return poles
 
 
