@@ -17,16 +17,19 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.optimize
 
-from twotank_validation.core import lti
+from twotank_validation.core import lti, solvers
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.solvers import DecoupledStructure
 from twotank_validation.core.validate import (
     check_compatible,
     lower_bins,
+    takes_closed_form,
     total_beta,
     validation_band,
 )
@@ -198,7 +201,22 @@ class WindowProblem:
             if bins is None
             else (d.u_bins[bins], d.y_bins[bins], d.bin_weights[bins])
         )
+        structure = self._counted_structure
+        if structure is not None and all(f != 0.0 and math.isfinite(f) for f in factors):
+            # columns scaled by non-zero factors keep P's pattern, which alone decides the
+            # route and the structure: lower_bins would find this one again at every call
+            return total_beta(solvers.closed_form_bins(resp, u, y, structure)[0], w)
         return total_beta(lower_bins(resp, u, y, method=self.method), w)
+
+    @cached_property
+    def _counted_structure(self) -> DecoupledStructure | None:
+        """The closed form's structure on the counted bins, where the route takes it."""
+        p = self.response.p if self.counted is None else self.response.p[self.counted]
+        resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
+                             self.response.ny)  # fmt: skip
+        if not takes_closed_form(resp, self.method):
+            return None
+        return solvers.decoupled_structure(resp)[0]
 
 
 def window_scaling(problem: WindowProblem, block: Block, guess: float | None = None) -> float:
