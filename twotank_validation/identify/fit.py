@@ -14,8 +14,9 @@ real poles and complex pairs (each pair stored once, ``Im p > 0``). Two steps:
    response with circular complex Gaussian errors of known variance, Pintelon & Schoukens
    2012, sec. 9.11): ``V = sum |H - G|^2 / var`` over the poles by
    ``scipy.optimize.least_squares``, the residues and ``D`` solved linearly inside it
-   (variable projection). Bounds keep every pole stable and every resonance inside
-   ``1.2 x`` the band's top: the fit adds no dynamics outside the band.
+   (variable projection) and the residual's exact Jacobian given (Golub & Pereyra 1973).
+   Bounds keep every pole stable and every resonance inside ``1.2 x`` the band's top: the
+   fit adds no dynamics outside the band.
 
 Order selection compares the orders' costs by ``V (1 + n_par ln(n_eq) / n_eq)`` (Rissanen's
 MDL as Pintelon & Schoukens 2012, sec. 11.4 use it); the chosen fit's cost against its
