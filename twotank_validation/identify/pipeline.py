@@ -33,14 +33,14 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate
+from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate, window_betas
 from twotank_validation.calibrate.noise import fitted_noise_weights
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core import lti
 from twotank_validation.core.band import Band, excited_lines
 from twotank_validation.core.datum import assess_periodicity
 from twotank_validation.core.lti import Intersample
-from twotank_validation.core.model import LFTModel, PlantResponse, model_from_dict
+from twotank_validation.core.model import LFTModel, model_from_dict
 from twotank_validation.core.noise_budget import (
     NOISE_BUDGET,
     NOISE_QUANTILE,
@@ -48,7 +48,7 @@ from twotank_validation.core.noise_budget import (
     NoiseWeights,
     noise_weights,
 )
-from twotank_validation.core.validate import validate_beta, validation_band
+from twotank_validation.core.validate import validation_band
 from twotank_validation.diagnose.inputs import Window, split_windows
 from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
@@ -510,20 +510,8 @@ def _one_period_spread(fr: FrequencyResponse, n: int) -> NoiseSpread:
 
 
 def _betas(windows: Sequence[Window], model: LFTModel) -> np.ndarray:
-    """(n,) β of the model on each window, its datum built as ``validate`` builds it.
-
-    :func:`~twotank_validation.core.validate.validate_beta` (β without the witness); windows
-    with the same bins share the model's response at them (evaluated once).
-    """
-    responses: dict[tuple[float, bytes], PlantResponse] = {}
-    out = []
-    for w in windows:
-        datum = w.datum()
-        key = (datum.ts_s, datum.theta.tobytes())
-        if key not in responses:
-            responses[key] = model.response(datum.theta, datum.ts_s)
-        out.append(validate_beta(datum, model, response=responses[key]).beta)
-    return np.array(out)
+    """(n,) β of the model on each window, its datum built as ``validate`` builds it."""
+    return window_betas([w.datum() for w in windows], model)
 
 
 def _can_hold_out(windows: Sequence[Window]) -> bool:
