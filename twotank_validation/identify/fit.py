@@ -292,7 +292,8 @@ def _project(phi: np.ndarray, h: np.ndarray, w: np.ndarray) -> _Projection:
         h: (L, E) complex, the entries.
         w: (L, E) float, weights ``1 / sigma``.
     """
-    a = _stack(w.T[:, :, None] * phi[None, :, :])  # (E, 2L, m)
+    wt = np.ascontiguousarray(w.T)[:, :, None]  # (E, L, 1)
+    a = np.concatenate([wt * phi.real[None], wt * phi.imag[None]], axis=1)  # (E, 2L, m)
     b = _stack((w * h).T[:, :, None])  # (E, 2L, 1)
     at = a.transpose(0, 2, 1)
     # every entry's problem by its normal equations A^T A c = A^T b (m x m per entry: numpy's
@@ -335,6 +336,25 @@ def _linear(
     return proj.coef, proj.resid, phi
 
 
+def _augmented(full: np.ndarray, phi: np.ndarray, w: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(E, 2 L, k + n + 1) real: ``[w full, -w h phi, w h]`` per entry, real over imaginary rows.
+
+    Filled block by block from real parts (the same numbers as stacking the complex blocks,
+    without their complex temporaries).
+    """
+    lines, k, n = phi.shape[0], full.shape[1], phi.shape[1]
+    wt, wh = np.ascontiguousarray(w.T), np.ascontiguousarray((w * h).T)  # (E, L)
+    out = np.empty((wt.shape[0], 2 * lines, k + n + 1))
+    out[:, :lines, :k] = wt[:, :, None] * full.real[None]
+    out[:, lines:, :k] = wt[:, :, None] * full.imag[None]
+    prod = wh[:, :, None] * phi[None]
+    out[:, :lines, k : k + n] = -prod.real
+    out[:, lines:, k : k + n] = -prod.imag
+    out[:, :lines, -1] = wh.real
+    out[:, lines:, -1] = wh.imag
+    return out
+
+
 def _vf_step(s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray) -> np.ndarray:
     """One vector-fitting pole relocation: the zeros of ``sigma(s) = 1 + sum c_i phi_i``.
 
@@ -348,8 +368,7 @@ def _vf_step(s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray) -> 
     phi = _basis(s, poles)
     full = np.concatenate([phi, np.ones((s.size, 1))], axis=1)
     k, n = full.shape[1], phi.shape[1]
-    wt, wh = w.T[:, :, None], (w * h).T[:, :, None]  # (E, L, 1)
-    m = _stack(np.concatenate([wt * full[None], -wh * phi[None], wh], axis=2))  # (E, 2L, k+n+1)
+    m = _augmented(full, phi, w, h)  # (E, 2L, k+n+1)
     gram = m.transpose(0, 2, 1) @ m
     lead = gram[:, : k + n, : k + n]
     d = np.sqrt(np.diagonal(lead, axis1=1, axis2=2))  # the columns' norms: cond unscaled
