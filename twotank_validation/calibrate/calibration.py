@@ -525,7 +525,9 @@ def window_betas(datums: Sequence[Datum], model: LFTModel, method: str = "auto")
         key = (d.ts_s, d.theta.tobytes())
         if key not in responses:
             responses[key] = model.response(d.theta, d.ts_s)
-        out.append(validate_beta(d, model, method=method, response=responses[key]).beta)
+        out.append(
+            validate_beta(d, model, method=method, response=responses[key], caveats=False).beta
+        )
     return np.array(out, dtype=float)
 
 
