@@ -42,8 +42,8 @@ from twotank_validation.calibrate.scaling import (
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core import lti
 from twotank_validation.core.datum import Datum, NormConvention
-from twotank_validation.core.model import LFTModel, model_from_dict
-from twotank_validation.core.validate import validate
+from twotank_validation.core.model import LFTModel, PlantResponse, model_from_dict
+from twotank_validation.core.validate import validate_beta
 from twotank_validation.defaults import METHODS
 from twotank_validation.diagnose.inputs import DiagnosisError, Window, split_windows
 
@@ -487,14 +487,16 @@ def calibrate(
     document = _calibrated_document(doc, current, results) if fitted_any else None
     judged_d = fit_d + held_d
     after_model = current_model if fitted_any else model
+    # several windows: the judged ones are `windows` in order, whose beta is known
+    before = window_beta.copy() if len(windows) > 1 else window_betas(judged_d, model, cfg.method)
     judged = Judged(
         start_s=np.array([w.start_s for w in (*fit_w, *held_w)]),
         held_out=np.array([False] * len(fit_d) + [True] * len(held_d)),
-        # several windows: the judged ones are `windows` in order, whose beta is known
-        beta=window_beta.copy()
-        if len(windows) > 1
-        else np.array([validate(d, model, method=cfg.method).beta for d in judged_d]),
-        beta_after=np.array([validate(d, after_model, method=cfg.method).beta for d in judged_d]),
+        beta=before,
+        # one window and nothing fitted: the stated model's β, just computed
+        beta_after=before.copy()
+        if after_model is model and len(windows) == 1
+        else window_betas(judged_d, after_model, cfg.method),
     )
     return Calibration(
         model=model.name,
@@ -509,6 +511,24 @@ def calibrate(
         extrapolated=extrapolated,
         joint=joint,
     )
+
+
+def window_betas(datums: Sequence[Datum], model: LFTModel, method: str = "auto") -> np.ndarray:
+    """(n,) β of the model on each datum, as ``validate`` finds it.
+
+    By :func:`~twotank_validation.core.validate.validate_beta` (the same β, no witness); datums
+    with the same bins share the model's response at them (evaluated once).
+    """
+    responses: dict[tuple[float, bytes], PlantResponse] = {}
+    out = []
+    for d in datums:
+        key = (d.ts_s, d.theta.tobytes())
+        if key not in responses:
+            responses[key] = model.response(d.theta, d.ts_s)
+        out.append(
+            validate_beta(d, model, method=method, response=responses[key], caveats=False).beta
+        )
+    return np.array(out, dtype=float)
 
 
 def _scalings(problems: Sequence[WindowProblem], block: Block) -> tuple[float, ...]:

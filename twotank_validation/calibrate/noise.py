@@ -176,6 +176,57 @@ def _datums(windows: Sequence[Window], convention: NormConvention) -> list[Datum
     ]
 
 
+def _fit(
+    windows: Sequence[Window],
+    model: LFTModel,
+    quantile: float,
+    budget: float,
+    convention: NormConvention,
+) -> tuple[list[Window], list[Window], list[Datum], list[Datum], NoiseWeights]:
+    """The fit and held-out windows, their datums and the weights set on the fit ones."""
+    if model.generalized is not None:
+        raise CalibrationError(
+            f"model {model.name} is a generalised plant: its noise enters through its own "
+            "P; --noise-from-data sets the noise section of a structured model"
+        )
+    try:
+        fit_w, held_w = split_windows(windows)
+        fit_d, held_d = _datums(fit_w, convention), _datums(held_w, convention)
+        first = fit_d[0]
+        spread = noise_spread([d.y_centred for d in fit_d], first.period_samples, convention)
+        fitted = noise_weights(
+            spread,
+            first.bin_weights,
+            first.n_samples,
+            mask=validation_band(first, model),
+            quantile=quantile,
+            budget=budget,
+        )
+    except (DiagnosisError, TwotankError) as err:
+        raise CalibrationError(str(err)) from err
+    return list(fit_w), list(held_w), fit_d, held_d, fitted
+
+
+def fitted_noise_weights(
+    windows: Sequence[Window],
+    model: LFTModel,
+    *,
+    quantile: float = NOISE_QUANTILE,
+    budget: float = NOISE_BUDGET,
+    convention: NormConvention = NormConvention.POWER,
+) -> NoiseWeights:
+    """The weights :func:`noise_from_data` sets, without judging them on the windows.
+
+    Same arguments (a loaded model) and errors.
+    """
+    if not windows:
+        raise CalibrationError(
+            "no judged window to set the noise weights from: record at least one whole window "
+            "of two or more periods"
+        )
+    return _fit(windows, model, quantile, budget, convention)[4]
+
+
 def noise_from_data(
     windows: Sequence[Window],
     doc: Mapping[str, Any],
@@ -209,27 +260,11 @@ def noise_from_data(
             "of two or more periods"
         )
     model = model_from_dict(doc, source)
-    if model.generalized is not None:
-        raise CalibrationError(
-            f"model {model.name} is a generalised plant: its noise enters through its own "
-            "P; --noise-from-data sets the noise section of a structured model"
-        )
+    fit_w, held_w, fit_d, held_d, fitted = _fit(windows, model, quantile, budget, convention)
     try:
-        fit_w, held_w = split_windows(windows)
-        fit_d, held_d = _datums(fit_w, convention), _datums(held_w, convention)
-        first = fit_d[0]
-        spread = noise_spread([d.y_centred for d in fit_d], first.period_samples, convention)
-        fitted = noise_weights(
-            spread,
-            first.bin_weights,
-            first.n_samples,
-            mask=validation_band(first, model),
-            quantile=quantile,
-            budget=budget,
-        )
         document = noise_document(doc, model.output_names, fitted.gains)
         new_model = model_from_dict(document, f"{source} (noise from data)")
-    except (DiagnosisError, TwotankError) as err:
+    except TwotankError as err:
         raise CalibrationError(str(err)) from err
     judged_d = fit_d + held_d
     before = [validate(d, model, method=method) for d in judged_d]

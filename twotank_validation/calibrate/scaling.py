@@ -4,8 +4,9 @@ A block of the model set is a perturbation ``Delta_i`` (its weight acts on ``v_i
 channel (its weight acts on ``w``). Scaling the block's weight by ``s`` is scaling the columns
 of the generalised plant ``P`` that the block feeds (``P[:, :, v_i]`` or ``P[:, :, w_j]``), so
 every search here works on the plant response evaluated once per window, with the window
-solver :func:`~twotank_validation.core.validate.solve_bins` (closed form, fast path or SDP, as
-:func:`~twotank_validation.core.validate.validate` would take).
+solver's lower bounds :func:`~twotank_validation.core.validate.lower_bins` (closed form, fast
+path or SDP, as :func:`~twotank_validation.core.validate.validate` would take; the closed form
+without its witness).
 
 ``beta`` never grows as a block's weight grows (the model set only gets larger), which makes
 the searches below one-dimensional root finding.
@@ -16,16 +17,19 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.optimize
 
-from twotank_validation.core import lti
+from twotank_validation.core import lti, solvers
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.solvers import DecoupledStructure
 from twotank_validation.core.validate import (
     check_compatible,
-    solve_bins,
+    lower_bins,
+    takes_closed_form,
     total_beta,
     validation_band,
 )
@@ -169,8 +173,7 @@ class WindowProblem:
         p[:, :, block.columns] *= f[:, None, None] if f.ndim else f
         resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
                              self.response.ny)  # fmt: skip
-        sol = solve_bins(resp, u, y, method=self.method)
-        lower: np.ndarray = sol.lower
+        lower: np.ndarray = lower_bins(resp, u, y, method=self.method)
         return lower
 
     def beta(self, block: Block, factor: float) -> float:
@@ -198,7 +201,22 @@ class WindowProblem:
             if bins is None
             else (d.u_bins[bins], d.y_bins[bins], d.bin_weights[bins])
         )
-        return total_beta(solve_bins(resp, u, y, method=self.method).lower, w)
+        structure = self._counted_structure
+        if structure is not None and all(f != 0.0 and math.isfinite(f) for f in factors):
+            # columns scaled by non-zero factors keep P's pattern, which alone decides the
+            # route and the structure: lower_bins would find this one again at every call
+            return total_beta(solvers.closed_form_bins(resp, u, y, structure)[0], w)
+        return total_beta(lower_bins(resp, u, y, method=self.method), w)
+
+    @cached_property
+    def _counted_structure(self) -> DecoupledStructure | None:
+        """The closed form's structure on the counted bins, where the route takes it."""
+        p = self.response.p if self.counted is None else self.response.p[self.counted]
+        resp = PlantResponse(p, self.response.blocks, self.response.nw, self.response.nu,
+                             self.response.ny)  # fmt: skip
+        if not takes_closed_form(resp, self.method):
+            return None
+        return solvers.decoupled_structure(resp)[0]
 
 
 def window_scaling(problem: WindowProblem, block: Block, guess: float | None = None) -> float:

@@ -129,15 +129,20 @@ def fit_weight(
     lo_w = math.log(float(band.min()) / 2.0)
     hi_w = math.log(math.pi / ts_s)
 
+    w2 = omega[:, None] ** 2
+    add = np.add.reduce
+
+    # the excess runs thousands of times per fit: bare ufuncs (the same operations as
+    # np.clip, np.sum and np.mean, without their dispatch)
     def cont_log_shape(x: np.ndarray) -> np.ndarray:
         k = x.size // 2
-        zs, ps = np.exp(np.clip(x[:k], lo_w, hi_w)), np.exp(np.clip(x[k:], lo_w, hi_w))
-        w2 = omega[:, None] ** 2
-        return 0.5 * (np.sum(np.log1p(w2 / zs**2), axis=1) - np.sum(np.log1p(w2 / ps**2), axis=1))
+        corners = np.exp(np.minimum(np.maximum(x, lo_w), hi_w))
+        terms = np.log1p(w2 / corners**2)  # zeros' columns, then poles'
+        return 0.5 * (add(terms[:, :k], axis=1) - add(terms[:, k:], axis=1))
 
     def excess(x: np.ndarray) -> float:
         shape = cont_log_shape(x)
-        return float(np.mean(np.max(log_req - shape) + shape - log_req))
+        return float(add(np.maximum.reduce(log_req - shape) + shape - log_req) / shape.size)
 
     fits = []
     for order in range(max_order + 1):
@@ -148,8 +153,15 @@ def fit_weight(
             x = np.zeros(0)
         else:
             best = None
-            # starts: the zeros and poles at distinct corners spread across the band
+            # starts: the zeros and poles at distinct corners spread across the band; the
+            # excess is symmetric in the zeros and in the poles, so a start that only reorders
+            # them repeats a search (its iterates reordered): each is run once
+            tried = set()
             for combo in itertools.islice(itertools.permutations(starts, 2 * order), 24):
+                key = (tuple(sorted(combo[:order])), tuple(sorted(combo[order:])))
+                if key in tried:
+                    continue
+                tried.add(key)
                 res = scipy.optimize.minimize(
                     excess, np.array(combo), method="Nelder-Mead",
                     options={"xatol": 1e-4, "fatol": 1e-7, "maxiter": 400 * order},

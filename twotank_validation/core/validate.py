@@ -332,11 +332,14 @@ def validate_beta(
     method: str = "auto",
     response: PlantResponse | None = None,
     command_bins: np.ndarray | None = None,
+    caveats: bool = True,
 ) -> BetaResult:
     """β of :func:`validate` without the witness, the output error and the leakage bound.
 
     Where the closed form runs, only its per-bin minimum is computed (no perturbations
-    Delta); on the other routes this is :func:`validate`. Same arguments and errors.
+    Delta); on the other routes this is :func:`validate`. Same arguments and errors;
+    ``caveats=False``: where the closed form runs, no caveats either (no warnings or
+    findings, ``noise_beta`` NaN: for a caller that reads β alone).
     """
     if method not in METHODS:
         raise ModelError(f"unknown method {method!r}; use one of {METHODS}")
@@ -362,19 +365,19 @@ def validate_beta(
     lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
     mask = validation_band(datum, model, command_bins)
     beta = masked_beta(lower, datum.bin_weights, mask)
-    caveats = result_caveats(datum, model, beta, resp, mask)
+    said = result_caveats(datum, model, beta, resp, mask) if caveats else Caveats()
     return BetaResult(
         Method.CLOSED_FORM.value,
         datum.freqs_hz,
         lower,
         beta,
         beta,  # the closed form's witness attains the minimum: upper = lower
-        caveats.texts,
-        caveats.findings,
-        caveats.input_leakage,
+        said.texts,
+        said.findings,
+        said.input_leakage,
         0.0 if mask is None else masked_beta(lower, datum.bin_weights, ~mask),
         () if mask is None else outside_lines(lower, datum.bin_weights, datum.freqs_hz, mask),
-        caveats.noise_beta,
+        said.noise_beta,
     )
 
 

@@ -14,8 +14,9 @@ real poles and complex pairs (each pair stored once, ``Im p > 0``). Two steps:
    response with circular complex Gaussian errors of known variance, Pintelon & Schoukens
    2012, sec. 9.11): ``V = sum |H - G|^2 / var`` over the poles by
    ``scipy.optimize.least_squares``, the residues and ``D`` solved linearly inside it
-   (variable projection). Bounds keep every pole stable and every resonance inside
-   ``1.2 x`` the band's top: the fit adds no dynamics outside the band.
+   (variable projection) and the residual's exact Jacobian given (Golub & Pereyra 1973).
+   Bounds keep every pole stable and every resonance inside ``1.2 x`` the band's top: the
+   fit adds no dynamics outside the band.
 
 Order selection compares the orders' costs by ``V (1 + n_par ln(n_eq) / n_eq)`` (Rissanen's
 MDL as Pintelon & Schoukens 2012, sec. 11.4 use it); the chosen fit's cost against its
@@ -43,12 +44,15 @@ from twotank_validation.identify.nonparametric import FrequencyResponse
 __all__ = ["RationalFit", "fit_rational", "select_order"]
 
 _VF_ITERATIONS = 12
+_VF_SETTLED = 1e-10
+"""A vector-fitting iteration that moves no pole by more than this (relative) ends them."""
 _PATIENCE = 2
 """Orders tried past the best supported one before the search stops."""
 _TOP = 1.2
 """Largest resonance frequency of a fitted pair, relative to the band's top line."""
 _GRAM_COND = 1e8
-"""Largest condition number of the normal equations solved as they are (else a QR)."""
+"""Largest condition number of the normal equations (scaled to a unit diagonal) solved as they
+are (else a QR)."""
 _SUPPORT = 3.0
 """A pole is supported when its standard deviation is below ``|p| / _SUPPORT``."""
 _SLOWEST = 1e-2
@@ -232,6 +236,86 @@ def _ri(x: np.ndarray) -> np.ndarray:
     return np.concatenate([x.real, x.imag], axis=0)
 
 
+@dataclass(frozen=True)
+class _Projection:
+    """The weighted linear problem at fixed poles, solved for every entry at once.
+
+    Attributes:
+        a: (E, 2 L, m) real, the weighted basis ``w_e Phi`` stacked real over imaginary.
+        coef: (m, E) real, the coefficients (last row the feedthrough).
+        resid: (L, E) complex, the weighted residual ``w (Phi c - h)``.
+        gram: (E, m, m) the normal equations' matrix scaled to unit diagonal
+            (``G / (d d^T)``) where they were solved; None where a QR was (``q``, ``r``).
+        norms: (E, m) the columns' norms ``d``.
+        q: (E, 2 L, m), r: (E, m, m): the QR of ``a`` when the normal equations were
+            ill-conditioned; else None.
+    """
+
+    a: np.ndarray
+    coef: np.ndarray
+    resid: np.ndarray
+    gram: np.ndarray | None
+    norms: np.ndarray
+    q: np.ndarray | None
+    r: np.ndarray | None
+
+    def removed(self, v: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(E, 2 L, K): ``v - A G^-1 (A^T v + t)`` per entry (``G = A^T A``).
+
+        The variable-projection Jacobian's columns (Golub & Pereyra 1973): ``v`` (E, 2 L, K)
+        less its projection on the basis, less ``(A^+)^T t`` for ``t`` (E, m, K).
+        """
+        if self.gram is not None:
+            d = self.norms[:, :, None]
+            z = np.linalg.solve(self.gram, (self.a.transpose(0, 2, 1) @ v + t) / d) / d
+            out: np.ndarray = v - self.a @ z
+            return out
+        assert self.q is not None
+        assert self.r is not None
+        qt = self.q.transpose(0, 2, 1)
+        # (A^+)^T t = Q R^-T t
+        zt = np.linalg.solve(self.r.transpose(0, 2, 1), t)
+        out = v - self.q @ (qt @ v) - self.q @ zt
+        return out
+
+
+def _stack(x: np.ndarray) -> np.ndarray:
+    """(E, L, ...) complex as (E, 2 L, ...) real: real parts over imaginary ones."""
+    return np.concatenate([x.real, x.imag], axis=1)
+
+
+def _project(phi: np.ndarray, h: np.ndarray, w: np.ndarray) -> _Projection:
+    """The weighted least-squares coefficients of every entry on the basis ``phi``.
+
+    Args:
+        phi: (L, m) complex, the basis (the last column the feedthrough's ones).
+        h: (L, E) complex, the entries.
+        w: (L, E) float, weights ``1 / sigma``.
+    """
+    wt = np.ascontiguousarray(w.T)[:, :, None]  # (E, L, 1)
+    a = np.concatenate([wt * phi.real[None], wt * phi.imag[None]], axis=1)  # (E, 2L, m)
+    b = _stack((w * h).T[:, :, None])  # (E, 2L, 1)
+    at = a.transpose(0, 2, 1)
+    # every entry's problem by its normal equations A^T A c = A^T b (m x m per entry: numpy's
+    # lstsq, an SVD per entry, took most of a fit's time; a QR of the tall A is as slow on a
+    # machine with threaded BLAS); a batched QR where they are ill-conditioned
+    gram = at @ a
+    # scaled to unit columns (a slow pole's column is far larger than a fast one's): the
+    # scaled matrix's condition decides and its solve loses no more than it says
+    d = np.sqrt(np.diagonal(gram, axis1=1, axis2=2))  # (E, m)
+    scaled = gram / (d[:, :, None] * d[:, None, :]) if np.all(d > 0) else None
+    if scaled is not None and np.max(np.linalg.cond(scaled)) < _GRAM_COND:
+        coef = (np.linalg.solve(scaled, (at @ b) / d[:, :, None]) / d[:, :, None])[:, :, 0].T
+        q = r = None
+        kept: np.ndarray | None = scaled
+    else:
+        q, r = np.linalg.qr(a)
+        coef = np.linalg.solve(r, q.transpose(0, 2, 1) @ b)[:, :, 0].T
+        kept = None
+    resid = w * (phi @ coef - h)
+    return _Projection(a, coef, resid, kept, d, q, r)
+
+
 def _linear(
     s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -245,41 +329,59 @@ def _linear(
 
     Returns:
         coefficients (order + 1, E) real (last row the feedthrough), the weighted complex
-        residual (L, E).
+        residual (L, E), the basis (L, order + 1).
     """
     phi = np.concatenate([_basis(s, poles), np.ones((s.size, 1))], axis=1)
-    # every entry's weighted problem at once, by its normal equations
-    # Re(Phi^H W^2 Phi) c = Re(Phi^H W^2 h) (m x m per entry; numpy's lstsq, an SVD per
-    # entry, took most of a fit's time); a batched QR where they are ill-conditioned
-    w2 = w**2
-    gram = np.real(np.einsum("le,lm,ln->emn", w2, phi.conj(), phi, optimize=True))
-    rhs = np.real(np.einsum("le,lm,le->em", w2, phi.conj(), h, optimize=True))
-    if np.max(np.linalg.cond(gram)) < _GRAM_COND:
-        coef = np.linalg.solve(gram, rhs[:, :, None])[:, :, 0].T  # (m, E)
-    else:
-        ac = w.T[:, :, None] * phi[None, :, :]  # (E, L, m)
-        a = np.concatenate([ac.real, ac.imag], axis=1)  # (E, 2L, m)
-        bc = (w * h).T
-        b = np.concatenate([bc.real, bc.imag], axis=1)[:, :, None]
-        q, r = np.linalg.qr(a)
-        coef = np.linalg.solve(r, q.transpose(0, 2, 1) @ b)[:, :, 0].T
-    resid = w * (phi @ coef - h)
-    return coef, resid, phi
+    proj = _project(phi, h, w)
+    return proj.coef, proj.resid, phi
+
+
+def _augmented(full: np.ndarray, phi: np.ndarray, w: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(E, 2 L, k + n + 1) real: ``[w full, -w h phi, w h]`` per entry, real over imaginary rows.
+
+    Filled block by block from real parts (the same numbers as stacking the complex blocks,
+    without their complex temporaries).
+    """
+    lines, k, n = phi.shape[0], full.shape[1], phi.shape[1]
+    wt, wh = np.ascontiguousarray(w.T), np.ascontiguousarray((w * h).T)  # (E, L)
+    out = np.empty((wt.shape[0], 2 * lines, k + n + 1))
+    out[:, :lines, :k] = wt[:, :, None] * full.real[None]
+    out[:, lines:, :k] = wt[:, :, None] * full.imag[None]
+    prod = wh[:, :, None] * phi[None]
+    out[:, :lines, k : k + n] = -prod.real
+    out[:, lines:, k : k + n] = -prod.imag
+    out[:, :lines, -1] = wh.real
+    out[:, lines:, -1] = wh.imag
+    return out
 
 
 def _vf_step(s: np.ndarray, h: np.ndarray, w: np.ndarray, poles: np.ndarray) -> np.ndarray:
-    """One vector-fitting pole relocation: the zeros of ``sigma(s) = 1 + sum c_i phi_i``."""
+    """One vector-fitting pole relocation: the zeros of ``sigma(s) = 1 + sum c_i phi_i``.
+
+    Per entry ``e`` the linearised problem ``[w full, -w h phi] [c_e; c_sigma] ~ w h`` is
+    reduced to ``c_sigma``'s rows: the block ``R22`` and right-hand side ``r2`` of the
+    triangular factor of ``[A1 A2 b]`` (``A1`` the entry's own columns). The factor comes
+    from the Cholesky factor of the normal equations (the same ``R`` as a QR's, up to the
+    rows' signs, which the stacked solve for ``c_sigma`` does not see) where they are
+    well-conditioned, else from a QR.
+    """
     phi = _basis(s, poles)
     full = np.concatenate([phi, np.ones((s.size, 1))], axis=1)
-    rows, rhs = [], []
-    for e in range(h.shape[1]):
-        a = _ri(np.concatenate([w[:, e, None] * full, -(w[:, e] * h[:, e])[:, None] * phi], 1))
-        b = _ri(w[:, e] * h[:, e])
-        q, r = np.linalg.qr(a)
-        k = full.shape[1]
-        rows.append(r[k:, k:])
-        rhs.append((q.T @ b)[k:])
-    c_sigma = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+    k, n = full.shape[1], phi.shape[1]
+    m = _augmented(full, phi, w, h)  # (E, 2L, k+n+1)
+    gram = m.transpose(0, 2, 1) @ m
+    lead = gram[:, : k + n, : k + n]
+    d = np.sqrt(np.diagonal(lead, axis1=1, axis2=2))  # the columns' norms: cond unscaled
+    if np.all(d > 0) and np.max(np.linalg.cond(lead / (d[:, :, None] * d[:, None, :]))) < (
+        _GRAM_COND
+    ):
+        low = np.linalg.cholesky(lead)  # lead = low low^T, R = low^T
+        r_last = np.linalg.solve(low, gram[:, : k + n, -1:])  # R's last column
+        r22, r2 = low.transpose(0, 2, 1)[:, k:, k:], r_last[:, k:, 0]
+    else:
+        r_full: np.ndarray = np.linalg.qr(m, mode="r")  # type: ignore[assignment]
+        r22, r2 = r_full[:, k : k + n, k : k + n], r_full[:, k : k + n, -1]
+    c_sigma = np.linalg.lstsq(r22.reshape(-1, n), r2.reshape(-1), rcond=None)[0]
     a_blk, b_blk = _pole_blocks(poles)
     return _tidy(np.linalg.eigvals(a_blk - np.outer(b_blk, c_sigma)))
 
@@ -461,11 +563,109 @@ def _delay_grid(
 def _vector_fit(
     s: np.ndarray, h: np.ndarray, w: np.ndarray, start: np.ndarray, slowest: float
 ) -> np.ndarray:
-    """The poles after the vector-fitting iterations from ``start`` (scaled)."""
+    """The poles after the vector-fitting iterations from ``start`` (scaled).
+
+    At most :data:`_VF_ITERATIONS`; fewer once an iteration moves no pole by more than
+    :data:`_VF_SETTLED` of the largest (the relocation has reached its fixed point, and the
+    refinement starts from there).
+    """
     poles = start
     for _ in range(_VF_ITERATIONS):
-        poles = _clip(_vf_step(s, h, w, poles), slowest)
+        new = _clip(_vf_step(s, h, w, poles), slowest)
+        settled = (
+            new.shape == poles.shape
+            and np.array_equal(new.imag > 0, poles.imag > 0)
+            and float(np.max(np.abs(new - poles))) <= _VF_SETTLED * float(np.max(np.abs(new)))
+        )
+        poles = new
+        if settled:
+            break
     return poles
+
+
+def _basis_derivatives(s: np.ndarray, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pole parameter (``_pack``'s order), the two basis columns it moves and how.
+
+    Returns:
+        ``cols`` (n_x, 2) int, the columns (:func:`_basis`) each parameter moves (a real
+        pole moves one: its second is the feedthrough's, with a zero derivative), and
+        ``d`` (L, n_x, 2) complex, their derivatives.
+
+    A real pole ``a``: ``d/da 1/(s-a) = 1/(s-a)^2``. A pair ``p = x + jy`` with
+    ``d1 = 1/(s-p)^2``, ``d2 = 1/(s-p*)^2``: its columns ``1/(s-p) + 1/(s-p*)`` and
+    ``j/(s-p) - j/(s-p*)`` move by ``(d1 + d2, j d1 - j d2)`` in ``x`` and by
+    ``(j d1 - j d2, -d1 - d2)`` in ``y``.
+    """
+    order = int(np.sum(np.where(poles.imag > 0, 2, 1)))
+    re_part: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    im_part: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    zero = np.zeros(s.size, complex)
+    col = 0
+    for p in poles:
+        if p.imag > 0:
+            d1, d2 = 1 / (s - p) ** 2, 1 / (s - np.conj(p)) ** 2
+            re_part.append((col, col + 1, d1 + d2, 1j * d1 - 1j * d2))
+            im_part.append((col, col + 1, 1j * d1 - 1j * d2, -d1 - d2))
+            col += 2
+        else:
+            re_part.append((col, order, 1 / (s - p.real) ** 2, zero))
+            col += 1
+    every = re_part + im_part
+    cols = np.array([(a, b) for a, b, _, _ in every], dtype=int).reshape(-1, 2)
+    d = np.stack([np.stack([da, db], axis=1) for _, _, da, db in every], axis=1)
+    return cols, d
+
+
+def _jacobian(
+    s: np.ndarray,
+    h_und: np.ndarray,
+    w: np.ndarray,
+    poles: np.ndarray,
+    proj: _Projection,
+    *,
+    omega: np.ndarray,
+    n_tau: int,
+    n_u: int,
+) -> np.ndarray:
+    """(2 L E, n_x) the exact Jacobian of the refinement's residual (variable projection).
+
+    The residual is ``r = -P b`` with ``P = I - A A^+`` (``A = w Phi`` real-stacked, ``b``
+    the weighted entries with the delays undone). Golub & Pereyra (1973):
+    ``dr/dx_k = P (dA/dx_k) c - (A^+)^T (dA/dx_k)^T r`` for a pole parameter; a delay moves
+    ``b`` alone (``db/dtau_c = j omega b`` on output ``c``'s entries), ``dr = -P db``.
+
+    Args:
+        s: (L,) complex, ``j omega`` (scaled).
+        w: (L, E) float, weights ``1 / sigma``.
+        poles: (n,) complex, scaled.
+        h_und: (L, E) the entries with the delays undone.
+        proj: :func:`_project` at ``poles`` and ``h_und``.
+        omega: (L,) rad/s, the lines (the delays' unit is s).
+        n_tau: delays (0 or one per output).
+        n_u: inputs.
+
+    Rows as the residual's (real parts of every line and entry, then imaginary parts).
+    """
+    lines, n_e = h_und.shape
+    cols, d = _basis_derivatives(s, poles)
+    n_p = cols.shape[0]
+    n_x = n_p + n_tau
+    m = proj.coef.shape[0]
+    v = np.zeros((n_e, lines, n_x), complex)  # dA_k c per entry
+    t = np.zeros((n_e, m, n_x))  # dA_k^T r per entry
+    cf = proj.coef[cols]  # (n_p, 2, E): the coefficients of the moved columns
+    dc = d[:, :, 0, None] * cf[None, :, 0, :] + d[:, :, 1, None] * cf[None, :, 1, :]
+    v[:, :, :n_p] = (w[:, None, :] * dc).transpose(2, 0, 1)
+    moved = np.real(d.reshape(lines, -1).conj().T @ (w * proj.resid))  # (n_p 2, E)
+    moved = moved.reshape(n_p, 2, n_e).transpose(2, 0, 1)  # (E, n_p, 2)
+    k = np.arange(n_p)
+    t[:, cols[:, 0], k] = moved[:, :, 0]
+    t[:, cols[:, 1], k] += moved[:, :, 1]  # zero where a real pole's second is the feedthrough
+    for c in range(n_tau):
+        out = slice(c * n_u, (c + 1) * n_u)
+        v[out, :, n_p + c] = -(1j * omega * w[:, out].T * h_und[:, out].T)
+    jac = proj.removed(_stack(v), t)  # (E, 2L, n_x)
+    return jac.transpose(1, 0, 2).reshape(-1, n_x)
 
 
 def _refine(
@@ -480,7 +680,11 @@ def _refine(
     n_u: int,
     tau_max: float,
 ) -> tuple[scipy.optimize.OptimizeResult, np.ndarray]:
-    """The maximum-likelihood refinement of ``poles`` (and the delays ``tau0``) in bounds."""
+    """The maximum-likelihood refinement of ``poles`` (and the delays ``tau0``) in bounds.
+
+    ``least_squares`` with the residual's exact Jacobian (:func:`_jacobian`); each point's
+    linear solve is shared by the residual and the Jacobian.
+    """
     is_pair = poles.imag > 0
     n_tau = tau0.size
     lower = np.concatenate(
@@ -491,14 +695,29 @@ def _refine(
          np.full(n_tau, max(tau_max, 1e-12))]
     )  # fmt: skip
     x0 = np.clip(np.concatenate([_pack(poles), tau0]), lower + 1e-12, upper - 1e-12)
+    last: dict[bytes, tuple[np.ndarray, np.ndarray, _Projection]] = {}
+
+    def solved(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, _Projection]:
+        key = x.tobytes()
+        if key not in last:
+            taus = x[x.size - n_tau :] if n_tau else tau0
+            p = _unpack(x[: x.size - n_tau], is_pair)
+            h_und = _undelayed(h, omega, taus, n_u)
+            phi = np.concatenate([_basis(s, p), np.ones((s.size, 1))], axis=1)
+            last.clear()
+            last[key] = (p, h_und, _project(phi, h_und, w))
+        return last[key]
 
     def residual(x: np.ndarray) -> np.ndarray:
-        taus = x[x.size - n_tau :] if n_tau else tau0
-        p = _unpack(x[: x.size - n_tau], is_pair)
-        _, r, _ = _linear(s, _undelayed(h, omega, taus, n_u), w, p)
-        return _ri(r).ravel()
+        return _ri(solved(x)[2].resid).ravel()
 
-    sol = scipy.optimize.least_squares(residual, x0, bounds=(lower, upper), x_scale="jac")
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        p, h_und, proj = solved(x)
+        return _jacobian(s, h_und, w, p, proj, omega=omega, n_tau=n_tau, n_u=n_u)
+
+    sol = scipy.optimize.least_squares(
+        residual, x0, jac=jacobian, bounds=(lower, upper), x_scale="jac"
+    )
     return sol, is_pair
 
 

@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate
-from twotank_validation.calibrate.noise import noise_from_data
+from twotank_validation.calibrate.calibration import CalibrationConfig, calibrate, window_betas
+from twotank_validation.calibrate.noise import fitted_noise_weights
 from twotank_validation.calibrate.weightfit import FittedWeight, fit_weight
 from twotank_validation.core import lti
 from twotank_validation.core.band import Band, excited_lines
@@ -48,7 +48,7 @@ from twotank_validation.core.noise_budget import (
     NoiseWeights,
     noise_weights,
 )
-from twotank_validation.core.validate import validate, validation_band
+from twotank_validation.core.validate import validation_band
 from twotank_validation.diagnose.inputs import Window, split_windows
 from twotank_validation.errors import DatumError, IdentificationError
 from twotank_validation.identify.fit import RationalFit, select_order
@@ -647,7 +647,7 @@ def _one_period_spread(fr: FrequencyResponse, n: int) -> NoiseSpread:
 
 def _betas(windows: Sequence[Window], model: LFTModel) -> np.ndarray:
     """(n,) β of the model on each window, its datum built as ``validate`` builds it."""
-    return np.array([validate(w.datum(), model).beta for w in windows])
+    return window_betas([w.datum() for w in windows], model)
 
 
 def _can_hold_out(windows: Sequence[Window]) -> bool:
@@ -668,7 +668,7 @@ def identified_model(
     """The model set: the nominal, noise weights from the data, then the perturbations.
 
     1. Noise weights: with two or more periods per window from the period-to-period spread
-       of the fit windows (:func:`~twotank_validation.calibrate.noise.noise_from_data`); with
+       of the fit windows (:func:`~twotank_validation.calibrate.noise.fitted_noise_weights`); with
        one period from the local polynomials' residual.
     2. Perturbation weights: where windows can be held out, the weight shapes (the fit's
        relative error) scaled together by ``calibrate`` on the fit windows, the smallest
@@ -685,9 +685,9 @@ def identified_model(
     n = windows[0].period_samples
     try:
         if all(w.n_periods >= 2 for w in windows):
-            fitted = noise_from_data(
-                windows, draft, quantile=quantile, budget=budget, source=name
-            ).fit
+            fitted = fitted_noise_weights(
+                windows, model_from_dict(draft, name), quantile=quantile, budget=budget
+            )
         else:
             first = windows[0].datum()
             fitted = noise_weights(
