@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from html_checks import Page, assert_cells_equal, assert_self_contained
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -358,6 +359,16 @@ def test_diagnose_command_on_a_bag(tmp_path: Path, capsys):
     assert doc["model_file"] == str(out_model)
     for name in ("md", "spectra.png", "outputs.png", "effect.png"):
         assert (report / f"diagnosis{'.' if name == 'md' else '_'}{name}").stat().st_size > 0
+    # the page shows the figures and the JSON's numbers (test/test_report_html.py's checks)
+    text = (report / "report.html").read_text(encoding="utf-8")
+    page = Page(text)
+    assert_self_contained(text, page)
+    figures = sorted(p.read_bytes() for p in report.glob("diagnosis_*.png"))
+    assert sorted(page.images()) == figures
+    shown = {tuple(p) for p, _ in page.cells}
+    assert assert_cells_equal(page, doc) >= 2 + 2 * 2 + 5 * 2  # β, RMS, 2 effects' CIs
+    k = next(i for i, e in enumerate(doc["effects"]) if e["kind"] == "delay")
+    assert ("effects", k, "uncertainty", "delay_s", "ci95", 0) in shown
     # the written model is accepted by the validator as it is, and explains the data
     model = load_model(out_model)
     w = rig_windows(

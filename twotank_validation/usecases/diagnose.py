@@ -236,8 +236,8 @@ class DiagnoseJob:
         if self.json_path:
             write_json(self.json_path, out)
         if self.report_dir:
-            report.write_diagnosis_report(diag, Path(self.report_dir))
-            text.append(f"figures in {self.report_dir}")
+            report.write_diagnosis_report(diag, Path(self.report_dir), model_file, numbers=out)
+            text.append(f"figures and report.html in {self.report_dir}")
         return out
 
 

@@ -1,4 +1,8 @@
-"""Report of the experiment: Markdown summary, JSON numbers and PNG figures (matplotlib)."""
+"""Reports: Markdown summary, JSON numbers, PNG figures (matplotlib) and one HTML page.
+
+The HTML page (:mod:`twotank_validation.report.html`) of ``validate --report`` and
+``diagnose --report`` is built from the same dict as the JSON beside it.
+"""
 
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ import numpy as np
 from twotank_validation.core.band import excited_lines
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse, load_model
+from twotank_validation.core.noise_budget import noise_gain2, spread_of_std
 from twotank_validation.core.validate import ValidationResult, inverse_dft
 from twotank_validation.diagnose import Diagnosis, EvidencePoints, FittedEffect, excited_bins
 from twotank_validation.diagnose.effects import mode_shift_text
@@ -215,13 +220,33 @@ def plot_nyquist(
     return view
 
 
+def per_bin_noise_floor(model: LFTModel, d: Datum) -> np.ndarray:
+    """(n_bins,) float: the min ||W(n)|| the window's noise alone is expected to cost per bin.
+
+    ``sqrt(sum_c sigma_c(n)^2 |P22(n)^+ e_c|^2)`` with ``sigma_c(n)`` the outputs' noise from
+    the period-to-period spread: the per-bin terms of the window's ``noise_beta``
+    (:func:`~twotank_validation.core.validate.noise_beta_bounds`), comparable to ``w_min``.
+    NaN with one period (no spread) or without noise channels.
+    """
+    if d.n_periods < 2 or model.nw == 0:
+        return np.full(d.freqs_hz.shape, np.nan)
+    gain2 = noise_gain2(model.response(d.theta, d.ts_s).p22)
+    spread = spread_of_std([d.noise_std], d.n_periods)
+    return np.asarray(np.sqrt(np.sum(spread.var * gain2, axis=1)))
+
+
 def plot_per_bin(
     results: Mapping[str, ValidationResult],
     path: Path,
     title: str = "",
     excited: np.ndarray | None = None,
+    noise_floor: Mapping[str, np.ndarray] | None = None,
 ) -> None:
-    """Per-bin minimum ||W(n)|| against frequency for every model.
+    """Per-bin minimum ||W(n)|| against frequency for every model (the paper's figure).
+
+    The budget 1 as a dashed line (one bin at 1 spends the whole unit budget of ||w||; β is
+    the root weighted sum of squares over the bins, not the peak) and the excited band
+    shaded.
 
     Args:
         results: the models' results on one datum.
@@ -230,6 +255,7 @@ def plot_per_bin(
         excited: (n_bins,) bool, the excited harmonic bins: drawn as markers
             joined in order; the other bins (where only noise is) as faint dots. None: every
             bin joined.
+        noise_floor: per model, (n_bins,) float, :func:`per_bin_noise_floor`: drawn dotted.
     """
     fig, ax = plt.subplots(figsize=(8, 4))
     convention = ""
@@ -238,19 +264,32 @@ def plot_per_bin(
         keep = v.freqs_hz > 0
         label = f"Model {name}: β = √(Σ weight·min‖W(n)‖²) = {v.beta:.3g}"
         if excited is None:
-            ax.semilogx(v.freqs_hz[keep], v.w_min[keep], lw=0.8, label=label)
-            continue
-        line = ax.semilogx(v.freqs_hz[excited], v.w_min[excited], ".-", lw=0.8, ms=3, label=label)[
-            0
-        ]
-        rest = keep & ~excited
-        ax.semilogx(v.freqs_hz[rest], v.w_min[rest], ",", color=line.get_color(), alpha=0.3)
+            line = ax.semilogx(v.freqs_hz[keep], v.w_min[keep], lw=0.8, label=label)[0]
+        else:
+            line = ax.semilogx(
+                v.freqs_hz[excited], v.w_min[excited], ".-", lw=0.8, ms=3, label=label
+            )[0]
+            rest = keep & ~excited
+            ax.semilogx(v.freqs_hz[rest], v.w_min[rest], ",", color=line.get_color(), alpha=0.3)
+        floor = None if noise_floor is None else noise_floor.get(name)
+        if floor is not None and np.any(np.isfinite(floor[keep])):
+            ax.semilogx(
+                v.freqs_hz[keep], floor[keep], ":", lw=1.0, color=line.get_color(),
+                label=f"Model {name}: noise floor (noise alone, expected)",
+            )  # fmt: skip
     if excited is not None:
         ax.plot([], [], ",", color="0.5", label="bins not excited (faint)")
+        f = next(iter(results.values())).freqs_hz[excited] if results else np.zeros(0)
+        if f.size:
+            ax.axvspan(
+                float(f.min()), float(f.max()), color="tab:green", alpha=0.08,
+                label=f"excited band {f.min():.3g}–{f.max():.3g} Hz",
+            )  # fmt: skip
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="budget ‖w‖ = 1 (one bin alone spends it)")
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("min ‖W(n)‖ (model units, unit budget over all bins)")
+    ax.set_ylabel("min ‖W(n)‖ (units of ‖w‖; budget 1)")
     ax.set_title(title or f"Per-bin minimum noise norm ({convention} convention)")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -281,7 +320,7 @@ def plot_time_signals(
             axes[1, col].plot(t, vv[:, k], lw=0.7, label=f"v ({bname})")
         axes[0, col].set_title(f"Model {name}: minimum-norm signals (β = {v.beta:.2f})")
         axes[0, col].set_ylabel("weighted noise (model units)")
-        axes[1, col].set_ylabel("perturbation output v")
+        axes[1, col].set_ylabel("perturbation output v (model units)")
         axes[1, col].set_xlabel("time (s)")
         for ax in axes[:, col]:
             ax.legend(fontsize=7)
@@ -452,13 +491,79 @@ def plot_alarm_timeline(summary: Mapping[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+def plot_window_records(
+    model: LFTModel, time_s: np.ndarray, u: np.ndarray, y: np.ndarray, path: Path, *, title: str
+) -> None:
+    """The time records of one window: the inputs and the measured outputs (model units).
+
+    Args:
+        model: names the channels.
+        time_s: (n,) float, s (from the recording's start).
+        u: (n, nu) float, the inputs.
+        y: (n, ny) float, the outputs.
+        path: the PNG.
+        title: the figure's title.
+    """
+    fig, axes = plt.subplots(2, 1, figsize=(8, 4.6), sharex=True)
+    for k, name in enumerate(model.input_names):
+        axes[0].plot(time_s, u[:, k], lw=0.7, label=f"input {name}")
+    for k, name in enumerate(model.output_names):
+        axes[1].plot(time_s, y[:, k], lw=0.7, label=f"output {name}")
+    axes[0].set_ylabel("input (model units)")
+    axes[1].set_ylabel("output (model units)")
+    axes[1].set_xlabel("time from the recording's start (s)")
+    axes[0].set_title(title, fontsize=9)
+    for ax in axes:
+        ax.legend(fontsize=7, loc="upper right")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def window_view_numbers(
+    model: LFTModel, d: Datum, res: ValidationResult, view: NyquistView, floor: np.ndarray
+) -> dict[str, Any]:
+    """The numbers the figures of one window show (JSON-ready; the HTML page's too).
+
+    The worst bin (:func:`nyquist_view`), its frequency, its min ||W(n)|| and the noise floor
+    there (:func:`per_bin_noise_floor`), the channel pair of the Nyquist figure, the band β
+    counts and the excited band.
+    """
+    f_exc = d.freqs_hz[_excited_mask(d)]
+    return _jsonable(
+        {
+            "beta": res.beta,
+            "noise_beta": _finite(res.noise_beta),
+            "worst_bin": view.bin,
+            "worst_bin_hz": view.freq_hz,
+            "worst_bin_w_min": float(res.w_min[view.bin]),
+            "worst_bin_noise_floor": _finite(float(floor[view.bin])),
+            "nyquist_output": model.output_names[view.output],
+            "nyquist_input": model.input_names[view.input],
+            "excited_band_hz": [float(f_exc.min()), float(f_exc.max())],
+            "excited_lines": int(f_exc.size),
+            "band": None if model.band is None else model.band.to_dict(),
+            "band_text": "every bin up to Nyquist" if model.band is None else model.band.text,
+            "band_bins": int(np.sum(res.band_mask)),
+        }
+    )
+
+
 def write_replay_report(
     replay: Any, models: Mapping[str, LFTModel], summary: Mapping[str, Any], out_dir: Path
 ) -> list[Path]:
-    """Figures of a bag replay.
+    """Figures of a bag replay, ``report.json`` and ``report.html``.
 
     The alarm timeline, and per model and window of interest (largest beta, first alarm) the
-    demo's figures: Nyquist discs, per-bin min ||W(n)||, minimum-norm time signals.
+    demo's figures: per-bin min ||W(n)|| with the noise floor, Nyquist discs, the window's
+    time records and the minimum-norm time signals. ``report.json`` holds the summary (the
+    ``--json`` document) and the numbers of each window of interest
+    (:func:`window_view_numbers`); ``report.html`` shows the figures and that very dict.
 
     Args:
         replay: a :class:`twotank_validation.replay.ReplayResult`.
@@ -468,10 +573,12 @@ def write_replay_report(
     """
     from twotank_validation.core.datum import make_datum  # noqa: PLC0415
     from twotank_validation.core.validate import validate  # noqa: PLC0415
+    from twotank_validation.report import html  # noqa: PLC0415
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = [out_dir / "alarm_timeline.png"]
     plot_alarm_timeline(summary, written[0])
+    views: dict[str, dict[str, Any]] = {}
     for name, snaps in replay.snapshots.items():
         model = models[name]
         for why, snap in snaps.items():
@@ -486,19 +593,34 @@ def write_replay_report(
             )
             res = validate(d, model)
             stem = f"{name}_{why}"
+            floor = per_bin_noise_floor(model, d)
+            view = nyquist_view(model, d, res)
             plot_nyquist(model, d, res, out_dir / f"nyquist_{stem}.png")
             plot_per_bin(
                 {name: res},
                 out_dir / f"per_bin_{stem}.png",
-                title=f"model {name}, {why}",
+                title=f"Model {name}, {html.WHY_TEXT.get(why, why)}",
                 excited=_excited_mask(d),
+                noise_floor={name: floor},
             )
             t = (snap.stamps_ns - replay.bag_start_ns) / 1e9
+            plot_window_records(
+                model, t, snap.u, snap.y, out_dir / f"records_{stem}.png",
+                title=f"Model {name}, {html.WHY_TEXT.get(why, why)}: the window's time records",
+            )  # fmt: skip
             plot_time_signals({name: res}, {name: model}, t, out_dir / f"time_signals_{stem}.png")
             written += [
-                out_dir / f"{kind}_{stem}.png" for kind in ("nyquist", "per_bin", "time_signals")
+                out_dir / f"{kind}_{stem}.png"
+                for kind in ("per_bin", "nyquist", "records", "time_signals")
             ]
-    return written
+            entry = window_view_numbers(model, d, res, view, floor)
+            entry |= {"start": (rep.start_ns - replay.bag_start_ns) / 1e9}
+            entry |= {"end": (rep.end_ns - replay.bag_start_ns) / 1e9, "stem": stem}
+            views.setdefault(name, {})[why] = entry
+    numbers = {"summary": _jsonable(dict(summary)), "windows_of_interest": views}
+    (out_dir / "report.json").write_text(json.dumps(numbers, indent=2))
+    (out_dir / "report.html").write_text(html.validate_page(numbers, out_dir), encoding="utf-8")
+    return [*written, out_dir / "report.json", out_dir / "report.html"]
 
 
 # --------------------------------------------------------------------------- diagnosis
@@ -638,6 +760,7 @@ def plot_diagnosis_spectra(diag: Diagnosis, path: Path) -> None:
         )
     axes[n_out].set_title("min ||W(n)|| (first held-out window)")
     axes[n_out].set_xlabel("frequency (Hz)")
+    axes[n_out].set_ylabel("min ‖W(n)‖ (units of ‖w‖)")
     axes[n_out].grid(True, which="both", alpha=0.3)
     axes[n_out].legend(fontsize=8)
     for k, o in enumerate(diag.outputs):
@@ -657,6 +780,7 @@ def plot_diagnosis_spectra(diag: Diagnosis, path: Path) -> None:
         ax.loglog(d0.freqs_hz[odd], np.abs(d0.y_bins[odd, k]), ",", color="0.6", label="noise")
         ax.set_title(f"{o}: |Y - G U| at the excited bins")
         ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel(f"|Y - G U| ({o}, model units)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
@@ -762,8 +886,23 @@ def plot_diagnosis_effect(diag: Diagnosis, path: Path) -> None:
     plt.close(fig)
 
 
-def write_diagnosis_report(diag: Diagnosis, out_dir: Path, model_file: str | None = None) -> None:
-    """``diagnosis.md`` and the evidence figures (spectra, outputs, fitted effect)."""
+def write_diagnosis_report(
+    diag: Diagnosis,
+    out_dir: Path,
+    model_file: str | None = None,
+    numbers: Mapping[str, Any] | None = None,
+) -> None:
+    """``diagnosis.md``, the evidence figures (spectra, outputs, fitted effect), ``report.html``.
+
+    Args:
+        diag: the diagnosis.
+        out_dir: folder to write into.
+        model_file: the changed model's file, as the text names it.
+        numbers: the diagnosis JSON the page shows (``diagnose --json``'s document); None:
+            ``diag.to_json(model_file)``.
+    """
+    from twotank_validation.report import html  # noqa: PLC0415
+
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "diagnosis.md").write_text(
         "# Diagnosis\n\n```\n" + diagnosis_text(diag, model_file) + "\n```\n"
@@ -771,3 +910,5 @@ def write_diagnosis_report(diag: Diagnosis, out_dir: Path, model_file: str | Non
     plot_diagnosis_spectra(diag, out_dir / "diagnosis_spectra.png")
     plot_diagnosis_outputs(diag, out_dir / "diagnosis_outputs.png")
     plot_diagnosis_effect(diag, out_dir / "diagnosis_effect.png")
+    doc = _jsonable(dict(numbers) if numbers is not None else diag.to_json(model_file))
+    (out_dir / "report.html").write_text(html.diagnose_page(doc, out_dir), encoding="utf-8")
