@@ -499,7 +499,9 @@ def fit_rational(fr: FrequencyResponse, order: int, *, delays: bool = False) -> 
     n_tau = tau0.size
     poles = _unpack(sol.x[: sol.x.size - n_tau], is_pair)
     taus = sol.x[sol.x.size - n_tau :] if n_tau else np.zeros(0)
-    coef, r, _ = _linear(s, _undelayed(h, omega, taus, n_u), w, poles)
+    coef, r, phi = _linear(s, _undelayed(h, omega, taus, n_u), w, poles)
+    if weighted:
+        coef, r = _proper_where_supported(phi, _undelayed(h, omega, taus, n_u), w, coef, r)
     order_rows = coef[:-1]
     residues = _residues(poles, order_rows.reshape(-1, n_y, n_u)) * scale
     # the variable-projection Jacobian gives the poles' covariance (Golub & Pereyra 2003);
@@ -522,6 +524,49 @@ def fit_rational(fr: FrequencyResponse, order: int, *, delays: bool = False) -> 
         delays_s=taus.copy() if n_tau else np.zeros(n_y),
         delay_std_s=sd[sd.size - n_tau :] / scale if n_tau else np.zeros(n_y),
     )
+
+
+def _proper_where_supported(
+    phi: np.ndarray, h: np.ndarray, w: np.ndarray, coef: np.ndarray, resid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each entry's feedthrough set to zero where the data do not need it.
+
+    A feedthrough the data do not determine is fitted noise, and above the band it is all
+    that is left of the entry: ``|G|`` levels off at ``|d|`` instead of rolling off, with a
+    notch where the residues' tail cancels it (seen on a strictly proper plant's entry).
+    An entry's feedthrough is kept only when dropping it raises that entry's cost by more
+    than the 99.9 % point of its distribution, ``chi2_1 / 2`` (one real parameter, each real
+    component of a unit-variance circular residual of variance 1/2), scaled by the fit's
+    ``2 V / dof`` where that is above 1 (the residual is then more than noise).
+
+    Args:
+        phi: (L, m) complex, the basis (last column the feedthrough's ones).
+        h: (L, E) complex, the entries (delays undone).
+        w: (L, E) float, the weights ``1 / sigma``.
+        coef: (m, E) real, the coefficients with the feedthrough.
+        resid: (L, E) complex, their weighted residual.
+
+    Returns:
+        The coefficients and the weighted residual, the dropped feedthroughs' entries
+        refitted on the remaining basis.
+    """
+    import scipy.stats  # noqa: PLC0415 (only here)
+
+    n_e = h.shape[1]
+    dof = 2 * h.size - (coef.shape[0] * n_e + phi.shape[1] - 1)
+    ratio = 2.0 * float(np.sum(np.abs(resid) ** 2)) / max(dof, 1)
+    allowed = 0.5 * float(scipy.stats.chi2.ppf(0.999, 1)) * max(1.0, ratio)
+    coef, resid = coef.copy(), resid.copy()
+    reduced = phi[:, :-1]
+    for e in range(n_e):
+        a = _ri(w[:, e, None] * reduced)
+        b = _ri(w[:, e] * h[:, e])
+        c, *_ = np.linalg.lstsq(a, b, rcond=None)
+        r_e = w[:, e] * (reduced @ c - h[:, e])
+        if float(np.sum(np.abs(r_e) ** 2) - np.sum(np.abs(resid[:, e]) ** 2)) <= allowed:
+            coef[:-1, e], coef[-1, e] = c, 0.0
+            resid[:, e] = r_e
+    return coef, resid
 
 
 def _undelayed(h: np.ndarray, omega: np.ndarray, taus: np.ndarray, n_u: int) -> np.ndarray:
