@@ -153,3 +153,16 @@ def test_the_identified_nominal_recovers_model_b_on_the_simulated_rig():
         rel = np.max(np.abs(b[:, c] - nominal[:, c]) / np.abs(nominal[:, c]), axis=1)
         assert np.all(rel <= w), (c, rel, w)
     assert model.output_names == ("height", "temperature")
+
+
+def test_more_random_phase_experiments_than_inputs_take_the_best_linear_approximation():
+    """Two inputs through a static cubic, 12 random-phase experiments (one window each): the
+    pipeline forms the BLA, whose total variance (noise and distortion) is far above the
+    noise's, as bla_over_experiments states it (test_nonparametric.py holds its reference)."""
+    from test_nonparametric import _two_input_cubic  # noqa: PLC0415 (this folder's tests)
+
+    _, _, experiments = _two_input_cubic(0.05, range(12), n=512, p=2)
+    windows = [Window(u, y, 0.1, 512) for u, y in experiments]
+    ident = identify_windows(windows, IdentifyConfig(orders=range(1, 2)))
+    assert ident.estimator is Estimator.BLA
+    assert np.median(ident.response.var / ident.var_noise) > 50

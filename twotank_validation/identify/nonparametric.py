@@ -39,6 +39,7 @@ __all__ = [
     "Distortion",
     "FrequencyResponse",
     "best_linear_approximation",
+    "bla_over_experiments",
     "distortion_lines",
     "frf_from_experiments",
     "period_spectra",
@@ -286,6 +287,70 @@ def frf_from_experiments(
     )
 
 
+def bla_over_experiments(
+    experiments: Sequence[tuple[np.ndarray, np.ndarray]],
+    period_samples: int,
+    lines: np.ndarray,
+    ts_s: float,
+) -> BestLinearApproximation:
+    """The best linear approximation of ``n_u`` inputs from ``E > n_u`` random-phase experiments.
+
+    Each input has phases of its own in every experiment. ``G = Y U^+`` over the
+    experiments' period-averaged spectra, as :func:`frf_from_experiments`; the noise variance
+    is that function's (from the period spread). The total variance, noise and stochastic
+    nonlinear distortion together, comes from the spread of the experiments about the fit:
+    at each line and output, ``s2_c = sum_e |Y_ce - (G U)_ce|^2 / (E - n_u)`` and
+    ``var(G_ci) = s2_c [(U U^H)^-1]_ii`` (a random-phase realisation's distortion is a new
+    draw, uncorrelated with its input, like noise; Pintelon & Schoukens 2012, sec. 3.4 and
+    4.3).
+
+    Args:
+        experiments: ``(u_e, y_e)`` pairs, (P_e N, n_u) and (P_e N, n_y) float, whole periods;
+            ``E > n_u`` of them.
+        period_samples: samples per period ``N``.
+        lines: (L,) int, the excited lines.
+        ts_s: sample period (s).
+
+    Returns:
+        The approximation; its response's ``n_periods`` is ``E - n_u + 1``, so that
+        :meth:`FrequencyResponse.radius` uses the total variance's degrees of freedom.
+
+    Raises:
+        IdentificationError: as :func:`frf_from_experiments`, or no more experiments than
+            inputs (nothing left to see the distortion with).
+    """
+    n_u = experiments[0][0].shape[1] if experiments else 0
+    if len(experiments) <= n_u:
+        raise IdentificationError(
+            f"{n_u} input(s) need more than {n_u} random-phase experiments for the "
+            f"distortion's spread, got {len(experiments)}: record more realisations"
+        )
+    fr = frf_from_experiments(experiments, period_samples, lines, ts_s)
+    lines = np.asarray(lines, dtype=int)
+    um = np.stack(
+        [period_spectra(u, period_samples, lines).mean(axis=0) for u, _ in experiments], axis=2
+    )  # (L, n_u, E)
+    ym = np.stack(
+        [period_spectra(y, period_samples, lines).mean(axis=0) for _, y in experiments], axis=2
+    )  # (L, n_y, E)
+    resid = ym - fr.g @ um
+    dof = len(experiments) - n_u
+    s2 = np.sum(np.abs(resid) ** 2, axis=2) / dof  # (L, n_y)
+    inv = np.linalg.inv(um @ np.conj(um.transpose(0, 2, 1)))  # (L, n_u, n_u)
+    var_total = s2[:, :, None] * np.real(np.diagonal(inv, axis1=1, axis2=2))[:, None, :]
+    response = FrequencyResponse(
+        lines=fr.lines,
+        freqs_hz=fr.freqs_hz,
+        g=fr.g,
+        var=var_total,
+        n_periods=dof + 1,
+        n_experiments=fr.n_experiments,
+    )
+    return BestLinearApproximation(
+        response=response, var_noise=fr.var, n_realisations=len(experiments)
+    )
+
+
 def best_linear_approximation(
     realisations: Sequence[Sequence[tuple[np.ndarray, np.ndarray]]],
     period_samples: int,
@@ -322,7 +387,8 @@ def best_linear_approximation(
         freqs_hz=first.freqs_hz,
         g=g,
         var=var_total,
-        n_periods=min(f.n_periods for f in each),
+        # the total variance's degrees of freedom are the realisations' (radius' F quantile)
+        n_periods=m if m > 1 else min(f.n_periods for f in each),
         n_experiments=sum(f.n_experiments for f in each),
     )
     return BestLinearApproximation(response=response, var_noise=var_noise, n_realisations=m)

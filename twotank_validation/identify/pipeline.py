@@ -64,6 +64,7 @@ from twotank_validation.identify.nonparametric import (
     Distortion,
     FrequencyResponse,
     best_linear_approximation,
+    bla_over_experiments,
     distortion_lines,
     frf_from_experiments,
     split_by_pattern,
@@ -258,6 +259,12 @@ def _periodic(
     if n_u == 1 and len(groups) > 1:
         bla = best_linear_approximation([[g] for g in groups], n, lines, ts)
         return bla.response, bla.var_noise, Estimator.BLA
+    if n_u > 1 and len(groups) > n_u:
+        # more random-phase experiments than inputs: the spread about the fit shows the
+        # nonlinear distortion beside the noise (an orthogonal multisine's n_u patterns give
+        # no spread to see it with, and take frf_from_experiments below)
+        bla = bla_over_experiments(groups, n, lines, ts)
+        return bla.response, bla.var_noise, Estimator.BLA
     if len(groups) < n_u:
         # one input pattern for several inputs (every valve driven at once, as the rig's
         # excitation does): the mean period, and the inputs told apart over neighbouring lines
@@ -349,17 +356,22 @@ def _transient(windows: Sequence[Window]) -> bool:
 
 
 _POORLY_DETERMINED = 0.5
-"""Median σ/|G| of an entry above which identify says the data hardly determine it."""
+"""Median σ of an entry, over its output's largest |G|, above which identify says the data
+hardly determine it."""
 
 
 def _poorly_determined(fr: FrequencyResponse) -> list[str]:
     """A note per input-output entry whose response the data hardly determine.
 
-    An entry is poorly determined when its median σ/|G| over the lines is above
-    :data:`_POORLY_DETERMINED`; the note names the fix.
+    An entry is poorly determined when its median σ over the lines, relative to the largest
+    entry of its output at each line, is above :data:`_POORLY_DETERMINED`; the note names
+    the fix.
     """
+    # relative to the output's largest entry at each line: an entry the plant does not have
+    # (a zero response) is determined as zero, not poorly
+    scale = np.max(np.abs(fr.g), axis=2, keepdims=True)  # (L, n_y, 1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.median(np.sqrt(fr.var) / np.abs(fr.g), axis=0)  # (n_y, n_u)
+        rel = np.median(np.sqrt(fr.var) / scale, axis=0)  # (n_y, n_u)
     poor = [(c, i) for c, i in zip(*np.nonzero(~(rel <= _POORLY_DETERMINED)), strict=True)]
     if not poor:
         return []
@@ -371,7 +383,10 @@ def _poorly_determined(fr: FrequencyResponse) -> list[str]:
             "(the local polynomial method separates inputs on the same lines only where "
             "the response is smooth over its window), or " + fix
         )
-    return [f"the data hardly determine the response (median σ/|G|): {entries}: {fix}"]
+    return [
+        f"the data hardly determine the response (median σ over the output's largest |G|): "
+        f"{entries}: {fix}"
+    ]
 
 
 def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Identification:
