@@ -122,6 +122,7 @@ def test_cascaded_tanks_identified_on_one_experiment_holds_on_the_other(
     [
         (["--band", "3:4"], "no excited line in 3..4 Hz"),
         (["--orders", "9..2"], "--orders '9..2'"),
+        (["--orders", "80..82"], "can be fitted"),
     ],
 )
 def test_bad_requests_are_clear_errors(tmp_path: Path, capsys, extra: list[str], said: str) -> None:
@@ -134,6 +135,53 @@ def test_bad_requests_are_clear_errors(tmp_path: Path, capsys, extra: list[str],
     err = capsys.readouterr().err
     assert code == cli.EXIT_ERROR
     assert said in err
+    assert "Traceback" not in err
+
+
+def test_an_order_whose_poles_the_data_do_not_determine_is_named(tmp_path: Path, capsys):
+    """Order 14, far above the 1 x 3 plant's own: some poles sit within a few σ of the origin
+    (fit_rational's standard deviations): the summary says so and names the fix."""
+    rec = tmp_path / "r.csv"
+    _simulate(rec, "--noise-seed", "1")
+    code = cli.main(
+        ["identify", str(rec), "--map", str(rec.with_suffix(".map.yaml")), "--ts", "0.1",
+         "--period", "256", "--orders", "14..14"]
+    )  # fmt: skip
+    out = capsys.readouterr()
+    assert code == cli.EXIT_OK
+    assert "no order in 14..14 has every pole determined by the data" in out.err + out.out
+    assert "--orders" in out.err + out.out
+
+
+def _table(path: Path, u: np.ndarray, y: np.ndarray) -> Path:
+    import pandas as pd  # noqa: PLC0415
+
+    pd.DataFrame({"t": np.arange(u.size) * 0.1, "u": u, "y": y}).to_csv(path, index=False)
+    imap = path.with_suffix(".map.yaml")
+    imap.write_text(
+        "inputs:\n  - {name: u, column: u}\noutputs:\n  - {name: y, column: y}\n"
+        "time: {column: t, unit: s}\n"
+    )
+    return imap
+
+
+@pytest.mark.parametrize(
+    ("samples", "said"),
+    [(6 * 256, "input not periodic"), (200, "the recording holds no whole window")],
+)
+def test_a_non_periodic_input_or_too_short_a_record_is_refused_with_the_fix(
+    tmp_path: Path, capsys, samples: int, said: str
+) -> None:
+    """White noise does not repeat every period; 200 samples hold no whole window."""
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(6 * 256)
+    y = np.convolve(u, 0.1 * 0.9 ** np.arange(60))[: u.size]
+    imap = _table(tmp_path / "r.csv", u[:samples], y[:samples])
+    code = cli.main(["identify", str(tmp_path / "r.csv"), "--map", str(imap), "--period", "256"])
+    err = capsys.readouterr().err
+    assert code != cli.EXIT_OK
+    assert said in err
+    assert "--period" in err  # the fix named
     assert "Traceback" not in err
 
 

@@ -418,6 +418,12 @@ def identify_windows(windows: Sequence[Window], config: IdentifyConfig) -> Ident
         notes.append(f"{est.value}: averaged over whole periods")
     notes.extend(_poorly_determined(fr))
     best, fits = select_order(fr, config.orders, delays=config.delays)
+    if not best.supported:
+        notes.append(
+            f"no order in {config.orders.start}..{config.orders.stop - 1} has every pole "
+            "determined by the data (a pole within a few σ of the origin is fitted noise); "
+            f"order {best.order}, the lowest, is taken: try lower orders (--orders)"
+        )
     if best.cost_ratio > 4.0:
         notes.append(
             f"the order-{best.order} fit leaves {best.cost_ratio:.1f} times the residual the "
