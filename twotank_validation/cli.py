@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import json
 import os
@@ -41,6 +42,7 @@ from twotank_validation.cli_options import (
     replay_config,
     topic_map,
 )
+from twotank_validation.cli_view import ViewRun, add_view_options, model_bands
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import (
@@ -53,6 +55,7 @@ from twotank_validation.errors import (
 )
 
 if TYPE_CHECKING:
+    from twotank_validation.online import WindowReport
     from twotank_validation.usecases import (
         CalibrateJob,
         DiagnoseJob,
@@ -201,8 +204,31 @@ def _cmd_live(args: argparse.Namespace) -> int:
         )
         return 2
     output = LiveOutput(args.json)
-    with Interrupts() as interrupts:
-        result = run_live(cfg, on_report=output.report, stop=interrupts)
+    view = None
+    if args.view:
+        bands = model_bands(cfg.models)
+        view = ViewRun(args.view_port, title="live", bands=bands, speed=1.0, replay=False)
+
+    def report(rep: WindowReport) -> None:
+        output.report(rep)
+        if view is not None:
+            view.report(rep)
+
+    with contextlib.ExitStack() as stack:
+        if view is not None:
+            stack.enter_context(view)
+        with Interrupts() as interrupts:
+            result = run_live(cfg, on_report=report, stop=interrupts)
+        code = _live_tail(args, output, result, cfg, interrupts)
+        if view is not None:
+            view.hold(f"live run ended (exit code {code})")
+    return code
+
+
+def _live_tail(
+    args: argparse.Namespace, output: LiveOutput, result: Any, cfg: Any, interrupts: Interrupts
+) -> int:
+    """``live``'s closing lines: the supervisor's transitions, the summary; the code."""
     for tr in result.transitions:
         if args.json:
             entry = {
@@ -308,11 +334,19 @@ class _ReplayBar:
             self._bar.close()
 
 
-def _run_with_bar(job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob, quiet: bool) -> int:
-    """Run one recording's job with the replay's progress bar; print its outcome; the code."""
+def _run_with_bar(
+    job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob,
+    quiet: bool,
+    **listeners: Any,
+) -> int:
+    """Run one recording's job with the replay's progress bar; print its outcome; the code.
+
+    ``listeners``: more keyword arguments of the job's ``run`` (``validate``'s
+    ``on_report``).
+    """
     bar = _ReplayBar(quiet)
     try:
-        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
+        outcome = job.run(say=_say, progress=bar.progress, show=bar.show, **listeners)
     finally:
         bar.close()
     return _show(outcome, bar.shown)
@@ -320,9 +354,23 @@ def _run_with_bar(job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob, q
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
+        if args.view:
+            raise UsageError("--view shows one recording: name one bag or table, without --out")
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
-    return _run_with_bar(_validate_job(args), args.quiet)
+    job = _validate_job(args)
+    if not args.view:
+        if args.replay_speed is not None:
+            raise UsageError("--replay-speed paces the view's replay: add --view")
+        return _run_with_bar(job, args.quiet)
+    bands = model_bands(job.sources, job.read.monitor)
+    title = Path(job.recording).name
+    with ViewRun(
+        args.view_port, title=title, bands=bands, speed=args.replay_speed, replay=True
+    ) as view:
+        code = _run_with_bar(job, args.quiet, on_report=view.report)
+        view.hold(f"replay of {title} finished (exit code {code})")
+    return code
 
 
 def _diagnose_job(args: argparse.Namespace, *, fleet: bool = False) -> DiagnoseJob:
@@ -527,6 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--fault", action="append", help="plant fault, e.g. leak=0.02@1000 (repeat)")
     live.add_argument("--seed", type=int, default=0, help="plant noise seed")
     live.add_argument("--json", action="store_true", help="one JSON object per report")
+    add_view_options(live, replay=False)
     live.add_argument(
         "--closed-loop",
         action="store_true",
@@ -572,6 +621,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     val = command("validate", "validate recorded bags through the live validator's code")
     add_validate_arguments(val)
+    add_view_options(val, replay=True)
     add_recording_options(val)
     val.set_defaults(func=_cmd_validate)
 
