@@ -264,18 +264,23 @@
     const canvas = document.getElementById("bin-plot");
     const f = frame(canvas), c = f.ctx;
     axes(f, "frequency (Hz)", "min ‖W(n)‖");
-    let flo = Infinity, fhi = -Infinity, wlo = Infinity, whi = 1;
+    let flo = Infinity, fhi = -Infinity, whi = 1;
+    const pos = [];
     for (const m of view.models.values()) {
       if (!m.spectrum) continue;
       const s = m.spectrum.spectrum;
       for (let i = 0; i < s.freqs_hz.length; i++) {
         flo = Math.min(flo, s.freqs_hz[i]); fhi = Math.max(fhi, s.freqs_hz[i]);
         const w = s.w_min[i];
-        if (w !== null && w > 0) { wlo = Math.min(wlo, w); whi = Math.max(whi, w); }
+        if (w !== null && w > 0) { pos.push(w); whi = Math.max(whi, w); }
       }
     }
     if (!(fhi > flo)) return;
-    wlo = Math.max(Math.min(wlo, 1e-2), 1e-8);
+    // the axis starts under most bins (a bin far below the rest, e.g. one the model fits
+    // exactly, sits on the axis): the 5th percentile over 3, at most 1e-2
+    pos.sort((a, b) => a - b);
+    let wlo = pos.length ? pos[Math.floor(pos.length * 0.05)] / 3 : 1e-3;
+    wlo = Math.max(Math.min(wlo, 1e-2), 1e-12);
     const lx0 = Math.log10(flo), lx1 = Math.log10(fhi), ly0 = Math.log10(wlo), ly1 = Math.log10(whi * 1.5);
     const X = (x) => f.l + (Math.log10(x) - lx0) / (lx1 - lx0) * (f.r - f.l);
     const Y = (y) => f.b - (Math.log10(Math.max(y, wlo)) - ly0) / (ly1 - ly0) * (f.b - f.t);
@@ -295,17 +300,12 @@
         notes.push("shaded: model " + m.name + "'s band " + band.min_hz + " – " + (band.max_hz === null ? "Nyquist" : band.max_hz) + " Hz" + (band.excited ? " (its excited lines only)" : ""));
       }
       const s = m.spectrum.spectrum;
-      c.fillStyle = m.color; c.strokeStyle = m.color; c.lineWidth = 0.8; c.beginPath();
-      let pen = false;
+      c.fillStyle = m.color;
       for (let i = 0; i < s.freqs_hz.length; i++) {
         const w = s.w_min[i];
-        if (w === null || !(w > 0)) { pen = false; continue; }
-        const x = X(s.freqs_hz[i]), y = Y(w);
-        c.fillRect(x - 1.5, y - 1.5, 3, 3);
-        if (pen) c.lineTo(x, y); else c.moveTo(x, y);
-        pen = true;
+        if (w === null) continue;
+        c.fillRect(X(s.freqs_hz[i]) - 1.5, Y(w) - 1.5, 3, 3);
       }
-      c.stroke();
       const nl = noiseLevel(m, s.freqs_hz);
       if (nl !== null) { hline(f, Y(nl), [2, 4], m.color, ""); notes.push("dotted: model " + m.name + "'s noise level " + nl.toPrecision(3) + " (its noise_beta " + m.spectrum.noise_beta.toPrecision(3) + " spread evenly over the band's bins)"); }
       k++;
@@ -321,6 +321,7 @@
       lg.appendChild(s);
     }
     for (const n of notes) lg.appendChild(el("span", n));
+    if (!notes.some((n) => n.startsWith("shaded"))) lg.appendChild(el("span", "no band: every bin counts"));
   }
 
   function drawLists() {
