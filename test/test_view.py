@@ -95,7 +95,13 @@ def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_hi
         early.on("request", lambda r: requests.append(r.url))
         early.goto(view.url)
         early.wait_for_function("window.twotankView && window.twotankView.connected")
-        outcome = job.run(on_report=view.publish_report)
+        reports: list[WindowReport] = []
+
+        def listen(rep: WindowReport, start_ns: int) -> None:
+            reports.append(rep)
+            view.publish_report(rep, start_ns)
+
+        outcome = job.run(on_report=listen)
         doc = json.loads((tmp_path / "v.json").read_text())
         windows = {m: e["windows"] for m, e in doc["models"].items()}
         total = sum(len(w) for w in windows.values())
@@ -109,12 +115,17 @@ def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_hi
             assert set(rows) == {"A", "B"}
             for model, ws in windows.items():
                 _same(rows[model], ws[-1], len(ws))
-            # the latest window's spectrum reached the page whole
-            bins = page.evaluate(
-                "Array.from(window.twotankView.models.values()).map("
-                "m => [m.name, m.spectrum.spectrum.w_min.length])"
+            # the latest judged window's spectrum reached the page, every number exact
+            shown = page.evaluate(
+                "Object.fromEntries(Array.from(window.twotankView.models.values()).map("
+                "m => [m.name, [m.spectrum.spectrum.freqs_hz, m.spectrum.spectrum.w_min]]))"
             )
-            assert all(n > 100 for _, n in bins)
+            for model in ("A", "B"):
+                last = [r for r in reports if r.model == model and r.judged][-1]
+                keep = last.freqs_hz > 0
+                assert shown[model][0] == last.freqs_hz[keep].tolist()
+                assert shown[model][1] == last.w_min[keep].tolist()
+                assert len(shown[model][1]) > 100
             page.close()
     # the page asked nothing of anyone but the view
     assert requests

@@ -12,9 +12,8 @@ is refused (405), every other path is 404, and a request whose ``Host`` is not t
 loopback address is refused (403: a page elsewhere cannot reach it through a DNS name
 rebound to 127.0.0.1). It binds 127.0.0.1 only.
 
-A late visitor gets the history at once: the last ``history`` messages (reports without
-their spectra) and, per model, the latest report whole (with its spectrum), then the live
-stream.
+A late visitor gets the history at once: the last ``history`` messages (the reports) and,
+per model, the latest window's spectrum, then the live stream.
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ from importlib import resources
 from typing import Any
 
 from twotank_validation.online.window import WindowReport
-from twotank_validation.view.messages import report_message
+from twotank_validation.view.messages import report_message, spectrum
 
 HOST = "127.0.0.1"
 """The only address the view listens on."""
@@ -42,6 +41,9 @@ the default 204.8 s period)."""
 CLIENT_QUEUE = 20000
 """Messages a page may fall behind by before its stream is closed (it reconnects and gets the
 history anew)."""
+SPECTRUM_EVERY_S = 0.1
+"""A page gets each model's latest spectrum at most this often (the reports themselves go at
+once): a replay as fast as it goes makes hundreds a second, which no page could draw."""
 KEEPALIVE_S = 10.0
 """A comment line on an idle stream this often, so that a page that went away is noticed."""
 _FILES = {
@@ -65,11 +67,24 @@ def _json(doc: Mapping[str, Any]) -> str:
     return json.dumps(doc, allow_nan=False, separators=(",", ":"))
 
 
+_NOTHING = object()
+"""Nothing came from a page's queue."""
+
+
+class _Due:
+    """Queue marker: the model's latest spectrum is due (serialised when it is sent)."""
+
+    __slots__ = ("model",)
+
+    def __init__(self, model: str) -> None:
+        self.model = model
+
+
 class _Client:
-    """One page's stream: the messages waiting for it (None: close)."""
+    """One page's stream: what waits for it (a message, a spectrum due, None: close)."""
 
     def __init__(self) -> None:
-        self.queue: queue.Queue[str | None] = queue.Queue(CLIENT_QUEUE)
+        self.queue: queue.Queue[str | _Due | None] = queue.Queue(CLIENT_QUEUE)
         self.dropped = False
 
 
@@ -78,8 +93,8 @@ class ViewServer:
 
     Args:
         port: TCP port on 127.0.0.1; 0: any free one (:attr:`url` names it).
-        history: messages a late visitor gets at once (the latest report of each model comes
-            whole besides).
+        history: messages a late visitor gets at once (the latest spectrum of each model
+            besides).
         title: the page's heading (e.g. the recording or ``live``).
         models: per model, its band (``Band.to_dict()`` or None) for the per-bin plot.
         hop_s: data seconds between two windows (the page's "stopped" sign waits
@@ -91,6 +106,13 @@ class ViewServer:
 
     Use as a context manager, or :meth:`start` and :meth:`close`. :meth:`publish_report` is
     the listener to hand to ``on_report``; it is thread-safe and does not block on pages.
+
+    Each report goes out as its message (:func:`~.messages.report_message`, without the
+    spectrum) at once; its spectrum (a few thousand numbers) is serialised when a page's
+    stream sends it, and only the latest of each model: a page that falls behind (a replay
+    as fast as it goes) skips the spectra it could not show anyway, and the validator's
+    thread never serialises one. A page gets each model's latest spectrum at most every
+    :data:`SPECTRUM_EVERY_S`.
     """
 
     def __init__(
@@ -108,7 +130,9 @@ class ViewServer:
             raise ValueError(f"history {history} must be >= 1")
         self._lock = threading.Lock()
         self._history: deque[str] = deque(maxlen=history)
-        self._latest: dict[str, str] = {}
+        # model -> (seq, report, start_ns) of its latest judged report; its JSON once made
+        self._spectra: dict[str, tuple[int, WindowReport, int]] = {}
+        self._spectrum_json: dict[str, tuple[int, str]] = {}
         self._clients: list[_Client] = []
         self._seq = 0
         self._hello: dict[str, Any] = {
@@ -166,41 +190,79 @@ class ViewServer:
         self.close()
 
     def publish_report(self, rep: WindowReport, start_ns: int = 0) -> None:
-        """Push a report to every page (:func:`~.messages.report_message`) and keep it."""
-        self.publish(report_message(rep, start_ns))
+        """Push a report to every page and keep it (its spectrum: the model's latest).
+
+        The message is :func:`~.messages.report_message`'s (the ``validate --json`` window
+        entry and the model's name) with ``seq`` and ``sent``; a judged window's spectrum
+        follows as a ``"spectrum"`` message (:meth:`spectrum_message`).
+        """
+        doc = report_message(rep, start_ns, with_spectrum=False)
+        judged = rep.judged and rep.freqs_hz.size > 0
+        with self._lock:
+            seq = self._stamp(doc)
+            self._history.append(light := _json(doc))
+            if judged:
+                self._spectra[rep.model] = (seq, rep, start_ns)
+            self._send(light, _Due(rep.model) if judged else None)
 
     def publish(self, message: Mapping[str, Any]) -> None:
         """Push a message (a JSON object with a ``"type"``) to every page and keep it.
 
-        Each message gets ``seq`` (1, 2, ...) and ``sent`` (wall clock, s since the epoch,
-        when it was pushed: the page's latency is measured from it). A report's spectrum goes
-        to the pages now and is kept for the model's latest report only.
+        It gets ``seq`` (1, 2, ...) and ``sent`` (wall clock, s since the epoch, when it was
+        pushed: the page's latency is measured from it).
         """
         doc = dict(message)
-        spec = doc.pop("spectrum", None)
         with self._lock:
-            self._seq += 1
-            doc["seq"] = self._seq
-            doc["sent"] = time.time()
-            light = _json(doc)
-            whole = light if spec is None else light[:-1] + ',"spectrum":' + _json(spec) + "}"
-            self._history.append(light)
-            if doc.get("type") == "report":
-                self._latest[str(doc["model"])] = whole
-            self._send(whole)
-            self.published += 1
+            self._stamp(doc)
+            self._history.append(data := _json(doc))
+            self._send(data, None)
+
+    def _stamp(self, doc: dict[str, Any]) -> int:
+        """Number and stamp a message (lock held); its seq."""
+        self._seq += 1
+        doc["seq"] = self._seq
+        doc["sent"] = time.time()
+        self.published += 1
+        return self._seq
+
+    def spectrum_message(self, model: str) -> str | None:
+        """The JSON of ``model``'s latest spectrum (made once per report), None if none.
+
+        ``{"type": "spectrum", "model", "seq"`` (its report's), ``"start", "end", "beta",
+        "noise_beta", "freqs_hz", "w_min"}`` (:func:`~.messages.spectrum`).
+        """
+        with self._lock:
+            latest = self._spectra.get(model)
+            made = self._spectrum_json.get(model)
+        if latest is None:
+            return None
+        seq, rep, start_ns = latest
+        if made is not None and made[0] == seq:
+            return made[1]
+        entry = report_message(rep, start_ns, with_spectrum=False)
+        doc = {"type": "spectrum", "model": model, "seq": seq}
+        doc |= {k: entry[k] for k in ("start", "end", "beta", "noise_beta")}
+        data = _json(doc | spectrum(rep))
+        with self._lock:
+            self._spectrum_json[model] = (seq, data)
+        return data
 
     def end(self, text: str) -> None:
         """Say the run ended (``text``: why, e.g. "replay finished"); the page keeps it."""
         with self._lock:
             self._ended = text
-            self._send(_json({"type": "end", "text": text, "sent": time.time()}))
+            self._send(_json({"type": "end", "text": text, "sent": time.time()}), None)
 
-    def _send(self, data: str) -> None:
-        """Queue ``data`` for every page (lock held); a page too far behind is dropped."""
+    def _send(self, data: str, due: _Due | None) -> None:
+        """Queue ``data`` (and a spectrum due) for every page (lock held).
+
+        A page too far behind is dropped (it reconnects and gets the history anew).
+        """
         for c in self._clients:
             try:
                 c.queue.put_nowait(data)
+                if due is not None:
+                    c.queue.put_nowait(due)
             except queue.Full:
                 c.dropped = True
         self._clients = [c for c in self._clients if not c.dropped]
@@ -210,11 +272,12 @@ class ViewServer:
         client = _Client()
         with self._lock:
             first = [_json(self._hello), *self._history]
-            # the latest report of each model whole (its spectrum), after the history
-            first += [self._latest[m] for m in sorted(self._latest)]
-            if self._ended is not None:
-                first.append(_json({"type": "end", "text": self._ended, "sent": time.time()}))
+            models = sorted(self._spectra)
+            ended = self._ended
             self._clients.append(client)
+        first += [m for m in map(self.spectrum_message, models) if m is not None]
+        if ended is not None:
+            first.append(_json({"type": "end", "text": ended, "sent": time.time()}))
         return first, client
 
     def unsubscribe(self, client: _Client) -> None:
@@ -300,27 +363,41 @@ def _handler(
             try:
                 self.wfile.write("".join(f"data: {m}\n\n" for m in first).encode())
                 self.wfile.flush()
+                due: list[str] = []  # models whose latest spectrum is still to go
+                next_spectra = 0.0  # monotonic time the next spectra may go
                 while True:
+                    wait = KEEPALIVE_S if not due else next_spectra - time.monotonic()
+                    parts: list[str] = []
+                    closing = idle = False
                     try:
-                        data = client.queue.get(timeout=KEEPALIVE_S)
+                        item = client.queue.get(timeout=wait) if wait > 0 else _NOTHING
                     except queue.Empty:
-                        self.wfile.write(b": keepalive\n\n")
-                        self.wfile.flush()
-                        continue
-                    if data is None or client.dropped:
-                        return
-                    parts, closing = [data], False
-                    while len(parts) < 256:  # what else is waiting goes in the same write
-                        try:
-                            more = client.queue.get_nowait()
-                        except queue.Empty:
-                            break
-                        if more is None:
+                        item, idle = _NOTHING, not due
+                    while item is not _NOTHING:  # what else waits goes in the same write
+                        if item is None or client.dropped:
                             closing = True
                             break
-                        parts.append(more)
-                    self.wfile.write("".join(f"data: {m}\n\n" for m in parts).encode())
-                    self.wfile.flush()
+                        if isinstance(item, _Due):
+                            if item.model not in due:
+                                due.append(item.model)
+                        elif isinstance(item, str):
+                            parts.append(item)
+                        if len(parts) >= 256:
+                            break
+                        try:
+                            item = client.queue.get_nowait()
+                        except queue.Empty:
+                            item = _NOTHING
+                    if due and time.monotonic() >= next_spectra:
+                        parts += [m for m in map(view.spectrum_message, due) if m is not None]
+                        due = []
+                        next_spectra = time.monotonic() + SPECTRUM_EVERY_S
+                    if parts:
+                        self.wfile.write("".join(f"data: {m}\n\n" for m in parts).encode())
+                        self.wfile.flush()
+                    elif idle:
+                        self.wfile.write(b": keepalive\n\n")
+                        self.wfile.flush()
                     if closing:
                         return
             except (BrokenPipeError, ConnectionResetError, TimeoutError):

@@ -8,7 +8,7 @@
   const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
   const ALARM_COLORS = { OK: "#66bb6a", WARN: "#ffa726", ERROR: "#e53935", STALE: "#9e9e9e" };
   const view = { hello: null, models: new Map(), lastArrival: null, ended: null,
-                 connected: false, latencies: [], received: 0, dirty: false };
+                 connected: false, latencies: [], pending: [], received: 0, dirty: false };
   window.twotankView = view;
 
   function fmt(x, digits) { return x === null || x === undefined ? "–" : Number(x).toFixed(digits); }
@@ -18,6 +18,15 @@
     if (text !== undefined) e.textContent = text;
     if (cls) e.className = cls;
     return e;
+  }
+
+  // a base64 string of little-endian float64 values (the server's spectra) as numbers
+  function f64(text) {
+    const raw = atob(text), bytes = new Uint8Array(raw.length);
+    for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
+    const dv = new DataView(bytes.buffer), out = new Array(bytes.length / 8);
+    for (let i = 0; i < out.length; i++) out[i] = dv.getFloat64(i * 8, true);
+    return out;
   }
 
   function model(name) {
@@ -88,7 +97,6 @@
     if (m.hist.length > keep) m.hist.splice(0, m.hist.length - keep);
     if (!m.latest || r.seq >= m.latest.seq) {
       m.latest = r;
-      if (r.spectrum) m.spectrum = r;
       if (r.diagnosis) m.diagnosis = r;
     }
     row(m);
@@ -99,19 +107,20 @@
     const msg = JSON.parse(ev.data);
     if (msg.type === "hello") { reset(msg); return; }
     if (msg.type === "end") { view.ended = msg.text; status(); return; }
-    if (msg.type !== "report") return;
-    if (view.models.has(msg.model)) {
-      const m = view.models.get(msg.model);
-      // the latest report of each model comes again whole (with its spectrum) after the history
-      if (m.latest && msg.seq === m.latest.seq) {
-        m.latest = msg; if (msg.spectrum) m.spectrum = msg; view.dirty = true; return;
+    if (msg.type === "spectrum") {
+      // the latest judged window's per-bin minimum of a model (sent after its report)
+      const m = model(msg.model);
+      if (!m.spectrum || msg.seq >= m.spectrum.seq) {
+        m.spectrum = Object.assign({}, msg, { spectrum: { freqs_hz: f64(msg.freqs_hz), w_min: f64(msg.w_min) } });
+        view.dirty = true;
       }
+      return;
     }
+    if (msg.type !== "report") return;
     onReport(msg);
     view.lastArrival = Date.now();
     view.received += 1;
-    view.latencies.push({ seq: msg.seq, ms: Date.now() - msg.sent * 1000 });
-    if (view.latencies.length > 5000) view.latencies.splice(0, 1000);
+    view.pending.push(msg);
     status();
   }
 
@@ -272,7 +281,7 @@
       for (let i = 0; i < s.freqs_hz.length; i++) {
         flo = Math.min(flo, s.freqs_hz[i]); fhi = Math.max(fhi, s.freqs_hz[i]);
         const w = s.w_min[i];
-        if (w !== null && w > 0) { pos.push(w); whi = Math.max(whi, w); }
+        if (Number.isFinite(w) && w > 0) { pos.push(w); whi = Math.max(whi, w); }
       }
     }
     if (!(fhi > flo)) return;
@@ -303,7 +312,7 @@
       c.fillStyle = m.color;
       for (let i = 0; i < s.freqs_hz.length; i++) {
         const w = s.w_min[i];
-        if (w === null) continue;
+        if (!Number.isFinite(w)) continue;
         c.fillRect(X(s.freqs_hz[i]) - 1.5, Y(w) - 1.5, 3, 3);
       }
       const nl = noiseLevel(m, s.freqs_hz);
@@ -370,6 +379,11 @@
       view.dirty = false;
       drawBeta(); drawBins(); drawLists();
       document.body.dataset.drawn = String(view.received);
+      // latency: from the report pushed (the server's clock) to the frame that draws it
+      const now = Date.now();
+      for (const m of view.pending) view.latencies.push({ seq: m.seq, ms: now - m.sent * 1000 });
+      view.pending = [];
+      if (view.latencies.length > 5000) view.latencies.splice(0, 1000);
     }
     requestAnimationFrame(redraw);
   }
