@@ -118,7 +118,9 @@
     }
     if (msg.type !== "report") return;
     onReport(msg);
-    view.lastArrival = Date.now();
+    // when the server pushed it (the same machine's clock: the view is on 127.0.0.1), so
+    // that a late visitor's history says how long ago the last report came
+    view.lastArrival = Math.min(msg.sent * 1000, Date.now());
     view.received += 1;
     view.pending.push(msg);
     status();
@@ -153,7 +155,7 @@
       return;
     }
     const age = (Date.now() - view.lastArrival) / 1000;
-    const stopped = age > staleAfter();
+    const stopped = view.ended !== null || age > staleAfter();
     s.dataset.stopped = stopped ? "1" : "0";
     s.dataset.age = age.toFixed(1);
     if (stopped) {
