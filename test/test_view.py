@@ -219,6 +219,12 @@ def test_view_options_are_refused_where_they_cannot_work(capsys: Any, leak_bag: 
     assert "add --view" in capsys.readouterr().err
     assert cli.main(["validate", str(leak_bag), str(leak_bag), "--view"]) == 2
     assert "--view shows one recording" in capsys.readouterr().err
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        assert cli.main(["validate", str(leak_bag), "--view", "--view-port", port]) == 2
+    assert "choose another port" in capsys.readouterr().err
 
 
 def test_live_view_shows_the_live_json(browser: Any) -> None:

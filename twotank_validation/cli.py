@@ -42,7 +42,7 @@ from twotank_validation.cli_options import (
     replay_config,
     topic_map,
 )
-from twotank_validation.cli_view import ViewRun, add_view_options, model_bands
+from twotank_validation.cli_view import ViewRun, add_view_options, live_view, model_bands
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import (
@@ -55,7 +55,6 @@ from twotank_validation.errors import (
 )
 
 if TYPE_CHECKING:
-    from twotank_validation.online import WindowReport
     from twotank_validation.usecases import (
         CalibrateJob,
         DiagnoseJob,
@@ -204,19 +203,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
         )
         return 2
     output = LiveOutput(args.json)
-    view = None
-    if args.view:
-        bands = model_bands(cfg.models)
-        view = ViewRun(args.view_port, title="live", bands=bands, speed=1.0, replay=False)
-
-    def report(rep: WindowReport) -> None:
-        output.report(rep)
-        if view is not None:
-            view.report(rep)
-
-    with contextlib.ExitStack() as stack:
-        if view is not None:
-            stack.enter_context(view)
+    view, report = live_view(args, cfg.models, output.report)
+    with view or contextlib.nullcontext():
         with Interrupts() as interrupts:
             result = run_live(cfg, on_report=report, stop=interrupts)
         code = _live_tail(args, output, result, cfg, interrupts)

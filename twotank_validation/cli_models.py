@@ -7,10 +7,12 @@ which hands them in as the fallbacks of these commands.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 from collections.abc import Callable
 
 from twotank_validation.cli_common import Interrupts, LiveOutput, live_end, loopback_only
+from twotank_validation.cli_view import live_view
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
 
@@ -104,9 +106,14 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
     )
 
     output = LiveOutput(args.json)
-    with Interrupts() as interrupts:
-        result = run_model_live(cfg, on_report=output.report, stop=interrupts)
-    return live_end(output, result, result.steps * cfg.ts_s, interrupts)
+    view, report = live_view(args, cfg.models or (args.plant_model,), output.report)
+    with view or contextlib.nullcontext():
+        with Interrupts() as interrupts:
+            result = run_model_live(cfg, on_report=report, stop=interrupts)
+        code = live_end(output, result, result.steps * cfg.ts_s, interrupts)
+        if view is not None:
+            view.hold(f"live run ended (exit code {code})")
+    return code
 
 
 # --------------------------------------------------------------------------- simulate --model

@@ -14,7 +14,7 @@ import math
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import Any
 
@@ -22,7 +22,7 @@ from twotank_validation.errors import TwotankError, UsageError
 from twotank_validation.online import WindowReport
 from twotank_validation.online.window import MonitorConfig
 
-__all__ = ["ViewRun", "add_view_options", "model_bands"]
+__all__ = ["ViewRun", "add_view_options", "live_view", "model_bands"]
 
 
 def _speed(text: str) -> float:
@@ -166,3 +166,21 @@ class ViewRun:
         finally:
             for signum, handler in old.items():
                 signal.signal(signum, handler)
+
+
+def live_view(
+    args: argparse.Namespace, models: Sequence[str], first: Callable[[WindowReport], None]
+) -> tuple[ViewRun | None, Callable[[WindowReport], None]]:
+    """``live --view``'s view (None without ``--view``) and the report listener.
+
+    The listener calls ``first`` (what ``live`` prints), then pushes the report to the view.
+    """
+    if not args.view:
+        return None, first
+    view = ViewRun(args.view_port, title="live", bands=model_bands(models), speed=1.0, replay=False)
+
+    def report(rep: WindowReport) -> None:
+        first(rep)
+        view.report(rep)
+
+    return view, report
