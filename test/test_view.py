@@ -198,6 +198,20 @@ def test_the_view_is_read_only_and_listens_on_127_0_0_1_only() -> None:
                 socket.create_connection((other, view.port), timeout=1).close()
 
 
+def test_a_late_visitor_gets_the_last_n_reports_and_each_model_s_latest_spectrum() -> None:
+    view = ViewServer(history=3)  # not started: subscribe() is what a new page's stream sends
+    try:
+        for k in range(5):
+            view.publish_report(_report(k, 0.1 * (k + 1)))
+        first, _ = view.subscribe()
+        docs = [json.loads(m) for m in first]
+        assert [d["type"] for d in docs] == ["hello", "report", "report", "report", "spectrum"]
+        assert [d["beta"] for d in docs[1:4]] == pytest.approx([0.3, 0.4, 0.5])
+        assert docs[4]["seq"] == docs[3]["seq"]  # the spectrum of the latest report
+    finally:
+        view.close()
+
+
 def test_pacer_holds_reports_to_the_replay_speed() -> None:
     now = [100.0]
     waits: list[float] = []

@@ -357,7 +357,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         args.view_port, title=title, bands=bands, speed=args.replay_speed, replay=True
     ) as view:
         code = _run_with_bar(job, args.quiet, on_report=view.report)
-        view.hold(f"replay of {title} finished (exit code {code})")
+        how = "interrupted" if code in (ExitCode.INTERRUPTED, ExitCode.TERMINATED) else "finished"
+        view.hold(f"replay of {title} {how} (exit code {code})")
     return code
 
 
