@@ -213,6 +213,30 @@ def _cmd_live(args: argparse.Namespace) -> int:
     return code
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    """``view``: the live view of a running system's reports (its topics)."""
+    _loopback_only()
+    from twotank_validation.ros.view_node import run_view  # noqa: PLC0415 (needs rclpy)
+
+    models = tuple(args.model or ["A", "B"])
+    view = ViewRun(
+        args.view_port, title="attached", bands=model_bands(models), speed=1.0, replay=False
+    )
+    with view, Interrupts() as interrupts:
+        reports = run_view(view.server, models, duration_s=args.duration, stop=interrupts)
+    if reports == 0:
+        topics = ", ".join(f"validation/{m}/report" for m in models)
+        print(
+            f"ERROR: no report came on {topics} (ROS_DOMAIN_ID "
+            f"{os.environ.get('ROS_DOMAIN_ID')}, loopback): start the validator in the same "
+            "domain, or name its models with --model",
+            file=sys.stderr,
+        )
+        return int(ExitCode.NOT_JUDGED)
+    print(f"view: {reports} report(s) shown", file=sys.stderr)
+    return int(ExitCode.OK)
+
+
 def _live_tail(
     args: argparse.Namespace, output: LiveOutput, result: Any, cfg: Any, interrupts: Interrupts
 ) -> int:
@@ -585,6 +609,20 @@ def build_parser() -> argparse.ArgumentParser:
         "transitions are printed at the end",
     )
     add_live_model_options(live, _cmd_live)
+
+    att = command(
+        "view",
+        "serve the live view of a running system: its validation/M/report, "
+        "validation/M/diagnosis and control/mode topics (docs/view.md)",
+    )
+    att.add_argument(
+        "--model", action="append", help="model whose topics to follow (repeat; default A and B)"
+    )
+    att.add_argument(
+        "--duration", type=float, default=None, help="wall seconds (default: until Ctrl-C)"
+    )
+    add_view_options(att, replay=False, port_only=True)
+    att.set_defaults(func=_cmd_view)
 
     sim = command(
         "simulate",

@@ -48,14 +48,20 @@ def _port(text: str) -> int:
     return value
 
 
-def add_view_options(parser: argparse.ArgumentParser, *, replay: bool) -> None:
-    """``--view`` and ``--view-port`` (and, for a replay, ``--replay-speed``)."""
-    parser.add_argument(
-        "--view",
-        action="store_true",
-        help="serve a live view of the reports on http://127.0.0.1:PORT/ (the URL is printed "
-        "on stderr; it stays up after the run until Ctrl-C; docs/view.md)",
-    )
+def add_view_options(
+    parser: argparse.ArgumentParser, *, replay: bool, port_only: bool = False
+) -> None:
+    """``--view`` and ``--view-port``; for a replay ``--replay-speed``.
+
+    ``port_only``: the port alone (the ``view`` command's).
+    """
+    if not port_only:
+        parser.add_argument(
+            "--view",
+            action="store_true",
+            help="serve a live view of the reports on http://127.0.0.1:PORT/ (the URL is "
+            "printed on stderr; it stays up after the run until Ctrl-C; docs/view.md)",
+        )
     parser.add_argument(
         "--view-port",
         type=_port,

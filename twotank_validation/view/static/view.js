@@ -116,6 +116,19 @@
       }
       return;
     }
+    if (msg.type === "diagnosis") {
+      // an answer of the live diagnosis on its own topic (attached to a running system)
+      model(msg.model).diagnosis = { diagnosis: msg.diagnosis };
+      view.dirty = true;
+      return;
+    }
+    if (msg.type === "mode") {
+      const b = document.getElementById("mode");
+      b.hidden = false;
+      b.dataset.mode = msg.mode;
+      b.textContent = "supervisor: " + msg.mode + " (since " + fmt(msg.time, 1) + " s)";
+      return;
+    }
     if (msg.type !== "report") return;
     onReport(msg);
     // when the server pushed it (the same machine's clock: the view is on 127.0.0.1), so
