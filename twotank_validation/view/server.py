@@ -36,7 +36,7 @@ from twotank_validation.view.messages import report_message, spectrum
 HOST = "127.0.0.1"
 """The only address the view listens on."""
 DEFAULT_HISTORY = 2000
-"""Messages a late visitor gets at once (about 4 h of two models' quarter-period windows at
+"""Messages a late visitor gets at once (about 14 h of two models' quarter-period windows at
 the default 204.8 s period)."""
 CLIENT_QUEUE = 20000
 """Messages a page may fall behind by before its stream is closed (it reconnects and gets the
