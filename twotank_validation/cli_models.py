@@ -7,12 +7,10 @@ which hands them in as the fallbacks of these commands.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 from collections.abc import Callable
 
 from twotank_validation.cli_common import Interrupts, LiveOutput, live_end, loopback_only
-from twotank_validation.cli_view import live_view
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import UsageError
 
@@ -104,6 +102,10 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
         noise_seed=args.seed,
         record_samples=False,
     )
+
+    import contextlib  # noqa: PLC0415 (here: the module's imports are shared by other commands)
+
+    from twotank_validation.cli_view import live_view  # noqa: PLC0415
 
     output = LiveOutput(args.json)
     view, report = live_view(args, cfg.models or (args.plant_model,), output.report)
