@@ -34,6 +34,7 @@ MODELS = "models/*.yaml"
 SCENARIOS = "sim/scenarios/*.yaml"
 # the live diagnosis's answer probabilities (fitted by bench/bench_isolation.py --calibrate)
 ANSWER_PROBABILITY = "diagnose/answer_probability.json"
+VIEW_PAGE = "view/static/*"
 
 
 def _files(pattern: str) -> list[str]:
@@ -64,7 +65,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*", "bench", "tools", "tools.*"]),
-    package_data={PACKAGE: [MODELS, SCENARIOS, ANSWER_PROBABILITY, "py.typed"]},
+    package_data={PACKAGE: [MODELS, SCENARIOS, ANSWER_PROBABILITY, VIEW_PAGE, "py.typed"]},
     data_files=_data_files(),
     install_requires=_requirements(),
     zip_safe=True,

@@ -3,7 +3,7 @@
 The layers, lowest first (a module may import its own layer and the layers below it):
 
     errors, defaults, settings -> core -> online -> sim -> bags -> tables -> diagnose -> replay
-    -> experiment -> calibrate -> identify -> report -> usecases -> fleet -> ros -> cli
+    -> experiment -> calibrate -> identify -> report -> usecases -> fleet -> view -> ros -> cli
 
 The package root (``twotank_validation/__init__.py``) is the public surface above them all; it
 loads its names on first use and imports nothing at import time. Every ``import`` statement
@@ -36,8 +36,9 @@ LAYERS = (
     ("report",),
     ("usecases",),
     ("fleet",),
+    ("view",),
     ("ros",),
-    ("cli", "cli_options", "cli_common", "cli_models"),
+    ("cli", "cli_options", "cli_common", "cli_models", "cli_view"),
 )
 ROS_ONLY = ("rclpy", "rosidl_runtime_py", "rosgraph_msgs", "diagnostic_msgs", "std_srvs")
 

@@ -89,6 +89,9 @@ NOT_SETTINGS_OPTIONS = {
     "--plant-model": "live: any model's simulated plant (the model plant node's model)",
     "--member": "live: the model plant node's member of its set",
     "--noise-scale": "live: the model plant node's noise",
+    "--view": "validate, live: the live view (a listener of the reports, docs/view.md)",
+    "--view-port": "validate, live: the live view's port",
+    "--replay-speed": "validate --view: the replay's pace for the view",
 }
 # (simulate's excitation design options are the design's settings: checked below)
 """Options of the checked commands that are not settings of the tree, and why."""

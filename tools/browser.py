@@ -43,8 +43,12 @@ def chromium_path() -> str:
 
 
 @contextmanager
-def headless_page(width: int = 1280, height: int = 900) -> Iterator[Any]:
-    """A Playwright ``Page`` in a fresh headless Chromium, closed on leaving."""
+def headless_page(width: int = 1280, height: int = 900, **context: Any) -> Iterator[Any]:
+    """A Playwright ``Page`` in a fresh headless Chromium, closed on leaving.
+
+    ``context``: more options of the browser context (e.g. ``bypass_csp=True``, for a test
+    that reads a page whose Content-Security-Policy forbids Playwright's evaluated scripts).
+    """
     from playwright.sync_api import sync_playwright  # noqa: PLC0415 (tests and benches only)
 
     exe = chromium_path()
@@ -58,6 +62,7 @@ def headless_page(width: int = 1280, height: int = 900) -> Iterator[Any]:
             headless=True,
             args=list(CHROMIUM_ARGS),
             viewport={"width": width, "height": height},
+            **context,
         )
         try:
             yield browser.new_page()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import json
 import os
@@ -46,6 +47,7 @@ from twotank_validation.cli_options import (
     replay_config,
     topic_map,
 )
+from twotank_validation.cli_view import ViewRun, add_view_options, live_view, model_bands
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import (
@@ -206,8 +208,44 @@ def _cmd_live(args: argparse.Namespace) -> int:
         )
         return 2
     output = LiveOutput(args.json)
-    with Interrupts() as interrupts:
-        result = run_live(cfg, on_report=output.report, stop=interrupts)
+    view, report = live_view(args, cfg.models, output.report)
+    with view or contextlib.nullcontext():
+        with Interrupts() as interrupts:
+            result = run_live(cfg, on_report=report, stop=interrupts)
+        code = _live_tail(args, output, result, cfg, interrupts)
+        if view is not None:
+            view.hold(f"live run ended (exit code {code})")
+    return code
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    """``view``: the live view of a running system's reports (its topics)."""
+    _loopback_only()
+    from twotank_validation.ros.view_node import run_view  # noqa: PLC0415 (needs rclpy)
+
+    models = tuple(args.model or ["A", "B"])
+    view = ViewRun(
+        args.view_port, title="attached", bands=model_bands(models), speed=1.0, replay=False
+    )
+    with view, Interrupts() as interrupts:
+        reports = run_view(view.server, models, duration_s=args.duration, stop=interrupts)
+    if reports == 0:
+        topics = ", ".join(f"validation/{m}/report" for m in models)
+        print(
+            f"ERROR: no report came on {topics} (ROS_DOMAIN_ID "
+            f"{os.environ.get('ROS_DOMAIN_ID')}, loopback): start the validator in the same "
+            "domain, or name its models with --model",
+            file=sys.stderr,
+        )
+        return int(ExitCode.NOT_JUDGED)
+    print(f"view: {reports} report(s) shown", file=sys.stderr)
+    return int(ExitCode.OK)
+
+
+def _live_tail(
+    args: argparse.Namespace, output: LiveOutput, result: Any, cfg: Any, interrupts: Interrupts
+) -> int:
+    """``live``'s closing lines: the supervisor's transitions, the summary; the code."""
     for tr in result.transitions:
         if args.json:
             entry = {
@@ -319,11 +357,19 @@ class _ReplayBar:
             self._bar.close()
 
 
-def _run_with_bar(job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob, quiet: bool) -> int:
-    """Run one recording's job with the replay's progress bar; print its outcome; the code."""
+def _run_with_bar(
+    job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob,
+    quiet: bool,
+    **listeners: Any,
+) -> int:
+    """Run one recording's job with the replay's progress bar; print its outcome; the code.
+
+    ``listeners``: more keyword arguments of the job's ``run`` (``validate``'s
+    ``on_report``).
+    """
     bar = _ReplayBar(quiet)
     try:
-        outcome = job.run(say=_say, progress=bar.progress, show=bar.show)
+        outcome = job.run(say=_say, progress=bar.progress, show=bar.show, **listeners)
     finally:
         bar.close()
     return _show(outcome, bar.shown)
@@ -331,9 +377,24 @@ def _run_with_bar(job: ValidateJob | DiagnoseJob | CalibrateJob | IdentifyJob, q
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
+        if args.view:
+            raise UsageError("--view shows one recording: name one bag or table, without --out")
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
-    return _run_with_bar(_validate_job(args), args.quiet)
+    job = _validate_job(args)
+    if not args.view:
+        if args.replay_speed is not None:
+            raise UsageError("--replay-speed paces the view's replay: add --view")
+        return _run_with_bar(job, args.quiet)
+    bands = model_bands(job.sources, job.read.monitor)
+    title = Path(job.recording).name
+    with ViewRun(
+        args.view_port, title=title, bands=bands, speed=args.replay_speed, replay=True
+    ) as view:
+        code = _run_with_bar(job, args.quiet, on_report=view.report)
+        how = "interrupted" if code in (ExitCode.INTERRUPTED, ExitCode.TERMINATED) else "finished"
+        view.hold(f"replay of {title} {how} (exit code {code})")
+    return code
 
 
 def _diagnose_job(args: argparse.Namespace, *, fleet: bool = False) -> DiagnoseJob:
@@ -538,6 +599,7 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--fault", action="append", help="plant fault, e.g. leak=0.02@1000 (repeat)")
     live.add_argument("--seed", type=int, default=0, help="plant noise seed")
     live.add_argument("--json", action="store_true", help="one JSON object per report")
+    add_view_options(live, replay=False)
     live.add_argument(
         "--closed-loop",
         action="store_true",
@@ -558,6 +620,20 @@ def build_parser() -> argparse.ArgumentParser:
         "transitions are printed at the end",
     )
     add_live_model_options(live, _cmd_live)
+
+    att = command(
+        "view",
+        "serve the live view of a running system: its validation/M/report, "
+        "validation/M/diagnosis and control/mode topics (docs/view.md)",
+    )
+    att.add_argument(
+        "--model", action="append", help="model whose topics to follow (repeat; default A and B)"
+    )
+    att.add_argument(
+        "--duration", type=float, default=None, help="wall seconds (default: until Ctrl-C)"
+    )
+    add_view_options(att, replay=False, port_only=True)
+    att.set_defaults(func=_cmd_view)
 
     sim = command(
         "simulate",
@@ -583,6 +659,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     val = command("validate", "validate recorded bags through the live validator's code")
     add_validate_arguments(val)
+    add_view_options(val, replay=True)
     add_recording_options(val)
     val.set_defaults(func=_cmd_validate)
 

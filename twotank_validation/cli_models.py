@@ -114,10 +114,19 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
         record_samples=False,
     )
 
+    import contextlib  # noqa: PLC0415 (here: the module's imports are shared by other commands)
+
+    from twotank_validation.cli_view import live_view  # noqa: PLC0415
+
     output = LiveOutput(args.json)
-    with Interrupts() as interrupts:
-        result = run_model_live(cfg, on_report=output.report, stop=interrupts)
-    return live_end(output, result, result.steps * cfg.ts_s, interrupts)
+    view, report = live_view(args, cfg.models or (args.plant_model,), output.report)
+    with view or contextlib.nullcontext():
+        with Interrupts() as interrupts:
+            result = run_model_live(cfg, on_report=report, stop=interrupts)
+        code = live_end(output, result, result.steps * cfg.ts_s, interrupts)
+        if view is not None:
+            view.hold(f"live run ended (exit code {code})")
+    return code
 
 
 # --------------------------------------------------------------------------- simulate --model

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,6 +99,7 @@ class ValidateJob:
         say: Say | None = None,
         progress: Progress | None = None,
         show: Show | None = None,
+        on_report: Callable[[WindowReport, int], None] | None = None,
     ) -> Outcome:
         """Replay the recording and judge every model's windows.
 
@@ -107,6 +108,8 @@ class ValidateJob:
             progress: told (messages read, messages expected) now and then.
             show: told each line of the table as it arises: the header, then a row per
                 window as it is judged (the lines ``text`` begins with).
+            on_report: told each report as it is judged, with the stamp its times count
+                from (the recording's start; e.g. the live view).
 
         Returns:
             The outcome: the code, the summary (``document``, as ``--json`` writes it),
@@ -123,6 +126,8 @@ class ValidateJob:
         shown: list[str] = []  # the header, once shown
 
         def streamed(rep: WindowReport, start_ns: int) -> None:
+            if on_report is not None:
+                on_report(rep, start_ns)
             if show is None:
                 return
             if not shown:

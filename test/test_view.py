@@ -1,0 +1,271 @@
+"""The live view (docs/view.md): a page in headless Chromium against the reports' JSON.
+
+The reference is the JSON the same run writes (``validate --json``'s windows, ``live
+--json``'s lines): the page's table carries each model's latest report's numbers as data
+attributes, parsed from the pushed stream, and must equal them; its report count must equal
+the number of windows. The server is driven directly for the "stopped" sign (a report, no
+report for longer than the page's limit, a report again) and probed over HTTP for being read
+only and on 127.0.0.1 only. Chromium runs off the network (tools/browser.py); the node test
+(``live --view``) needs the loopback-only namespace like every node test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+import signal
+import socket
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tools.browser import headless_page
+from twotank_validation import cli
+from twotank_validation.bags import write_scenario_bag
+from twotank_validation.online import Alarm, WindowReport
+from twotank_validation.online.window import MonitorConfig
+from twotank_validation.sim import scenario as sc
+from twotank_validation.usecases import ValidateJob
+from twotank_validation.usecases.reading import ReadSettings
+from twotank_validation.view import Pacer, ViewServer
+
+FAST = MonitorConfig(ts_s=0.8, period_samples=256)
+ROWS = (
+    "rs => rs.map(r => ({model: r.dataset.model, beta: r.dataset.beta, beta_op: "
+    "r.dataset.betaOp, beta_total: r.dataset.betaTotal, alarm: r.dataset.alarm, "
+    "end: r.dataset.end, count: r.dataset.count}))"
+)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """One headless Chromium for the module (a fresh page per use: ``browser.new_page()``)."""
+    with headless_page(bypass_csp=True) as page:  # Playwright's waits evaluate scripts
+        yield page.context
+
+
+@pytest.fixture(scope="module")
+def leak_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """8 periods of the rig at Ts 0.8 s, period 256, a leak from 1000 s."""
+    base = sc.load_scenario("leak")
+    s = dataclasses.replace(
+        base, ts_s=0.8, period_samples=256, duration_s=8 * 204.8, faults=("leak=0.04@1000",)
+    )
+    return write_scenario_bag(s, tmp_path_factory.mktemp("view") / "leak", storage="mcap")
+
+
+def _rows(page: Any) -> dict[str, dict[str, Any]]:
+    return {r["model"]: r for r in page.eval_on_selector_all("#latest tbody tr", ROWS)}
+
+
+def _num(text: str) -> float | None:
+    return None if text == "" else float(text)
+
+
+def _same(row: dict[str, Any], entry: dict[str, Any], count: int) -> None:
+    """A table row equals a window's JSON entry (exact: the page keeps the JSON's numbers)."""
+    for key in ("beta", "beta_op", "beta_total", "end"):
+        assert _num(row[key]) == entry[key], (key, row, entry)
+    assert row["alarm"] == entry["alarm"]
+    assert int(row["count"]) == count
+
+
+def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_history(
+    browser: Any, leak_bag: Path, tmp_path: Path
+) -> None:
+    job = ValidateJob(
+        str(leak_bag),
+        ReadSettings(monitor=FAST),
+        models=("A", "B"),
+        diagnosis=False,
+        json_path=str(tmp_path / "v.json"),
+    )
+    requests: list[str] = []
+    with ViewServer(title="leak") as view:
+        early = browser.new_page()
+        early.on("request", lambda r: requests.append(r.url))
+        early.goto(view.url)
+        early.wait_for_function("window.twotankView && window.twotankView.connected")
+        reports: list[WindowReport] = []
+
+        def listen(rep: WindowReport, start_ns: int) -> None:
+            reports.append(rep)
+            view.publish_report(rep, start_ns)
+
+        outcome = job.run(on_report=listen)
+        doc = json.loads((tmp_path / "v.json").read_text())
+        windows = {m: e["windows"] for m, e in doc["models"].items()}
+        total = sum(len(w) for w in windows.values())
+        assert outcome.code == 0
+        assert total >= 20
+        for page in (early, browser.new_page()):  # open during the run; after it
+            if page is not early:
+                page.goto(view.url)
+            page.wait_for_function(f"window.twotankView.received >= {total}")
+            rows = _rows(page)
+            assert set(rows) == {"A", "B"}
+            for model, ws in windows.items():
+                _same(rows[model], ws[-1], len(ws))
+            # the latest judged window's spectrum reached the page, every number exact
+            shown = page.evaluate(
+                "Object.fromEntries(Array.from(window.twotankView.models.values()).map("
+                "m => [m.name, [m.spectrum.spectrum.freqs_hz, m.spectrum.spectrum.w_min]]))"
+            )
+            for model in ("A", "B"):
+                last = [r for r in reports if r.model == model and r.judged][-1]
+                keep = last.freqs_hz > 0
+                assert shown[model][0] == last.freqs_hz[keep].tolist()
+                assert shown[model][1] == last.w_min[keep].tolist()
+                assert len(shown[model][1]) > 100
+            page.close()
+    # the page asked nothing of anyone but the view
+    assert requests
+    assert all(u.startswith(view.url) for u in requests), requests
+
+
+def _report(k: int, beta: float = 0.5) -> WindowReport:
+    return WindowReport(
+        model="B",
+        start_ns=k * 10**9,
+        end_ns=(k + 409) * 10**9,
+        n_periods=2,
+        n_samples=512,
+        judged=True,
+        data_quality="ok",
+        beta=beta,
+        beta_lower=math.nan,
+        beta_upper=math.nan,
+        margin=1 - beta,
+        invalidated=False,
+        alarm=Alarm.OK,
+        convention="power",
+        solver="closed_form",
+        freqs_hz=np.linspace(0.0, 0.625, 257),
+        w_min=np.full(257, 0.01),
+        compute_time_s=0.0,
+    )
+
+
+def test_the_page_says_when_reports_stop_and_clears_it_when_they_resume(browser: Any) -> None:
+    with ViewServer(stale_after_s=0.4) as view:
+        page = browser.new_page()
+        page.goto(view.url)
+        page.wait_for_function("window.twotankView.connected")
+        view.publish_report(_report(0, 0.25))
+        page.wait_for_function("window.twotankView.received === 1")
+        assert page.get_attribute("#status", "data-stopped") == "0"
+        # no report for longer than the limit: the sign shows (the page's own 250 ms poll)
+        page.wait_for_selector('#status[data-stopped="1"]', timeout=3000)
+        assert "reports stopped" in (page.text_content("#status") or "")
+        view.publish_report(_report(102, 0.75))
+        page.wait_for_selector('#status[data-stopped="0"]', timeout=3000)
+        row = _rows(page)["B"]
+        assert (_num(row["beta"]), row["count"]) == (0.75, "2")
+        page.close()
+
+
+def test_the_view_is_read_only_and_listens_on_127_0_0_1_only() -> None:
+    with ViewServer() as view:
+        assert view._httpd.server_address[0] == "127.0.0.1"
+        assert view._httpd.socket.getsockname()[0] == "127.0.0.1"
+        page = urllib.request.urlopen(view.url)
+        assert "connect-src 'self'" in page.headers["Content-Security-Policy"]
+        assert b"http" not in page.read()  # no URL anywhere in the page
+        for method in ("POST", "PUT", "DELETE", "PATCH"):
+            req = urllib.request.Request(view.url + "events", data=b"{}", method=method)
+            with pytest.raises(urllib.error.HTTPError) as err:
+                urllib.request.urlopen(req)
+            assert err.value.code == 405
+        with pytest.raises(urllib.error.HTTPError) as err:  # a name rebound to 127.0.0.1
+            urllib.request.urlopen(urllib.request.Request(view.url, headers={"Host": "evil.x"}))
+        assert err.value.code == 403
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(view.url + "reset")
+        assert err.value.code == 404
+        # nothing answers on the machine's other addresses
+        other = socket.gethostbyname(socket.gethostname())
+        if other != "127.0.0.1" and not other.startswith("127."):
+            with pytest.raises(ConnectionRefusedError):
+                socket.create_connection((other, view.port), timeout=1).close()
+
+
+def test_a_late_visitor_gets_the_last_n_reports_and_each_model_s_latest_spectrum() -> None:
+    view = ViewServer(history=3)  # not started: subscribe() is what a new page's stream sends
+    try:
+        for k in range(5):
+            view.publish_report(_report(k, 0.1 * (k + 1)))
+        first, _ = view.subscribe()
+        docs = [json.loads(m) for m in first]
+        assert [d["type"] for d in docs] == ["hello", "report", "report", "report", "spectrum"]
+        assert [d["beta"] for d in docs[1:4]] == pytest.approx([0.3, 0.4, 0.5])
+        assert docs[4]["seq"] == docs[3]["seq"]  # the spectrum of the latest report
+    finally:
+        view.close()
+
+
+def test_pacer_holds_reports_to_the_replay_speed() -> None:
+    now = [100.0]
+    waits: list[float] = []
+
+    def sleep(s: float) -> None:
+        waits.append(s)
+        now[0] += s
+
+    pace = Pacer(10.0, sleep=sleep, clock=lambda: now[0])
+    for k in (0, 0, 50, 100):  # data s of the window ends; two models share the first
+        pace(_report(k))
+    assert waits == pytest.approx([5.0, 5.0])
+    with pytest.raises(ValueError, match="must be > 0"):
+        Pacer(0.0)
+
+
+def test_view_options_are_refused_where_they_cannot_work(capsys: Any, leak_bag: Path) -> None:
+    assert cli.main(["validate", str(leak_bag), "--replay-speed", "5"]) == 2
+    assert "add --view" in capsys.readouterr().err
+    assert cli.main(["validate", str(leak_bag), str(leak_bag), "--view"]) == 2
+    assert "--view shows one recording" in capsys.readouterr().err
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        assert cli.main(["validate", str(leak_bag), "--view", "--view-port", port]) == 2
+    assert "choose another port" in capsys.readouterr().err
+
+
+def test_live_view_shows_the_live_json(browser: Any) -> None:
+    """``live --view``: the page of a short simulated run equals ``live --json``'s lines."""
+    cmd = [sys.executable, "-m", "twotank_validation.cli", "live", "--ts", "0.8", "--period",
+           "256", "--duration", "900", "--json", "--view"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url, err = None, []
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            err.append(line)
+            if m := re.match(r"view: (http://127\.0\.0\.1:\d+/)$", line.strip()):
+                url = m.group(1)
+            if "page stays" in line:
+                break
+        assert url is not None, "".join(err)
+        page = browser.new_page()
+        page.goto(url)
+        page.wait_for_function("window.twotankView.received >= 2")
+        rows = _rows(page)
+        page.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+    assert proc.returncode == 0
+    lines = [json.loads(x) for x in out.splitlines() if x.startswith('{"model"')]
+    for model in ("A", "B"):
+        mine = [x for x in lines if x["model"] == model]
+        _same(rows[model], mine[-1], len(mine))

@@ -1,0 +1,192 @@
+"""``--view`` of ``validate`` and ``live``: the live view's options, server and closing wait.
+
+The view is one more listener of the reports the command already prints (the same
+:class:`~twotank_validation.online.validator.OnlineValidator` path): :class:`ViewRun` starts
+the server (:class:`~twotank_validation.view.ViewServer`, 127.0.0.1), prints its URL, paces a
+replay (``--replay-speed``), pushes each report, and at the end keeps the page up until
+Ctrl-C. docs/view.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+from collections.abc import Callable, Sequence
+from types import TracebackType
+from typing import Any
+
+from twotank_validation.errors import TwotankError, UsageError
+from twotank_validation.online import WindowReport
+from twotank_validation.online.window import MonitorConfig
+
+__all__ = ["ViewRun", "add_view_options", "live_view", "model_bands"]
+
+
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give the replay's speed as a number > 0 of data seconds per wall second "
+            "(e.g. 60), or leave --replay-speed out to replay as fast as possible"
+        )
+    return value
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a TCP port 0 .. 65535 (0: any free one)")
+    return value
+
+
+def add_view_options(
+    parser: argparse.ArgumentParser, *, replay: bool, port_only: bool = False
+) -> None:
+    """``--view`` and ``--view-port``; for a replay ``--replay-speed``.
+
+    ``port_only``: the port alone (the ``view`` command's).
+    """
+    if not port_only:
+        parser.add_argument(
+            "--view",
+            action="store_true",
+            help="serve a live view of the reports on http://127.0.0.1:PORT/ (the URL is "
+            "printed on stderr; it stays up after the run until Ctrl-C; docs/view.md)",
+        )
+    parser.add_argument(
+        "--view-port",
+        type=_port,
+        default=0,
+        metavar="P",
+        help="the view's port on 127.0.0.1 (0: any free one)",
+    )
+    if replay:
+        parser.add_argument(
+            "--replay-speed",
+            type=_speed,
+            default=None,
+            metavar="X",
+            help="with --view: replay at X times real time (default: as fast as possible)",
+        )
+
+
+def model_bands(sources: Sequence[str], monitor: MonitorConfig | None = None) -> dict[str, Any]:
+    """Model name -> the band it is judged over (``Band.to_dict()``, None: every bin).
+
+    ``monitor``: its ``band`` (``--band``) in place of the models' own; None: their own.
+
+    Models that do not load are left out (the command says why when it loads them).
+    """
+    from twotank_validation.usecases.reading import load  # noqa: PLC0415
+
+    out: dict[str, Any] = {}
+    for source in sources:
+        try:
+            model = load(source).model
+        except TwotankError:
+            continue
+        band = model.band if monitor is None else monitor.band_of(model)
+        out[model.name] = None if band is None else band.to_dict()
+    return out
+
+
+class ViewRun:
+    """The view of one run: started on entry (its URL on stderr), kept up after the run.
+
+    Args:
+        port: ``--view-port``.
+        title: the page's heading.
+        bands: :func:`model_bands`.
+        speed: ``--replay-speed`` (None: as fast as possible); ``live``: 1 (real time).
+        replay: a replay is paced at ``speed``; ``live`` is not.
+
+    Raises:
+        UsageError: the port is taken or cannot be bound (one line naming the fix).
+    """
+
+    def __init__(
+        self,
+        port: int,
+        *,
+        title: str,
+        bands: dict[str, Any],
+        speed: float | None,
+        replay: bool,
+    ) -> None:
+        from twotank_validation.view import Pacer, ViewServer  # noqa: PLC0415
+
+        pace = math.inf if speed is None else speed
+        try:
+            self.server = ViewServer(port, title=title, models=bands, speed=pace)
+        except OSError as err:
+            raise UsageError(
+                f"--view-port {port}: cannot listen on 127.0.0.1:{port} ({err.strerror}): "
+                "choose another port, or 0 for any free one"
+            ) from err
+        self.pacer = Pacer(pace) if replay else None
+
+    def __enter__(self) -> ViewRun:
+        self.server.start()
+        print(f"view: {self.server.url}", file=sys.stderr, flush=True)
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.server.close()
+
+    def report(self, rep: WindowReport, start_ns: int = 0) -> None:
+        """The listener: pace (a replay), then push the report to the pages."""
+        if self.pacer is not None:
+            self.pacer(rep)
+        self.server.publish_report(rep, start_ns)
+
+    def hold(self, text: str) -> None:
+        """Say the run ended (``text``) and keep the page up until SIGINT or SIGTERM."""
+        self.server.end(text)
+        print(
+            f"view: {text}; the page stays at {self.server.url} until Ctrl-C",
+            file=sys.stderr,
+            flush=True,
+        )
+        done = threading.Event()
+        old: dict[signal.Signals, Any] = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                old[sig] = signal.signal(sig, lambda _n, _f: done.set())
+        try:
+            while not done.wait(0.2):
+                pass
+        finally:
+            for signum, handler in old.items():
+                signal.signal(signum, handler)
+
+
+def live_view(
+    args: argparse.Namespace, models: Sequence[str], first: Callable[[WindowReport], None]
+) -> tuple[ViewRun | None, Callable[[WindowReport], None]]:
+    """``live --view``'s view (None without ``--view``) and the report listener.
+
+    The listener calls ``first`` (what ``live`` prints), then pushes the report to the view.
+    """
+    if not args.view:
+        return None, first
+    view = ViewRun(args.view_port, title="live", bands=model_bands(models), speed=1.0, replay=False)
+
+    def report(rep: WindowReport) -> None:
+        first(rep)
+        view.report(rep)
+
+    return view, report

@@ -1,0 +1,67 @@
+"""What the page gets of a report: the ``validate --json`` window entry, and its spectrum.
+
+One serialisation for a window everywhere: :func:`~twotank_validation.replay.window_entry`
+(the entries of ``validate --json``'s ``windows``), with the model's name beside it and, for
+the per-bin plot, the window's per-bin minimum ‖W‖ (:func:`spectrum`), which the JSON file
+leaves out.
+"""
+
+from __future__ import annotations
+
+import base64
+from typing import Any
+
+import numpy as np
+
+from twotank_validation.core.band import Band
+from twotank_validation.online.window import WindowReport
+from twotank_validation.replay import window_entry
+
+
+def spectrum(rep: WindowReport) -> dict[str, Any]:
+    """A window's bins above 0 Hz: ``{"n_bins", "freqs_hz", "w_min"}``, arrays in base64.
+
+    ``w_min`` is the report's per-bin minimum ‖W(n)‖ (units of ``w``) and ``freqs_hz`` the
+    bins' frequencies, each the base64 of its float64 values, little-endian (the page reads
+    them as a ``Float64Array``): the numbers exactly, NaN and inf as they are, and some
+    thousand of them in a few microseconds, where writing them as JSON numbers costs a
+    millisecond a window (``bench/bench_view.py``).
+    """
+    keep = rep.freqs_hz > 0
+    return {
+        "n_bins": int(np.count_nonzero(keep)),
+        "freqs_hz": _b64(rep.freqs_hz[keep]),
+        "w_min": _b64(rep.w_min[keep]),
+    }
+
+
+def _b64(x: np.ndarray) -> str:
+    return base64.b64encode(np.ascontiguousarray(x, dtype="<f8").tobytes()).decode("ascii")
+
+
+def report_message(
+    rep: WindowReport, start_ns: int = 0, *, with_spectrum: bool = True
+) -> dict[str, Any]:
+    """The page's message of a report: ``{"type": "report", "model", **window entry}``.
+
+    Args:
+        rep: the report.
+        start_ns: the stamp times are counted from (``validate``: the recording's start, as
+            its JSON; ``live``: 0, the simulated clock's, as ``live --json``).
+        with_spectrum: add ``spectrum`` where the window was judged.
+
+    The window entry is :func:`~twotank_validation.replay.window_entry`'s (times in s from
+    ``start_ns``), plus ``n_periods``, ``convention`` and, where the window was judged,
+    ``spectrum`` (:func:`spectrum`; the server sends spectra as messages of their own).
+    """
+    msg: dict[str, Any] = {"type": "report", "model": rep.model, **window_entry(rep, start_ns)}
+    msg["n_periods"] = rep.n_periods
+    msg["convention"] = rep.convention
+    if with_spectrum and rep.judged and rep.freqs_hz.size:
+        msg["spectrum"] = spectrum(rep)
+    return msg
+
+
+def band_entry(band: Band | None) -> dict[str, Any] | None:
+    """A model's band for the page (``Band.to_dict``), None where it has none."""
+    return None if band is None else band.to_dict()
