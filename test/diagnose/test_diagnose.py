@@ -44,7 +44,7 @@ from twotank_validation.sim.rig import RigParams, operating_point
 
 A1, H0, T0 = 91.4, 0.47, 0.5
 NOISE = {"noise_std_height": 0.003, "noise_std_temperature": 0.01}
-RMS, CUTOFF_HZ = (0.1, 0.1), 0.01  # excitation of the diagnosis experiments (README)
+RMS, CUTOFF_HZ = (0.1, 0.1), 0.01  # excitation of the diagnosis experiments (docs/diagnosis.md)
 # Each example simulates ~40 min of rig time and fits the catalogue (1-3 s): few examples,
 # no shrinking (a failure prints its parameters and seed; shrinking would take minutes).
 NO_SHRINK = [Phase.explicit, Phase.reuse, Phase.generate]

@@ -40,7 +40,7 @@ PERIOD = CONFIG.period_samples
 ONSET_PERIOD = 4  # as the bench: two judged nominal windows (ending 3P, 4P) before the onset
 WITHIN = 3
 
-# Stated limits (README "Detection limits"): fault, size at the limit.
+# Stated limits (docs/detection.md): fault, size at the limit.
 LEAK = 0.06  # extra outflow, model flow units (7.5 % of the nominal outflow 0.8)
 BIAS_HEIGHT = 0.05  # model units; onsets at least 0.1 period from a window boundary
 BIAS_TEMPERATURE = 0.15  # model units; same onset condition
