@@ -7,7 +7,6 @@ below both, so that neither imports the other).
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import sys
@@ -20,13 +19,13 @@ from twotank_validation.errors import ExitCode
 from twotank_validation.online import Alarm, WindowReport
 from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.window import verdict_text
+from twotank_validation.replay.summary import window_entry
 from twotank_validation.usecases.validate import diagnosis_text
 
 __all__ = [
     "Interrupts",
     "LiveOutput",
     "answer_line",
-    "finite",
     "live_end",
     "live_line",
     "loopback_only",
@@ -74,31 +73,14 @@ def loopback_only() -> None:
     os.environ.setdefault("ROS_DOMAIN_ID", "77")
 
 
-def finite(x: float) -> float | None:
-    """``x``, or None (JSON null) where it is NaN or infinite."""
-    return x if math.isfinite(x) else None
-
-
 def report_dict(rep: WindowReport) -> dict[str, object]:
-    """JSON-friendly summary of a window report (spectrum left out)."""
-    return {
-        "model": rep.model,
-        "start": rep.start_ns / 1e9,
-        "end": rep.end_ns / 1e9,
-        "judged": rep.judged,
-        "beta": rep.beta if rep.judged else None,
-        "invalidated": rep.invalidated,
-        "alarm": rep.alarm.name,
-        "reason": None if rep.judged else rep.data_quality,
-        "data_quality": rep.data_quality,
-        "warnings": list(rep.warnings),
-        "beta_op": finite(rep.beta_op),
-        "beta_total": finite(rep.beta_total),
-        "raised_by": rep.raised_by,
-        "operating_point": rep.operating_point,
-        "op_state": None if rep.op_state is None else str(rep.op_state),
-        "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
-    }
+    """A report as ``live --json`` writes it.
+
+    The model's name, whether the window was judged, and its entry of the ``validate --json``
+    document (one serialisation for both; times in s of the run's clock, which starts at 0;
+    the spectrum left out).
+    """
+    return {"model": rep.model, "judged": rep.judged} | window_entry(rep, 0)
 
 
 def live_line(rep: WindowReport, as_json: bool) -> str:
