@@ -284,3 +284,15 @@ def test_validate_cli_json_and_table_carry_the_warnings(tmp_path: Path, capsys) 
     assert all(w["beta"] is not None for w in warned)  # judged windows only
     assert all(w["warnings"] == [] for w in entry["windows"] if w["end"] < 690)
     assert out.count("(warning: ") == sum(len(w["warnings"]) for w in warned)
+
+
+def test_live_json_is_the_validate_window_entry_and_strict_json() -> None:
+    """One serialisation: live's line is validate's window entry plus the model and judged;
+    an infinite β (no w explains the datum) is null, so the line is strict JSON."""
+    from twotank_validation.replay.summary import window_entry  # noqa: PLC0415
+
+    rep = dataclasses.replace(_report(()), beta=math.inf)
+    doc = cli.report_dict(rep)
+    assert doc == {"model": rep.model, "judged": rep.judged} | window_entry(rep, 0)
+    assert doc["beta"] is None
+    json.dumps(doc, allow_nan=False)
