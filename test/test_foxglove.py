@@ -16,7 +16,10 @@ import contextlib
 import dataclasses
 import json
 import re
+import signal
 import struct
+import subprocess
+import sys
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -26,6 +29,7 @@ from typing import Any
 import pytest
 from websockets.sync.client import ClientConnection, connect
 
+from twotank_validation import cli
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.online import WindowReport
 from twotank_validation.online.window import MonitorConfig
@@ -168,11 +172,53 @@ def test_a_client_receives_the_replay_s_reports_equal_to_the_json(
     assert [{k: m[k] for k in m if k != "model"} for _, m in diagnoses] == list(answers.values())
 
 
-def test_a_taken_port_is_an_error_and_port_0_is_any_free_one() -> None:
+def test_validate_foxglove_waits_for_a_client_then_serves_the_json_s_windows(
+    leak_bag: Path, tmp_path: Path
+) -> None:
+    """``validate --foxglove``: the command's wiring, its wait for a client and its hold."""
+    out = tmp_path / "v.json"
+    cmd = [sys.executable, "-m", "twotank_validation.cli", "validate", str(leak_bag), "--ts",
+           "0.8", "--period", "256", "--foxglove", "--foxglove-port", "0", "--json", str(out),
+           "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    got: dict[str, list[dict[str, Any]]] = {}
+    try:
+        assert proc.stderr is not None
+        first = proc.stderr.readline()
+        m = re.fullmatch(r"foxglove: (ws://127\.0\.0\.1:\d+)", first.strip())
+        assert m, first
+        assert "starts when a client has subscribed" in proc.stderr.readline()
+        assert not out.exists()  # nothing judged before a client came
+        with _connect(m.group(1)) as ws:
+            client = Client(ws)
+            client.advertised(6)
+            client.subscribe_all()
+            for line in proc.stderr:  # the replay runs, then holds the server up
+                if "Foxglove server stays at" in line:
+                    break
+            for t, _, payload in client.messages(quiet_s=0.5):
+                got.setdefault(t, []).append(payload)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=20)
+    assert proc.returncode == 0
+    doc = json.loads(out.read_text())
+    for model, entry in doc["models"].items():
+        received, windows = got[f"/validation/{model}/report"], entry["windows"]
+        assert len(received) == len(windows) >= 8
+        assert [{k: r[k] for k in w} for r, w in zip(received, windows, strict=True)] == windows
+
+
+def test_foxglove_options_are_refused_where_they_cannot_work(capsys: Any, leak_bag: Path) -> None:
+    assert cli.main(["validate", str(leak_bag), str(leak_bag), "--foxglove"]) == 2
+    assert "--foxglove shows one recording" in capsys.readouterr().err
     with FoxgloveView(0) as fox:
         assert fox.port > 0
         with pytest.raises(RuntimeError):
             FoxgloveView(fox.port)
+        taken = ["validate", str(leak_bag), "--foxglove", "--foxglove-port", str(fox.port)]
+        assert cli.main(taken) == 2
+    assert "choose another port" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- the layouts

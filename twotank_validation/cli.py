@@ -383,9 +383,8 @@ def _run_with_bar(
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
         if args.view or args.foxglove:
-            raise UsageError(
-                "--view and --foxglove show one recording: name one bag or table, without --out"
-            )
+            shown = "--view" if args.view else "--foxglove"
+            raise UsageError(f"{shown} shows one recording: name one bag or table, without --out")
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
     job = _validate_job(args)

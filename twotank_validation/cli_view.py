@@ -203,7 +203,7 @@ class ViewRun:
             self.server.end(text)
             where.append(f"the page stays at {self.server.url}")
         if self.foxglove is not None:
-            where.append(f"the Foxglove server at {self.foxglove.url}")
+            where.append(f"the Foxglove server stays at {self.foxglove.url}")
         print(f"view: {text}; {' and '.join(where)} until Ctrl-C", file=sys.stderr, flush=True)
         done = threading.Event()
         old: dict[signal.Signals, Any] = {}
