@@ -32,11 +32,13 @@ from websockets.sync.client import ClientConnection, connect
 from twotank_validation import cli
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.online import WindowReport
+from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.window import MonitorConfig
 from twotank_validation.sim import scenario as sc
 from twotank_validation.usecases import ValidateJob
 from twotank_validation.usecases.reading import ReadSettings
 from twotank_validation.view.foxglove import SUBPROTOCOL, FoxgloveView
+from twotank_validation.view.sinks import Tee
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
@@ -170,6 +172,38 @@ def test_a_client_receives_the_replay_s_reports_equal_to_the_json(
     }
     assert answers, "the leak should be diagnosed"
     assert [{k: m[k] for k in m if k != "model"} for _, m in diagnoses] == list(answers.values())
+
+
+def test_attached_diagnoses_go_to_their_channel_through_a_tee_and_modes_do_not() -> None:
+    """``view --foxglove``: the view node's messages (diagnosis, mode) through a :class:`Tee`."""
+    diag = LiveDiagnosis(
+        model="B", kind="leak", channel="height", parameters={"outflow": 0.04}, score=0.9,
+        summary="leak on height", onset_ns=1_000_000_000_000, window_end_ns=1_300_000_000_000,
+        windows=2, update=1, probability=0.99,
+    )  # fmt: skip
+    seen: list[dict[str, Any]] = []
+
+    class Page:
+        def publish_report(self, rep: WindowReport, start_ns: int = 0) -> None:
+            raise AssertionError("no report here")
+
+        def publish(self, message: dict[str, Any]) -> None:
+            seen.append(message)
+
+    with FoxgloveView(0, models=("B",)) as fox, _connect(fox.url) as ws:
+        client = Client(ws)
+        client.advertised(3)
+        client.subscribe_all()
+        while fox.subscriptions < 3:
+            time.sleep(0.01)
+        tee = Tee([Page(), fox])
+        tee.publish({"type": "mode", "mode": "safe", "time": 1.0, "wall": 0.0})
+        tee.publish({"type": "diagnosis", "model": "B", "diagnosis": diag.to_json()})
+        got = list(client.messages(quiet_s=0.3))
+    assert [m["type"] for m in seen] == ["mode", "diagnosis"]  # the page gets both
+    assert got == [
+        ("/validation/B/diagnosis", diag.window_end_ns, {"model": "B", **diag.to_json()})
+    ]
 
 
 def test_validate_foxglove_waits_for_a_client_then_serves_the_json_s_windows(
