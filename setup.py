@@ -52,6 +52,8 @@ def _data_files() -> list[tuple[str, list[str]]]:
         (f"{SHARE}/launch", _files("launch/*.launch.py")),
         (f"{SHARE}/models", _files(f"{PACKAGE}/{MODELS}")),
         (f"{SHARE}/scenarios", _files(f"{PACKAGE}/{SCENARIOS}")),
+        # Foxglove/Lichtblick and PlotJuggler layouts of the reports (docs/view.md)
+        (f"{SHARE}/layouts", _files("layouts/*")),
     ]
     return [(dest, files) for dest, files in groups if files]
 

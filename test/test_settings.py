@@ -92,6 +92,8 @@ NOT_SETTINGS_OPTIONS = {
     "--view": "validate, live: the live view (a listener of the reports, docs/view.md)",
     "--view-port": "validate, live: the live view's port",
     "--replay-speed": "validate --view: the replay's pace for the view",
+    "--foxglove": "validate, live: the reports over Foxglove's protocol (a listener, docs/view.md)",
+    "--foxglove-port": "validate, live: the Foxglove server's port",
 }
 # (simulate's excitation design options are the design's settings: checked below)
 """Options of the checked commands that are not settings of the tree, and why."""

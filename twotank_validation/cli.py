@@ -225,10 +225,15 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
     models = tuple(args.model or ["A", "B"])
     view = ViewRun(
-        args.view_port, title="attached", bands=model_bands(models), speed=1.0, replay=False
+        args.view_port,
+        title="attached",
+        bands=model_bands(models),
+        speed=1.0,
+        replay=False,
+        foxglove=args.foxglove_port if args.foxglove else None,
     )
     with view, Interrupts() as interrupts:
-        reports = run_view(view.server, models, duration_s=args.duration, stop=interrupts)
+        reports = run_view(view.sink, models, duration_s=args.duration, stop=interrupts)
     if reports == 0:
         topics = ", ".join(f"validation/{m}/report" for m in models)
         print(
@@ -377,19 +382,26 @@ def _run_with_bar(
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
-        if args.view:
-            raise UsageError("--view shows one recording: name one bag or table, without --out")
+        if args.view or args.foxglove:
+            shown = "--view" if args.view else "--foxglove"
+            raise UsageError(f"{shown} shows one recording: name one bag or table, without --out")
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
     job = _validate_job(args)
-    if not args.view:
+    if not (args.view or args.foxglove):
         if args.replay_speed is not None:
-            raise UsageError("--replay-speed paces the view's replay: add --view")
+            raise UsageError("--replay-speed paces the view's replay: add --view or --foxglove")
         return _run_with_bar(job, args.quiet)
     bands = model_bands(job.sources, job.read.monitor)
     title = Path(job.recording).name
     with ViewRun(
-        args.view_port, title=title, bands=bands, speed=args.replay_speed, replay=True
+        args.view_port,
+        title=title,
+        bands=bands,
+        speed=args.replay_speed,
+        replay=True,
+        page=args.view,
+        foxglove=args.foxglove_port if args.foxglove else None,
     ) as view:
         code = _run_with_bar(job, args.quiet, on_report=view.report)
         how = "interrupted" if code in (ExitCode.INTERRUPTED, ExitCode.TERMINATED) else "finished"

@@ -22,7 +22,10 @@ from twotank_validation.errors import TwotankError, UsageError
 from twotank_validation.online import WindowReport
 from twotank_validation.online.window import MonitorConfig
 
-__all__ = ["ViewRun", "add_view_options", "live_view", "model_bands"]
+__all__ = ["FOXGLOVE_PORT", "ViewRun", "add_view_options", "live_view", "model_bands"]
+
+FOXGLOVE_PORT = 8765
+"""``--foxglove-port``'s default: the port Foxglove and Lichtblick propose for a connection."""
 
 
 def _speed(text: str) -> float:
@@ -51,9 +54,9 @@ def _port(text: str) -> int:
 def add_view_options(
     parser: argparse.ArgumentParser, *, replay: bool, port_only: bool = False
 ) -> None:
-    """``--view`` and ``--view-port``; for a replay ``--replay-speed``.
+    """``--view``, ``--view-port``, ``--foxglove``, ``--foxglove-port``; ``--replay-speed``.
 
-    ``port_only``: the port alone (the ``view`` command's).
+    ``port_only``: without ``--view`` (the ``view`` command's: its page is always served).
     """
     if not port_only:
         parser.add_argument(
@@ -69,13 +72,27 @@ def add_view_options(
         metavar="P",
         help="the view's port on 127.0.0.1 (0: any free one)",
     )
+    parser.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="serve the reports over the Foxglove WebSocket protocol on ws://127.0.0.1:PORT "
+        "(for Foxglove or Lichtblick; a replay waits for a client; docs/view.md)",
+    )
+    parser.add_argument(
+        "--foxglove-port",
+        type=_port,
+        default=FOXGLOVE_PORT,
+        metavar="P",
+        help=f"the Foxglove server's port on 127.0.0.1 (default {FOXGLOVE_PORT}; 0: any free one)",
+    )
     if replay:
         parser.add_argument(
             "--replay-speed",
             type=_speed,
             default=None,
             metavar="X",
-            help="with --view: replay at X times real time (default: as fast as possible)",
+            help="with --view or --foxglove: replay at X times real time (default: as fast as "
+            "possible)",
         )
 
 
@@ -107,10 +124,13 @@ class ViewRun:
         title: the page's heading.
         bands: :func:`model_bands`.
         speed: ``--replay-speed`` (None: as fast as possible); ``live``: 1 (real time).
-        replay: a replay is paced at ``speed``; ``live`` is not.
+        replay: a replay is paced at ``speed``; ``live`` is not. With ``foxglove`` it
+            starts once a Foxglove client has subscribed (the SDK's server keeps no history).
+        page: serve the page (``--view``).
+        foxglove: ``--foxglove-port`` with ``--foxglove`` (None: no Foxglove server).
 
     Raises:
-        UsageError: the port is taken or cannot be bound (one line naming the fix).
+        UsageError: a port is taken or cannot be bound (one line naming the fix).
     """
 
     def __init__(
@@ -121,22 +141,42 @@ class ViewRun:
         bands: dict[str, Any],
         speed: float | None,
         replay: bool,
+        page: bool = True,
+        foxglove: int | None = None,
     ) -> None:
         from twotank_validation.view import Pacer, ViewServer  # noqa: PLC0415
+        from twotank_validation.view.sinks import ReportSink, Tee  # noqa: PLC0415
 
         pace = math.inf if speed is None else speed
-        try:
-            self.server = ViewServer(port, title=title, models=bands, speed=pace)
-        except OSError as err:
-            raise UsageError(
-                f"--view-port {port}: cannot listen on 127.0.0.1:{port} ({err.strerror}): "
-                "choose another port, or 0 for any free one"
-            ) from err
+        self.server: ViewServer | None = None
+        if page:
+            try:
+                self.server = ViewServer(port, title=title, models=bands, speed=pace)
+            except OSError as err:
+                raise UsageError(
+                    f"--view-port {port}: cannot listen on 127.0.0.1:{port} ({err.strerror}): "
+                    "choose another port, or 0 for any free one"
+                ) from err
+        self.foxglove = None if foxglove is None else _foxglove_view(foxglove, bands)
+        sinks: list[ReportSink] = [s for s in (self.server, self.foxglove) if s is not None]
+        self.sink: ReportSink = sinks[0] if len(sinks) == 1 else Tee(sinks)
         self.pacer = Pacer(pace) if replay else None
+        self.replay = replay
 
     def __enter__(self) -> ViewRun:
-        self.server.start()
-        print(f"view: {self.server.url}", file=sys.stderr, flush=True)
+        if self.server is not None:
+            self.server.start()
+            print(f"view: {self.server.url}", file=sys.stderr, flush=True)
+        if self.foxglove is not None:
+            print(f"foxglove: {self.foxglove.url}", file=sys.stderr, flush=True)
+            if self.replay:
+                print(
+                    "foxglove: the replay starts when a client has subscribed (connect "
+                    f"Foxglove or Lichtblick to {self.foxglove.url}; Ctrl-C to stop)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                self.foxglove.wait_for_client()
         return self
 
     def __exit__(
@@ -145,22 +185,26 @@ class ViewRun:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.server.close()
+        if self.server is not None:
+            self.server.close()
+        if self.foxglove is not None:
+            self.foxglove.close()
 
     def report(self, rep: WindowReport, start_ns: int = 0) -> None:
-        """The listener: pace (a replay), then push the report to the pages."""
+        """The listener: pace (a replay), then push the report to the pages and Foxglove."""
         if self.pacer is not None:
             self.pacer(rep)
-        self.server.publish_report(rep, start_ns)
+        self.sink.publish_report(rep, start_ns)
 
     def hold(self, text: str) -> None:
-        """Say the run ended (``text``) and keep the page up until SIGINT or SIGTERM."""
-        self.server.end(text)
-        print(
-            f"view: {text}; the page stays at {self.server.url} until Ctrl-C",
-            file=sys.stderr,
-            flush=True,
-        )
+        """Say the run ended (``text``) and keep the servers up until SIGINT or SIGTERM."""
+        where = []
+        if self.server is not None:
+            self.server.end(text)
+            where.append(f"the page stays at {self.server.url}")
+        if self.foxglove is not None:
+            where.append(f"the Foxglove server stays at {self.foxglove.url}")
+        print(f"view: {text}; {' and '.join(where)} until Ctrl-C", file=sys.stderr, flush=True)
         done = threading.Event()
         old: dict[signal.Signals, Any] = {}
         if threading.current_thread() is threading.main_thread():
@@ -177,16 +221,46 @@ class ViewRun:
 def live_view(
     args: argparse.Namespace, models: Sequence[str], first: Callable[[WindowReport], None]
 ) -> tuple[ViewRun | None, Callable[[WindowReport], None]]:
-    """``live --view``'s view (None without ``--view``) and the report listener.
+    """``live --view``'s and ``--foxglove``'s view (None without either) and the listener.
 
     The listener calls ``first`` (what ``live`` prints), then pushes the report to the view.
     """
-    if not args.view:
+    if not (args.view or args.foxglove):
         return None, first
-    view = ViewRun(args.view_port, title="live", bands=model_bands(models), speed=1.0, replay=False)
+    view = ViewRun(
+        args.view_port,
+        title="live",
+        bands=model_bands(models),
+        speed=1.0,
+        replay=False,
+        page=args.view,
+        foxglove=args.foxglove_port if args.foxglove else None,
+    )
 
     def report(rep: WindowReport) -> None:
         first(rep)
         view.report(rep)
 
     return view, report
+
+
+def _foxglove_view(port: int, bands: dict[str, Any]) -> Any:
+    """The Foxglove server (:class:`~twotank_validation.view.foxglove.FoxgloveView`).
+
+    Raises:
+        UsageError: the SDK is missing or cannot listen on the port (one line naming the fix).
+    """
+    try:
+        from twotank_validation.view.foxglove import FoxgloveView  # noqa: PLC0415
+    except ImportError as err:
+        raise UsageError(
+            f"--foxglove needs the Foxglove SDK ({err}): pip install foxglove-sdk "
+            "(requirements.txt pins it)"
+        ) from err
+    try:
+        return FoxgloveView(port, models=bands)
+    except RuntimeError as err:
+        raise UsageError(
+            f"--foxglove-port {port}: cannot listen on 127.0.0.1:{port} ({err}): "
+            "choose another port, or 0 for any free one"
+        ) from err

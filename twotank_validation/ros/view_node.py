@@ -30,7 +30,7 @@ from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.states import RaisedBy
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import LATCHED
-from twotank_validation.view import ViewServer
+from twotank_validation.view.sinks import ReportSink
 
 REPORTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 """The view's subscriptions to reports and diagnoses: reliable, a burst of 100 kept."""
@@ -111,7 +111,7 @@ class ViewNode(Node):
         reports: reports received.
     """
 
-    def __init__(self, view: ViewServer, models: Sequence[str], **kwargs: Any) -> None:
+    def __init__(self, view: ReportSink, models: Sequence[str], **kwargs: Any) -> None:
         super().__init__("twotank_view", **kwargs)
         self.view = view
         self.reports = 0
@@ -140,7 +140,7 @@ class ViewNode(Node):
 
 
 def run_view(
-    view: ViewServer,
+    view: ReportSink,
     models: Sequence[str],
     *,
     duration_s: float | None = None,
