@@ -54,6 +54,8 @@ def _data_files() -> list[tuple[str, list[str]]]:
         (f"{SHARE}/scenarios", _files(f"{PACKAGE}/{SCENARIOS}")),
         # Foxglove/Lichtblick and PlotJuggler layouts of the reports (docs/view.md)
         (f"{SHARE}/layouts", _files("layouts/*")),
+        # the SROS2 access-control policy of the nodes (docs/ros.md, "Security")
+        (f"{SHARE}/security", _files("security/*.xml")),
     ]
     return [(dest, files) for dest, files in groups if files]
 
