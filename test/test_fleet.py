@@ -189,16 +189,46 @@ def test_dask_local_cluster_equals_the_serial_run_byte_for_byte(archive, serial,
     assert files(out) == files(serial[1])  # every JSON, summary.csv and fleet.png
 
 
+def temporary_tls(tmp: Path) -> list[str]:
+    """A self-signed certificate and its key (distributed's ``Security.temporary()``, made
+    with cryptography) written as PEM files; returns the options that name them, the same
+    for `dask scheduler`, `dask worker` and ``validate``: the certificate is its own CA."""
+    from distributed.security import Security  # noqa: PLC0415
+
+    pytest.importorskip("cryptography")  # what Security.temporary() makes them with
+    temp = Security.temporary()
+    (tmp / "ca.pem").write_text(temp.tls_ca_file)
+    (tmp / "cert.pem").write_text(temp.tls_scheduler_cert)
+    (tmp / "key.pem").write_text(temp.tls_scheduler_key)
+    return [
+        *("--tls-ca-file", str(tmp / "ca.pem")),
+        *("--tls-cert", str(tmp / "cert.pem")),
+        *("--tls-key", str(tmp / "key.pem")),
+    ]
+
+
 @contextlib.contextmanager
-def dask_cluster(tmp: Path):
-    """A `dask scheduler` and a one-process `dask worker` on 127.0.0.1, shut down after."""
+def dask_cluster(tmp: Path, tls: list[str] | None = None):
+    """A `dask scheduler` and a one-process `dask worker` on 127.0.0.1, shut down after;
+    with ``tls`` (:func:`temporary_tls`'s options) both speak TLS only."""
+    from distributed import Client  # noqa: PLC0415
+    from distributed.security import Security  # noqa: PLC0415
+
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     bindir = Path(sys.executable).parent
     info = tmp / "scheduler.json"
     logs = [open(tmp / "scheduler.log", "w"), open(tmp / "worker.log", "w")]  # noqa: SIM115
-    common = ["--host", "127.0.0.1", "--no-dashboard"]
+    common = ["--host", "127.0.0.1", "--no-dashboard", *(tls or [])]
+    protocol = ["--protocol", "tls"] if tls else []
+    listen = ["--scheduler-file", str(info)]
+    security = None
+    if tls:
+        ca, cert, key = tls[1::2]
+        security = Security(
+            tls_ca_file=ca, tls_client_cert=cert, tls_client_key=key, require_encryption=True
+        )
     sched = subprocess.Popen(
-        [bindir / "dask", "scheduler", *common, "--port", "0", "--scheduler-file", info],
+        [bindir / "dask", "scheduler", *common, *protocol, "--port", "0", *listen],
         env=env,
         stdout=logs[0],
         stderr=subprocess.STDOUT,
@@ -209,7 +239,7 @@ def dask_cluster(tmp: Path):
         while not info.exists() and sched.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)  # waiting for another process to start (no simulated clock here)
         address = json.loads(info.read_text())["address"]
-        assert address.startswith("tcp://127.0.0.1:")
+        assert address.startswith("tls://127.0.0.1:" if tls else "tcp://127.0.0.1:")
         args = [*common, "--nworkers", "1", "--nthreads", "1", "--scheduler-file", info]
         procs.append(
             subprocess.Popen(
@@ -219,12 +249,10 @@ def dask_cluster(tmp: Path):
                 stderr=subprocess.STDOUT,
             )
         )
-        from distributed import Client  # noqa: PLC0415
-
-        with Client(address, timeout=60) as client:
+        with Client(address, timeout=60, security=security) as client:
             client.wait_for_workers(1, timeout=60)
         yield address
-        with Client(address, timeout=60) as client:
+        with Client(address, timeout=60, security=security) as client:
             client.shutdown()  # the scheduler and its workers end
         for p in reversed(procs):
             assert p.wait(timeout=60) == 0, (tmp / "worker.log").read_text()[-2000:]
@@ -237,16 +265,30 @@ def dask_cluster(tmp: Path):
             f.close()
 
 
-def test_existing_scheduler_runs_the_same_tasks(archive, tmp_path):
-    """validate --scheduler on a loopback cluster of `dask scheduler` + `dask worker`: the
-    files of the in-process run, live diagnosis included, byte for byte."""
+def test_existing_scheduler_runs_the_same_tasks(archive, tmp_path, capsys):
+    """validate --scheduler tls://... on a loopback cluster of `dask scheduler` + `dask
+    worker` speaking TLS only (generated certificates): the files of the in-process run, live
+    diagnosis included, byte for byte. The same scheduler refuses a plain-TCP client, and a
+    tls:// address without the files is refused before any connection: clear one-line
+    errors, nothing written."""
     paths = [str(archive / "leaky"), str(archive / "garbage.mcap")]
     ref_code, ref = run_fleet(tmp_path, "serial", paths, "--serial")
     doc = json.loads((ref / "leaky.json").read_text())
     assert any(w["diagnosis"] for w in doc["models"]["B"]["windows"])  # diagnosis in force
-    with dask_cluster(tmp_path) as address:
-        code, out = run_fleet(tmp_path, "remote", paths, "--scheduler", address)
+    tls = temporary_tls(tmp_path)
+    with dask_cluster(tmp_path, tls) as address:
+        code, out = run_fleet(tmp_path, "remote", paths, "--scheduler", address, *tls)
+        capsys.readouterr()
+        plain = address.replace("tls://", "tcp://")
+        assert run_fleet(tmp_path, "plain", paths, "--scheduler", plain)[0] == cli.EXIT_ERROR
+        err = capsys.readouterr().err
+        assert "cannot reach the Dask scheduler" in err
+        assert "drops plain connections: give its tls:// address" in err
+        assert run_fleet(tmp_path, "nofiles", paths, "--scheduler", address)[0] == cli.EXIT_ERROR
+        assert f"the scheduler {address} speaks TLS: give --tls-ca-file" in capsys.readouterr().err
     assert (code, files(out)) == (ref_code, files(ref))
+    assert not list((tmp_path / "plain").glob("*.json"))
+    assert not list((tmp_path / "nofiles").glob("*.json"))
 
 
 def test_diagnose_many_recordings(archive, tmp_path, capsys):
@@ -342,6 +384,18 @@ def test_fleet_options_are_checked(archive, tmp_path, capsys):
     code = cli.main(["validate", str(tmp_path / "none*"), "--out", str(tmp_path), *FAST_ARGS])
     assert code == cli.EXIT_ERROR
     assert "matches nothing" in capsys.readouterr().err
+    pem = tmp_path / "ca.pem"
+    pem.write_text("")
+    tls = ["--tls-ca-file", str(pem), "--tls-cert", str(pem)]
+    out = ["--out", str(tmp_path)]
+    for scheduler, extra, why in [
+        ("tcp://127.0.0.1:1", tls, "give its address as --scheduler tls://HOST:PORT"),
+        ("tls://127.0.0.1:1", tls[:2], "TLS needs --tls-ca-file CA"),
+        ("tls://127.0.0.1:1", [*tls, "--tls-key", str(pem) + "x"], "ca.pemx: no such file"),
+    ]:
+        code = cli.main(["validate", *two, *out, "--scheduler", scheduler, *extra])
+        assert code == cli.EXIT_ERROR
+        assert why in capsys.readouterr().err
 
 
 def test_an_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):

@@ -504,7 +504,10 @@ def _cmd_fleet(args: argparse.Namespace, job: ValidateJob | DiagnoseJob) -> int:
     expansion = fleet.Expansion(tuple(paths), expansion.skipped)
     settings = None
     if args.scheduler or not (args.serial or args.workers == 0):
-        settings = fleet.DaskSettings(workers=args.workers or 0, scheduler=args.scheduler)
+        tls = None
+        if args.tls_ca_file:  # checked: with --tls-cert and a tls:// scheduler
+            tls = fleet.TlsFiles(args.tls_ca_file, args.tls_cert, args.tls_key)
+        settings = fleet.DaskSettings(workers=args.workers or 0, scheduler=args.scheduler, tls=tls)
     where = (
         "in this process"
         if settings is None

@@ -137,6 +137,30 @@ def check_fleet_options(args: argparse.Namespace) -> None:
         )
     if args.workers is not None and args.workers < 0:
         raise UsageError(f"--workers must be 0 (in this process) or more, found {args.workers}")
+    _check_tls_options(args)
+
+
+TLS_OPTIONS = ("tls_ca_file", "tls_cert", "tls_key")
+
+
+def _check_tls_options(args: argparse.Namespace) -> None:
+    """--tls-ca-file/--tls-cert/--tls-key: a tls:// scheduler, both of the first two, files."""
+    given = {o: getattr(args, o) for o in TLS_OPTIONS if getattr(args, o)}
+    if not given:
+        return
+    if not (args.scheduler or "").startswith("tls://"):
+        raise UsageError(
+            "--tls-ca-file/--tls-cert/--tls-key are for a scheduler that speaks TLS: give its "
+            "address as --scheduler tls://HOST:PORT"
+        )
+    if not (args.tls_ca_file and args.tls_cert):
+        raise UsageError(
+            "TLS needs --tls-ca-file CA (the authority that signed the scheduler's certificate) "
+            "and --tls-cert CERT (this client's certificate; --tls-key KEY unless CERT holds it)"
+        )
+    for option, path in given.items():
+        if not os.path.isfile(path):
+            raise UsageError(f"--{option.replace('_', '-')} {path}: no such file")
 
 
 def _option_settings() -> tuple[FlatSetting, ...]:
@@ -252,7 +276,21 @@ def add_recording_options(val: argparse.ArgumentParser) -> None:
     )
     fleet.add_argument(
         "--scheduler",
-        help="address of an existing Dask scheduler (tcp://HOST:PORT) to run the tasks on",
+        help="address of an existing Dask scheduler (tcp://HOST:PORT, or tls://HOST:PORT with "
+        "the --tls-* files or Dask's TLS configuration) to run the tasks on",
+    )
+    fleet.add_argument(
+        "--tls-ca-file",
+        metavar="PEM",
+        help="with --scheduler tls://: the CA certificate the scheduler's is checked against",
+    )
+    fleet.add_argument(
+        "--tls-cert", metavar="PEM", help="with --scheduler tls://: this client's certificate"
+    )
+    fleet.add_argument(
+        "--tls-key",
+        metavar="PEM",
+        help="with --scheduler tls://: this client's private key (unless --tls-cert holds it)",
     )
 
 

@@ -334,20 +334,81 @@ def run_serial(job: Job, paths: Sequence[str]) -> Generator[RecordingOutcome, No
 
 
 @dataclass(frozen=True)
+class TlsFiles:
+    """This client's TLS files for a ``tls://`` scheduler (PEM paths).
+
+    The same files as the ``--tls-ca-file``, ``--tls-cert`` and ``--tls-key`` options of
+    ``dask scheduler`` and ``dask worker``, so one set of options serves all three.
+
+    Attributes:
+        ca_file: the certificate authority the scheduler's certificate must be signed by.
+        cert: this client's certificate (the scheduler checks it against its own CA file).
+        key: this client's private key; None: ``cert`` holds it.
+    """
+
+    ca_file: str
+    cert: str
+    key: str | None = None
+
+
+@dataclass(frozen=True)
 class DaskSettings:
     """Where the tasks run on Dask.
 
     Attributes:
         workers: processes of the embedded cluster (one thread each); 0: as many as cores.
-        scheduler: address of an existing scheduler (``tcp://host:port``); None: start an
-            embedded ``LocalCluster`` on 127.0.0.1 (no dashboard).
+        scheduler: address of an existing scheduler (``tcp://host:port`` or
+            ``tls://host:port``); None: start an embedded ``LocalCluster`` on 127.0.0.1 (no
+            dashboard).
         env: extra environment of the embedded workers (``WORKER_ENV`` and this process's
             ``ROS_DOMAIN_ID`` are always set).
+        tls: the files for a ``tls://`` scheduler; None: distributed's own configuration
+            (``distributed.comm.tls.*``), as ``dask`` reads it.
     """
 
     workers: int = 0
     scheduler: str | None = None
     env: Mapping[str, str] = field(default_factory=dict)
+    tls: TlsFiles | None = None
+
+
+def client_security(address: str, tls: TlsFiles | None) -> Any:
+    """The ``distributed.security.Security`` to reach ``address`` with (FleetError if none fits).
+
+    With ``tls`` the files given (encryption required); without, distributed's configuration,
+    as a ``Client`` would read it. A ``tls://`` address needs a client TLS context (a CA and
+    a certificate); a configuration that requires encryption refuses a ``tcp://`` address.
+    """
+    from distributed.security import Security  # noqa: PLC0415
+
+    try:
+        if tls is not None:
+            security = Security(
+                tls_ca_file=tls.ca_file,
+                tls_client_cert=tls.cert,
+                tls_client_key=tls.key,
+                require_encryption=True,
+            )
+        else:
+            security = Security()
+        context = security.get_connection_args("client")["ssl_context"]
+    except (OSError, ValueError) as err:  # ssl.SSLError is an OSError
+        raise FleetError(
+            f"cannot use the TLS files for {address} ({err}): give PEM files, the client's "
+            "certificate and key matching (--tls-cert, --tls-key)"
+        ) from err
+    if address.startswith("tls://") and context is None:
+        raise FleetError(
+            f"the scheduler {address} speaks TLS: give --tls-ca-file CA and --tls-cert CERT "
+            "(and --tls-key KEY unless CERT holds it), or set distributed.comm.tls.ca-file "
+            "and distributed.comm.tls.client.cert in Dask's configuration"
+        )
+    if security.require_encryption and not address.startswith("tls://"):
+        raise FleetError(
+            f"Dask's configuration requires encryption but {address} is not a tls:// "
+            "address: give the scheduler's tls:// address"
+        )
+    return security
 
 
 def worker_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -438,16 +499,26 @@ def run_dask(
     from distributed import Client, as_completed  # noqa: PLC0415
 
     cluster = None
+    security = None
     if settings.scheduler is None:
         cluster = local_cluster(settings.workers, settings.env)
+    else:
+        security = client_security(settings.scheduler, settings.tls)
     try:
-        client = Client(cluster if cluster is not None else settings.scheduler)
+        client = Client(cluster if cluster is not None else settings.scheduler, security=security)
     except (OSError, TimeoutError) as err:
         if cluster is not None:
             cluster.close()
+        plain = (settings.scheduler or "").startswith("tcp://")
         raise FleetError(
             f"cannot reach the Dask scheduler {settings.scheduler} ({err}): start one "
             "(`dask scheduler --host 127.0.0.1`, docs/fleet.md) or drop --scheduler"
+            + (
+                "; a scheduler that listens with TLS drops plain connections: give its "
+                "tls:// address and --tls-ca-file/--tls-cert/--tls-key"
+                if plain
+                else ""
+            )
         ) from err
     try:
         futures = {
