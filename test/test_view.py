@@ -96,9 +96,11 @@ def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_hi
         early.goto(view.url)
         early.wait_for_function("window.twotankView && window.twotankView.connected")
         reports: list[WindowReport] = []
+        starts: list[int] = []
 
         def listen(rep: WindowReport, start_ns: int) -> None:
             reports.append(rep)
+            starts.append(start_ns)
             view.publish_report(rep, start_ns)
 
         outcome = job.run(on_report=listen)
@@ -118,14 +120,27 @@ def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_hi
             # the latest judged window's spectrum reached the page, every number exact
             shown = page.evaluate(
                 "Object.fromEntries(Array.from(window.twotankView.models.values()).map("
-                "m => [m.name, [m.spectrum.spectrum.freqs_hz, m.spectrum.spectrum.w_min]]))"
+                "m => [m.name, [m.spectrum.spectrum.freqs_hz, m.spectrum.spectrum.w_min, "
+                "m.spectrum.spectrum.noise_floor, m.spectrum.spectrum.excited]]))"
             )
             for model in ("A", "B"):
                 last = [r for r in reports if r.model == model and r.judged][-1]
                 keep = last.freqs_hz > 0
-                assert shown[model][0] == last.freqs_hz[keep].tolist()
-                assert shown[model][1] == last.w_min[keep].tolist()
-                assert len(shown[model][1]) > 100
+                freqs, w_min, floor, excited = shown[model]
+                assert freqs == last.freqs_hz[keep].tolist()
+                assert w_min == last.w_min[keep].tolist()
+                assert len(w_min) > 100
+                # the per-bin noise floor and the excited lines, as the report has them
+                assert floor == last.noise_floor[keep].tolist()
+                assert excited == np.flatnonzero(last.excited[keep]).tolist()
+                # and as the JSON's entry of that window summarises them
+                end = (last.end_ns - starts[-1]) / 1e9
+                entry = next(w for w in windows[model] if w["end"] == end)
+                assert entry["excited_lines"] == len(excited) > 0
+                assert entry["excited_band_hz"] == [freqs[excited[0]], freqs[excited[-1]]]
+            legend = page.text_content("#bin-legend") or ""
+            assert "noise floor per bin" in legend
+            assert "excited band" in legend
             page.close()
     # the page asked nothing of anyone but the view
     assert requests

@@ -15,6 +15,7 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
@@ -39,7 +40,8 @@ from twotank_validation.view import ViewServer
 CARRIED = (
     "start", "end", "beta", "invalidated", "alarm", "reason", "data_quality", "margin",
     "beta_op", "beta_total", "raised_by", "operating_point", "input_noise",
-    "input_noise_effect", "beta_outside", "lines_outside",
+    "input_noise_effect", "beta_outside", "lines_outside", "noise_beta", "excited_lines",
+    "excited_band_hz",
 )  # fmt: skip
 """The window entry's fields a ValidationReport message carries."""
 
@@ -108,6 +110,9 @@ def test_view_node_passes_what_the_validator_publishes(tmp_path: Path) -> None:
         back = report_from_message(messages.report_message(last, report_cls))
         assert back.w_min.tobytes() == last.w_min.tobytes()
         assert back.freqs_hz.tobytes() == last.freqs_hz.tobytes()
+        assert back.noise_floor.tobytes() == last.noise_floor.tobytes()
+        assert np.array_equal(back.excited, last.excited)
+        assert last.excited.any()
     finally:
         view.close()
         rclpy.shutdown(context=ctx)
