@@ -211,7 +211,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
     view, report = live_view(args, cfg.models, output.report)
     with view or contextlib.nullcontext():
         with Interrupts() as interrupts:
-            result = run_live(cfg, on_report=report, stop=interrupts)
+            on_transition = view.transition if view is not None else None
+            result = run_live(cfg, on_report=report, on_transition=on_transition, stop=interrupts)
         code = _live_tail(args, output, result, cfg, interrupts)
         if view is not None:
             view.hold(f"live run ended (exit code {code})")

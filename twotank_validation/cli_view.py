@@ -20,6 +20,7 @@ from typing import Any
 
 from twotank_validation.errors import TwotankError, UsageError
 from twotank_validation.online import WindowReport
+from twotank_validation.online.supervisor import SupervisorState, Transition
 from twotank_validation.online.window import MonitorConfig
 
 __all__ = ["ViewRun", "add_view_options", "live_view", "model_bands"]
@@ -153,6 +154,12 @@ class ViewRun:
             self.pacer(rep)
         self.server.publish_report(rep, start_ns)
 
+    def transition(self, tr: Transition) -> None:
+        """The listener of the supervisor's mode changes: the page's mode, as it happens."""
+        from twotank_validation.view.messages import mode_message  # noqa: PLC0415
+
+        self.server.publish(mode_message(tr.to_mode.value, tr.time_s, tr.reason))
+
     def hold(self, text: str) -> None:
         """Say the run ended (``text``) and keep the page up until SIGINT or SIGTERM."""
         self.server.end(text)
@@ -180,10 +187,16 @@ def live_view(
     """``live --view``'s view (None without ``--view``) and the report listener.
 
     The listener calls ``first`` (what ``live`` prints), then pushes the report to the view.
+    With ``--supervisor`` the page starts with the supervisor's initial mode; its changes go
+    to :meth:`ViewRun.transition` (``run_live(on_transition=...)``).
     """
     if not args.view:
         return None, first
     view = ViewRun(args.view_port, title="live", bands=model_bands(models), speed=1.0, replay=False)
+    if getattr(args, "supervisor", None) is not None:
+        from twotank_validation.view.messages import mode_message  # noqa: PLC0415
+
+        view.server.publish(mode_message(SupervisorState().mode.value, 0.0))
 
     def report(rep: WindowReport) -> None:
         first(rep)

@@ -31,6 +31,7 @@ from twotank_validation.online.states import RaisedBy
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import LATCHED
 from twotank_validation.view import ViewServer
+from twotank_validation.view.messages import mode_message
 
 REPORTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 """The view's subscriptions to reports and diagnoses: reliable, a burst of 100 kept."""
@@ -149,7 +150,7 @@ class ViewNode(Node):
 
     def _on_mode(self, msg: Any) -> None:
         now = self.get_clock().now().nanoseconds / 1e9
-        self.view.publish({"type": "mode", "mode": msg.data, "time": now, "wall": time.time()})
+        self.view.publish(mode_message(msg.data, now) | {"wall": time.time()})
 
 
 def run_view(

@@ -74,3 +74,14 @@ def report_message(
 def band_entry(band: Band | None) -> dict[str, Any] | None:
     """A model's band for the page (``Band.to_dict``), None where it has none."""
     return None if band is None else band.to_dict()
+
+
+def mode_message(mode: str, time_s: float, reason: str = "") -> dict[str, Any]:
+    """The supervisor's mode for the page: ``{"type": "mode", "mode", "time", "reason"}``.
+
+    Args:
+        mode: ``control/mode``'s value (``normal``, ``safe``).
+        time_s: since when (s: ``live``, the simulated clock's; ``view``, the node clock's).
+        reason: why it changed (the transition's reason; empty where not known).
+    """
+    return {"type": "mode", "mode": mode, "time": time_s, "reason": reason}

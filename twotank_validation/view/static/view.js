@@ -129,7 +129,10 @@
       const b = document.getElementById("mode");
       b.hidden = false;
       b.dataset.mode = msg.mode;
-      b.textContent = "supervisor: " + msg.mode + " (since " + fmt(msg.time, 1) + " s)";
+      b.dataset.time = attr(msg.time);
+      b.dataset.seq = attr(msg.seq);
+      b.textContent = "supervisor: " + msg.mode + " (since " + fmt(msg.time, 1) + " s" +
+        (msg.reason ? ": " + msg.reason : "") + ")";
       return;
     }
     if (msg.type !== "report") return;
