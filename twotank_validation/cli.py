@@ -47,7 +47,7 @@ from twotank_validation.cli_options import (
     replay_config,
     topic_map,
 )
-from twotank_validation.cli_view import ViewRun, add_view_options, live_view, model_bands
+from twotank_validation.cli_view import VIEW_STOP, ViewRun, add_view_options, live_view, model_bands
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import (
@@ -228,7 +228,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     view = ViewRun(
         args.view_port, title="attached", bands=model_bands(models), speed=1.0, replay=False
     )
-    with view, Interrupts() as interrupts:
+    with view, Interrupts(VIEW_STOP) as interrupts:
         reports = run_view(view.server, models, duration_s=args.duration, stop=interrupts)
     if reports == 0:
         topics = ", ".join(f"validation/{m}/report" for m in models)

@@ -23,7 +23,11 @@ from twotank_validation.online import WindowReport
 from twotank_validation.online.supervisor import SupervisorState, Transition
 from twotank_validation.online.window import MonitorConfig
 
-__all__ = ["ViewRun", "add_view_options", "live_view", "model_bands"]
+__all__ = ["VIEW_STOP", "ViewRun", "add_view_options", "live_view", "model_bands"]
+
+VIEW_STOP = "closing the view; the system it shows runs on (the view changes nothing)"
+"""What Ctrl-C does to the ``view`` command (said on stderr): it judges nothing, so there is
+no sample to finish."""
 
 
 def _speed(text: str) -> float:
