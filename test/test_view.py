@@ -11,6 +11,7 @@ only and on 127.0.0.1 only. Chromium runs off the network (tools/browser.py); th
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -260,6 +261,27 @@ def test_view_options_are_refused_where_they_cannot_work(capsys: Any, leak_bag: 
         port = str(taken.getsockname()[1])
         assert cli.main(["validate", str(leak_bag), "--view", "--view-port", port]) == 2
     assert "choose another port" in capsys.readouterr().err
+
+
+def test_cli_docs_list_the_view_options() -> None:
+    """docs/cli.md: a row for each view option of live and validate, every option of view."""
+    subs = next(
+        a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)
+    ).choices
+    text = (Path(__file__).parents[1] / "docs" / "cli.md").read_text()
+    for name in ("live", "validate", "view"):
+        section = text.split(f"\n## {name}\n")[1].split("\n## ")[0]
+        options = {
+            o
+            for a in subs[name]._actions
+            for o in a.option_strings
+            if o.startswith("--") and o != "--help"
+            if name == "view" or o.startswith("--view") or o == "--replay-speed"
+        }
+        assert options >= {"--view-port"}, (name, options)
+        for option in options:
+            assert f"| `{option}" in section, f"docs/cli.md's {name} table lacks {option}"
+    assert "[`view`](#view)" in text
 
 
 def test_live_view_shows_the_live_json(browser: Any) -> None:
