@@ -8,7 +8,8 @@
   const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
   const ALARM_COLORS = { OK: "#66bb6a", WARN: "#ffa726", ERROR: "#e53935", STALE: "#9e9e9e" };
   const view = { hello: null, models: new Map(), lastArrival: null, ended: null,
-                 connected: false, latencies: [], pending: [], received: 0, dirty: false };
+                 connected: false, latencies: [], pending: [], received: 0, dirty: false,
+                 binsDirty: false };
   window.twotankView = view;
 
   function fmt(x, digits) { return x === null || x === undefined ? "–" : Number(x).toFixed(digits); }
@@ -47,6 +48,7 @@
     document.getElementById("title").textContent = hello.title ? "— " + hello.title : "";
     document.querySelector("#latest tbody").textContent = "";
     for (const name of Object.keys(hello.models || {})) model(name);
+    view.binsDirty = true;
   }
 
   function verdict(r) {
@@ -115,7 +117,7 @@
           freqs_hz: f64(msg.freqs_hz), w_min: f64(msg.w_min),
           noise_floor: msg.noise_floor ? f64(msg.noise_floor) : null,
           excited: msg.excited || null } });
-        view.dirty = true;
+        view.binsDirty = true;
       }
       return;
     }
@@ -431,9 +433,15 @@
   }
 
   function redraw() {
+    // the per-bin plot changes only with a spectrum (at most every 0.1 s a model), the rest
+    // with every report: a replay as fast as it goes redraws it that much less often
+    if (view.binsDirty) {
+      view.binsDirty = false;
+      drawBins();
+    }
     if (view.dirty) {
       view.dirty = false;
-      drawBeta(); drawBins(); drawLists();
+      drawBeta(); drawLists();
       document.body.dataset.drawn = String(view.received);
       // latency: from the report pushed (the server's clock) to the frame that draws it
       const now = Date.now();
