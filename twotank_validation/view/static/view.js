@@ -1,6 +1,6 @@
 // The live view's script: reads the server's event stream (/events) and draws the reports.
 // Plain canvas, no plotting library: two plots (beta over time, the per-bin minimum over
-// frequency) need lines, dots, a log axis and shading, about a hundred lines here, where a
+// frequency) need lines, dots, a log axis and shading, about two hundred lines here, where a
 // library would be a file to vendor, licence and keep; the numbers a reader (or a test)
 // checks are in the table's cells and data attributes, not in pixels.
 "use strict";
