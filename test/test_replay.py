@@ -91,6 +91,11 @@ def test_json_follows_the_documented_schema(workdir, tmp_path) -> None:
             assert w["alarm"] in {"OK", "WARN", "ERROR", "STALE"}
             assert (w["reason"] is None) == (w["beta"] is not None)
             assert w["end"] > w["start"] >= 0.0
+            # the excited lines' summary (docs/cli.md): judged windows only
+            assert (w["excited_lines"] is None) == (w["reason"] is not None)
+            if w["excited_lines"]:
+                lo, hi = w["excited_band_hz"]
+                assert 0.0 < lo <= hi < 0.5 / 0.8  # above DC, below Nyquist at FAST's Ts
     a = doc["models"]["A"]
     assert a["first_alarm"] is not None
     assert a["beta_max"] == max(w["beta"] for w in a["windows"] if w["beta"] is not None)

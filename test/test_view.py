@@ -11,6 +11,7 @@ only and on 127.0.0.1 only. Chromium runs off the network (tools/browser.py); th
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -37,12 +38,13 @@ from twotank_validation.sim import scenario as sc
 from twotank_validation.usecases import ValidateJob
 from twotank_validation.usecases.reading import ReadSettings
 from twotank_validation.view import Pacer, ViewServer
+from twotank_validation.view.messages import mode_message
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
 ROWS = (
     "rs => rs.map(r => ({model: r.dataset.model, beta: r.dataset.beta, beta_op: "
     "r.dataset.betaOp, beta_total: r.dataset.betaTotal, alarm: r.dataset.alarm, "
-    "end: r.dataset.end, count: r.dataset.count}))"
+    "end: r.dataset.end, count: r.dataset.count, seq: r.dataset.seq}))"
 )
 
 
@@ -96,9 +98,11 @@ def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_hi
         early.goto(view.url)
         early.wait_for_function("window.twotankView && window.twotankView.connected")
         reports: list[WindowReport] = []
+        starts: list[int] = []
 
         def listen(rep: WindowReport, start_ns: int) -> None:
             reports.append(rep)
+            starts.append(start_ns)
             view.publish_report(rep, start_ns)
 
         outcome = job.run(on_report=listen)
@@ -118,14 +122,27 @@ def test_a_replay_s_page_shows_the_json_s_numbers_and_a_late_visitor_gets_the_hi
             # the latest judged window's spectrum reached the page, every number exact
             shown = page.evaluate(
                 "Object.fromEntries(Array.from(window.twotankView.models.values()).map("
-                "m => [m.name, [m.spectrum.spectrum.freqs_hz, m.spectrum.spectrum.w_min]]))"
+                "m => [m.name, [m.spectrum.spectrum.freqs_hz, m.spectrum.spectrum.w_min, "
+                "m.spectrum.spectrum.noise_floor, m.spectrum.spectrum.excited]]))"
             )
             for model in ("A", "B"):
                 last = [r for r in reports if r.model == model and r.judged][-1]
                 keep = last.freqs_hz > 0
-                assert shown[model][0] == last.freqs_hz[keep].tolist()
-                assert shown[model][1] == last.w_min[keep].tolist()
-                assert len(shown[model][1]) > 100
+                freqs, w_min, floor, excited = shown[model]
+                assert freqs == last.freqs_hz[keep].tolist()
+                assert w_min == last.w_min[keep].tolist()
+                assert len(w_min) > 100
+                # the per-bin noise floor and the excited lines, as the report has them
+                assert floor == last.noise_floor[keep].tolist()
+                assert excited == np.flatnonzero(last.excited[keep]).tolist()
+                # and as the JSON's entry of that window summarises them
+                end = (last.end_ns - starts[-1]) / 1e9
+                entry = next(w for w in windows[model] if w["end"] == end)
+                assert entry["excited_lines"] == len(excited) > 0
+                assert entry["excited_band_hz"] == [freqs[excited[0]], freqs[excited[-1]]]
+            legend = page.text_content("#bin-legend") or ""
+            assert "noise floor per bin" in legend
+            assert "excited band" in legend
             page.close()
     # the page asked nothing of anyone but the view
     assert requests
@@ -201,13 +218,18 @@ def test_the_view_is_read_only_and_listens_on_127_0_0_1_only() -> None:
 def test_a_late_visitor_gets_the_last_n_reports_and_each_model_s_latest_spectrum() -> None:
     view = ViewServer(history=3)  # not started: subscribe() is what a new page's stream sends
     try:
+        view.publish(mode_message("normal", 0.0))
+        view.publish(mode_message("safe", 1.5, "invalidated: model B"))
         for k in range(5):
             view.publish_report(_report(k, 0.1 * (k + 1)))
         first, _ = view.subscribe()
         docs = [json.loads(m) for m in first]
-        assert [d["type"] for d in docs] == ["hello", "report", "report", "report", "spectrum"]
-        assert [d["beta"] for d in docs[1:4]] == pytest.approx([0.3, 0.4, 0.5])
-        assert docs[4]["seq"] == docs[3]["seq"]  # the spectrum of the latest report
+        # the mode in force, though older than the last 3 reports, then those reports
+        kinds = ["hello", "mode", "report", "report", "report", "spectrum"]
+        assert [d["type"] for d in docs] == kinds
+        assert (docs[1]["mode"], docs[1]["time"]) == ("safe", 1.5)
+        assert [d["beta"] for d in docs[2:5]] == pytest.approx([0.3, 0.4, 0.5])
+        assert docs[5]["seq"] == docs[4]["seq"]  # the spectrum of the latest report
     finally:
         view.close()
 
@@ -241,10 +263,37 @@ def test_view_options_are_refused_where_they_cannot_work(capsys: Any, leak_bag: 
     assert "choose another port" in capsys.readouterr().err
 
 
+def test_cli_docs_list_the_view_options() -> None:
+    """docs/cli.md: a row for each view option of live and validate, every option of view."""
+    subs = next(
+        a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)
+    ).choices
+    text = (Path(__file__).parents[1] / "docs" / "cli.md").read_text()
+    for name in ("live", "validate", "view"):
+        section = text.split(f"\n## {name}\n")[1].split("\n## ")[0]
+        options = {
+            o
+            for a in subs[name]._actions
+            for o in a.option_strings
+            if o.startswith("--") and o != "--help"
+            if name == "view" or o.startswith("--view") or o == "--replay-speed"
+        }
+        assert options >= {"--view-port"}, (name, options)
+        for option in options:
+            assert f"| `{option}" in section, f"docs/cli.md's {name} table lacks {option}"
+    assert "[`view`](#view)" in text
+
+
 def test_live_view_shows_the_live_json(browser: Any) -> None:
-    """``live --view``: the page of a short simulated run equals ``live --json``'s lines."""
+    """``live --view``: the page of a short simulated run equals ``live --json``'s lines.
+
+    In closed loop with the supervisor watching model A (invalid on the rig: it goes safe at
+    A's first judged window), the page shows the supervisor's mode as ``live --json``'s
+    transition line has it, pushed when it happened: before the reports of later windows.
+    """
     cmd = [sys.executable, "-m", "twotank_validation.cli", "live", "--ts", "0.8", "--period",
-           "256", "--duration", "900", "--json", "--view"]  # fmt: skip
+           "256", "--duration", "1000", "--json", "--view", "--closed-loop",
+           "--supervisor", "A"]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         url, err = None, []
@@ -260,6 +309,10 @@ def test_live_view_shows_the_live_json(browser: Any) -> None:
         page.goto(url)
         page.wait_for_function("window.twotankView.received >= 2")
         rows = _rows(page)
+        mode = page.eval_on_selector(
+            "#mode", "b => ({mode: b.dataset.mode, time: b.dataset.time, seq: b.dataset.seq, "
+            "hidden: b.hidden, text: b.textContent})"
+        )  # fmt: skip
         page.close()
     finally:
         proc.send_signal(signal.SIGINT)
@@ -269,3 +322,10 @@ def test_live_view_shows_the_live_json(browser: Any) -> None:
     for model in ("A", "B"):
         mine = [x for x in lines if x["model"] == model]
         _same(rows[model], mine[-1], len(mine))
+    (tr,) = [json.loads(x)["transition"] for x in out.splitlines() if '"transition"' in x]
+    assert (mode["mode"], float(mode["time"]), mode["hidden"]) == (tr["to"], tr["time"], False)
+    assert tr["reason"] in mode["text"]
+    # pushed as it happened: reports of windows ending after it came later
+    later = [x for x in lines if x["end"] > tr["time"]]
+    assert later
+    assert int(mode["seq"]) < max(int(r["seq"]) for r in rows.values())

@@ -47,7 +47,7 @@ from twotank_validation.cli_options import (
     replay_config,
     topic_map,
 )
-from twotank_validation.cli_view import ViewRun, add_view_options, live_view, model_bands
+from twotank_validation.cli_view import VIEW_STOP, ViewRun, add_view_options, live_view, model_bands
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import (
@@ -211,7 +211,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
     view, report = live_view(args, cfg.models, output.report)
     with view or contextlib.nullcontext():
         with Interrupts() as interrupts:
-            result = run_live(cfg, on_report=report, stop=interrupts)
+            on_transition = view.transition if view is not None else None
+            result = run_live(cfg, on_report=report, on_transition=on_transition, stop=interrupts)
         code = _live_tail(args, output, result, cfg, interrupts)
         if view is not None:
             view.hold(f"live run ended (exit code {code})")
@@ -232,7 +233,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         replay=False,
         foxglove=args.foxglove_port if args.foxglove else None,
     )
-    with view, Interrupts() as interrupts:
+    with view, Interrupts(VIEW_STOP) as interrupts:
         reports = run_view(view.sink, models, duration_s=args.duration, stop=interrupts)
     if reports == 0:
         topics = ", ".join(f"validation/{m}/report" for m in models)

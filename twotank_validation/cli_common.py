@@ -256,12 +256,19 @@ class Interrupts:
     signal only sets the flag, so the run ends between two samples and what it judged is
     printed and summarised; a second one prints one line and exits ``128 + signal``.
     Outside the main thread (no signal handlers there) it never fires.
+
+    Args:
+        doing: what the first signal does, said after its name on stderr (default: a run's,
+            :data:`STOP_RUN`).
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
+    STOP_RUN = "stopping after the current sample; what was judged is kept and summarised"
+    """What a run does on the first signal."""
 
-    def __init__(self) -> None:
+    def __init__(self, doing: str = STOP_RUN) -> None:
         self.signum: int | None = None
+        self.doing = doing
         self._old: dict[int, Any] = {}
 
     def __call__(self) -> bool:
@@ -283,11 +290,7 @@ class Interrupts:
             os.write(2, f"{signal.Signals(signum).name} again: exiting now\n".encode())
             os._exit(128 + signum)
         self.signum = signum
-        os.write(
-            2,
-            f"{signal.Signals(signum).name}: stopping after the current sample; what was "
-            "judged is kept and summarised\n".encode(),
-        )
+        os.write(2, f"{signal.Signals(signum).name}: {self.doing}\n".encode())
 
     def __enter__(self) -> Interrupts:
         if threading.current_thread() is threading.main_thread():

@@ -20,12 +20,16 @@ from typing import Any
 
 from twotank_validation.errors import TwotankError, UsageError
 from twotank_validation.online import WindowReport
+from twotank_validation.online.supervisor import SupervisorState, Transition
 from twotank_validation.online.window import MonitorConfig
 
-__all__ = ["FOXGLOVE_PORT", "ViewRun", "add_view_options", "live_view", "model_bands"]
+__all__ = ["FOXGLOVE_PORT", "VIEW_STOP", "ViewRun", "add_view_options", "live_view", "model_bands"]
 
 FOXGLOVE_PORT = 8765
 """``--foxglove-port``'s default: the port Foxglove and Lichtblick propose for a connection."""
+VIEW_STOP = "closing the view; the system it shows runs on (the view changes nothing)"
+"""What Ctrl-C does to the ``view`` command (said on stderr): it judges nothing, so there is
+no sample to finish."""
 
 
 def _speed(text: str) -> float:
@@ -196,6 +200,12 @@ class ViewRun:
             self.pacer(rep)
         self.sink.publish_report(rep, start_ns)
 
+    def transition(self, tr: Transition) -> None:
+        """The listener of the supervisor's mode changes: the page's mode, as it happens."""
+        from twotank_validation.view.messages import mode_message  # noqa: PLC0415
+
+        self.sink.publish(mode_message(tr.to_mode.value, tr.time_s, tr.reason))
+
     def hold(self, text: str) -> None:
         """Say the run ended (``text``) and keep the servers up until SIGINT or SIGTERM."""
         where = []
@@ -224,6 +234,8 @@ def live_view(
     """``live --view``'s and ``--foxglove``'s view (None without either) and the listener.
 
     The listener calls ``first`` (what ``live`` prints), then pushes the report to the view.
+    With ``--supervisor`` the page starts with the supervisor's initial mode; its changes go
+    to :meth:`ViewRun.transition` (``run_live(on_transition=...)``).
     """
     if not (args.view or args.foxglove):
         return None, first
@@ -236,6 +248,10 @@ def live_view(
         page=args.view,
         foxglove=args.foxglove_port if args.foxglove else None,
     )
+    if getattr(args, "supervisor", None) is not None:
+        from twotank_validation.view.messages import mode_message  # noqa: PLC0415
+
+        view.sink.publish(mode_message(SupervisorState().mode.value, 0.0))
 
     def report(rep: WindowReport) -> None:
         first(rep)

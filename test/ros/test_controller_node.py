@@ -20,6 +20,7 @@ from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import String
 
 from twotank_validation.online import streams as itf
+from twotank_validation.online.supervisor import Transition
 from twotank_validation.ros import messages
 from twotank_validation.ros.controller_node import MODE_TOPIC, ControllerNode
 from twotank_validation.ros.live import LiveConfig, run_live, samples_as_record, spin_until
@@ -218,7 +219,23 @@ def test_live_closed_loop_with_the_supervisor_goes_safe_on_the_alarm() -> None:
         validator={"input_periodic_rtol": 0.6},  # as in the parity test above
         record_samples=False,
     )
-    res = run_live(cfg)
+    step = [-1]
+    handed: list[tuple[float, Transition]] = []  # (simulated s when handed out, the transition)
+
+    def on_step(k: int) -> None:
+        step[0] = k
+
+    res = run_live(
+        cfg,
+        on_step=on_step,
+        on_transition=lambda tr: handed.append(((step[0] + 1) * ts, tr)),
+    )
+    # each transition was handed out as it happened (within the sample it was made in or
+    # the next), not at the end: the same ones as the result's log
+    assert [tr for _, tr in handed] == res.transitions
+    for when, tr in handed:
+        assert tr.time_s <= when + 1e-9 <= tr.time_s + 2 * ts + 1e-9, (when, tr)
+        assert when < cfg.duration_s - p_s
     errors = [r for r in res.reports if r.alarm.name == "ERROR"]
     assert errors, "the leak was not detected in closed loop"
     first_error_s = errors[0].end_ns / 1e9

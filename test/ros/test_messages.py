@@ -81,6 +81,9 @@ def make_report() -> Any:
         frequencies_hz=[0.0, 0.0048828125, 0.009765625],
         w_min=[0.01, 0.5, 1.292],
         compute_time_s=0.0019,
+        excited_bins=[1, 2],
+        noise_floor=[0.0, 0.05, 0.07],
+        noise_beta=0.12,
     )
 
 
@@ -99,10 +102,13 @@ REPORT_SCALARS = {
     "norm_convention": "power",
     "solver": "closed_form",
     "compute_time_s": 0.0019,
+    "noise_beta": 0.12,
 }
 REPORT_ARRAYS = {
     "frequencies_hz": [0.0, 0.0048828125, 0.009765625],
     "w_min": [0.01, 0.5, 1.292],
+    "excited_bins": [1, 2],
+    "noise_floor": [0.0, 0.05, 0.07],
 }
 
 
@@ -200,6 +206,27 @@ def test_rosbags_decodes_validation_report_serialised_by_rclpy() -> None:
     # And back (not byte for byte: rclpy leaves alignment padding uninitialised).
     again = bytes(store.serialize_cdr(msg, f"{PKG}/msg/ValidationReport"))
     assert deserialize_message(again, ValidationReport) == make_report()
+
+
+def test_rosbags_decodes_a_report_whose_sequences_are_all_empty() -> None:
+    """A window not judged: every sequence empty, each read where rclpy wrote it.
+
+    rclpy and rosbags pad an empty float64 sequence differently when a 4-byte-aligned field
+    follows it; every float64 sequence of the message is followed by a float64.
+    """
+    store = kilted_store_with("ValidationReport")
+    empty = ValidationReport(
+        model="B", judged=False, data_quality="settling", beta=math.nan, beta_outside=math.nan,
+        input_noise=0.25, input_noise_effect=0.5, noise_beta=math.nan, compute_time_s=0.125,
+    )  # fmt: skip
+    msg = store.deserialize_cdr(bytes(serialize_message(empty)), f"{PKG}/msg/ValidationReport")
+    for name in ("frequencies_hz", "w_min", "lines_outside", "excited_bins", "noise_floor"):
+        assert len(getattr(msg, name)) == 0, name
+    assert (msg.model, msg.data_quality, msg.compute_time_s) == ("B", "settling", 0.125)
+    assert (msg.input_noise, msg.input_noise_effect) == (0.25, 0.5)
+    assert math.isnan(msg.noise_beta)
+    again = bytes(store.serialize_cdr(msg, f"{PKG}/msg/ValidationReport"))
+    assert deserialize_message(again, ValidationReport).input_noise_effect == 0.5
 
 
 def test_rosbags_decodes_flow_command_serialised_by_rclpy() -> None:

@@ -12,9 +12,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import signal
+import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
@@ -24,6 +28,7 @@ from std_msgs.msg import String
 
 from twotank_validation import cli
 from twotank_validation.bags import write_scenario_bag
+from twotank_validation.cli_common import Interrupts
 from twotank_validation.online import WindowReport
 from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.window import MonitorConfig
@@ -39,7 +44,8 @@ from twotank_validation.view import ViewServer
 CARRIED = (
     "start", "end", "beta", "invalidated", "alarm", "reason", "data_quality", "margin",
     "beta_op", "beta_total", "raised_by", "operating_point", "input_noise",
-    "input_noise_effect", "beta_outside", "lines_outside",
+    "input_noise_effect", "beta_outside", "lines_outside", "noise_beta", "excited_lines",
+    "excited_band_hz",
 )  # fmt: skip
 """The window entry's fields a ValidationReport message carries."""
 
@@ -108,6 +114,9 @@ def test_view_node_passes_what_the_validator_publishes(tmp_path: Path) -> None:
         back = report_from_message(messages.report_message(last, report_cls))
         assert back.w_min.tobytes() == last.w_min.tobytes()
         assert back.freqs_hz.tobytes() == last.freqs_hz.tobytes()
+        assert back.noise_floor.tobytes() == last.noise_floor.tobytes()
+        assert np.array_equal(back.excited, last.excited)
+        assert last.excited.any()
     finally:
         view.close()
         rclpy.shutdown(context=ctx)
@@ -118,4 +127,30 @@ def test_view_command_without_a_validator_says_so(capsys: pytest.CaptureFixture[
     assert code == 4
     err = capsys.readouterr().err
     assert "view: http://127.0.0.1:" in err
+    assert "no report came on validation/B/report" in err
+
+
+def test_view_command_s_ctrl_c_says_it_closes_the_view(capfd: pytest.CaptureFixture[str]) -> None:
+    """SIGINT while ``view`` follows the topics: a viewer's line, not a run's; no traceback."""
+
+    def interrupt_once_listening() -> None:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:
+            handler = signal.getsignal(signal.SIGINT)
+            if isinstance(getattr(handler, "__self__", None), Interrupts):
+                os.kill(os.getpid(), signal.SIGINT)
+                return
+            time.sleep(0.01)
+
+    killer = threading.Thread(target=interrupt_once_listening)
+    killer.start()
+    start = time.monotonic()
+    code = cli.main(["view", "--model", "B", "--duration", "20"])
+    killer.join()
+    err = capfd.readouterr().err
+    assert time.monotonic() - start < 15.0  # it stopped on the signal, not at --duration
+    assert "SIGINT: closing the view" in err
+    assert "current sample" not in err
+    assert "Traceback" not in err
+    assert code == 4  # nothing came: the topics it listened to are named
     assert "no report came on validation/B/report" in err

@@ -127,6 +127,24 @@ def noise_gain2(p22: np.ndarray) -> np.ndarray:
     return np.asarray(np.sum(np.abs(np.linalg.pinv(p22)) ** 2, axis=1))
 
 
+def noise_floor(var: np.ndarray, gain2: np.ndarray) -> np.ndarray:
+    """The min ``||W(n)||`` the noise alone is expected to cost per bin.
+
+    ``sqrt(Σ_c σ_c(n)² g_c(n))``: the per-bin terms of :func:`expected_noise_beta`
+    (``noise_beta² = Σ_n b_n floor(n)²`` over the bins β counts), in the units of the
+    per-bin minimum ``w_min``, so the two compare bin by bin: a bin near its floor is noise,
+    one far above it is what the model misses.
+
+    Args:
+        var: (n_bins, n_outputs) float, ``σ_c(n)²`` (:attr:`NoiseSpread.var`).
+        gain2: (n_bins, n_outputs) float, :func:`noise_gain2` of the model's noise channels.
+
+    Returns:
+        (n_bins,) float (units of ``||w||``); NaN where the noise could not be estimated.
+    """
+    return np.asarray(np.sqrt(np.sum(var * gain2, axis=1)))
+
+
 def expected_noise_beta(
     var: np.ndarray, gain2: np.ndarray, bin_weights: np.ndarray, mask: np.ndarray | None = None
 ) -> float:
@@ -329,6 +347,7 @@ __all__ = [
     "expected_noise_beta",
     "noise_beta_lower",
     "noise_beta_quantile",
+    "noise_floor",
     "noise_gain2",
     "noise_spread",
     "noise_weights",

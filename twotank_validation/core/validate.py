@@ -36,6 +36,7 @@ from twotank_validation.core.noise_budget import (
     NOISE_WARN_CONFIDENCE,
     expected_noise_beta,
     noise_beta_lower,
+    noise_floor,
     spread_of_std,
 )
 from twotank_validation.defaults import METHODS, Method
@@ -98,6 +99,9 @@ class ValidationResult:
         noise_beta: the β the datum's noise alone is expected to cost under the model's
             noise weights, over the band (:func:`noise_beta`; NaN with one period); above
             :data:`~twotank_validation.core.noise_budget.NOISE_BETA_WARN` it is a warning.
+        noise_floor: (n_bins,) float, its per-bin terms: the min ``||W(n)||`` the noise alone
+            is expected to cost at each bin (:func:`noise_cost`; NaN with one period),
+            comparable to ``w_min``.
     """
 
     model_name: str
@@ -128,6 +132,7 @@ class ValidationResult:
     periodic_outside: tuple[tuple[float, float], ...] = ()
     leakage_exceeds_data: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     noise_beta: float = math.nan
+    noise_floor: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def invalidated(self) -> bool:
@@ -303,8 +308,9 @@ class BetaResult:
         w_min: (n_bins,) float, lower bound on min ||W(n)|| per bin.
         beta: ``sqrt(sum_n weight_n w_min(n)^2)``.
         beta_upper: the same from the witness.
-        warnings, findings, input_leakage, beta_outside, lines_outside, noise_beta: as
-            :class:`ValidationResult`'s.
+        warnings, findings, input_leakage, beta_outside, lines_outside, noise_beta,
+            noise_floor: as :class:`ValidationResult`'s (``noise_floor`` empty where the
+            caveats were not computed).
     """
 
     method: str
@@ -318,6 +324,7 @@ class BetaResult:
     beta_outside: float = 0.0
     lines_outside: tuple[tuple[float, float], ...] = ()
     noise_beta: float = math.nan
+    noise_floor: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def margin(self) -> float:
@@ -360,6 +367,7 @@ def validate_beta(
             res.beta_outside,
             res.lines_outside,
             res.noise_beta,
+            res.noise_floor,
         )
     assert route.structure is not None
     lower = solvers.closed_form_bins(resp, datum.u_bins, datum.y_bins, route.structure)[0]
@@ -378,6 +386,7 @@ def validate_beta(
         0.0 if mask is None else masked_beta(lower, datum.bin_weights, ~mask),
         () if mask is None else outside_lines(lower, datum.bin_weights, datum.freqs_hz, mask),
         said.noise_beta,
+        said.noise_floor,
     )
 
 
@@ -514,6 +523,7 @@ def validate(
         else periodic_lines(datum.y_bins, datum.noise_std, datum.freqs_hz, mask),
         leakage_exceeds_data=leakage_exceeds_data(leak, datum.y_bins),
         noise_beta=caveats.noise_beta,
+        noise_floor=caveats.noise_floor,
     )
 
 
@@ -533,12 +543,67 @@ class Caveats:
         input_leakage: how far the input's change from period to period may move β
             (:func:`input_leakage`; 0 for a periodic input).
         texts: every caveat in words, one sentence each with what to do.
+        noise_beta: the β the datum's noise alone is expected to cost, over the band
+            (:func:`noise_cost`; NaN with one period or without noise channels).
+        noise_floor: (n_bins,) float, its per-bin terms (:func:`noise_cost`); empty where
+            the caveats were not computed.
     """
 
     findings: tuple[PeriodicityFinding, ...] = ()
     input_leakage: float = 0.0
     texts: tuple[str, ...] = ()
     noise_beta: float = math.nan
+    noise_floor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class NoiseCost:
+    """What a datum's noise alone is expected to cost under a model's noise weights.
+
+    Attributes:
+        beta: the expected noise-only β over the band, ``sqrt(Σ_n b_n floor(n)²)``.
+        lower: its lower bound at
+            :data:`~twotank_validation.core.noise_budget.NOISE_WARN_CONFIDENCE`.
+        floor: (n_bins,) float, the per-bin min ``||W(n)||`` the noise alone is expected to
+            cost (:func:`~twotank_validation.core.noise_budget.noise_floor`), at every bin,
+            comparable to ``w_min``.
+
+    All NaN with one period (no spread) or without noise channels.
+    """
+
+    beta: float
+    lower: float
+    floor: np.ndarray
+
+
+def noise_cost(
+    datum: Datum,
+    model: LFTModel,
+    response: PlantResponse | None = None,
+    mask: np.ndarray | None = None,
+) -> NoiseCost:
+    """The β the datum's noise alone is expected to cost, its lower bound and per-bin floor.
+
+    ``sqrt(Σ_n b_n Σ_c σ_c(n)² |P22(n)⁺ e_c|²)`` over the band's bins, with ``σ_c(n)`` the
+    outputs' noise estimated from the period-to-period spread (``Datum.noise_std``, each bin
+    taking its nearest harmonic's; :mod:`~twotank_validation.core.noise_budget`,
+    docs/theory.md §13); the floor is the per-bin root ``sqrt(Σ_c σ_c(n)² |P22(n)⁺ e_c|²)``
+    at every bin (the band decides only what the total counts).
+    """
+    if datum.n_periods < 2 or model.nw == 0:
+        return NoiseCost(math.nan, math.nan, np.full(datum.freqs_hz.shape, math.nan))
+    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
+    if "noise_gain2" not in resp.memo:
+        if "noise_pinv" not in resp.memo:
+            resp.memo["noise_pinv"] = np.linalg.pinv(resp.p22)
+        resp.memo["noise_gain2"] = np.sum(np.abs(resp.memo["noise_pinv"]) ** 2, axis=1)
+    gain2 = resp.memo["noise_gain2"]
+    spread = spread_of_std([datum.noise_std], datum.n_periods)
+    return NoiseCost(
+        expected_noise_beta(spread.var, gain2, datum.bin_weights, mask),
+        noise_beta_lower(spread, gain2, datum.bin_weights, mask, NOISE_WARN_CONFIDENCE),
+        noise_floor(spread.var, gain2),
+    )
 
 
 def noise_beta_bounds(
@@ -549,29 +614,15 @@ def noise_beta_bounds(
 ) -> tuple[float, float]:
     """The β the datum's noise alone is expected to cost under the model's noise weights.
 
-    ``sqrt(Σ_n b_n Σ_c σ_c(n)² |P22(n)⁺ e_c|²)`` over the band's bins, with ``σ_c(n)`` the
-    outputs' noise estimated from the period-to-period spread (``Datum.noise_std``, each bin
-    taking its nearest harmonic's; :mod:`~twotank_validation.core.noise_budget`,
-    docs/theory.md §13).
+    :func:`noise_cost`'s estimate and lower bound.
 
     Returns:
         ``(estimate, lower)``: the estimate and its lower bound at
         :data:`~twotank_validation.core.noise_budget.NOISE_WARN_CONFIDENCE`; NaN with one
         period (no spread) or without noise channels.
     """
-    if datum.n_periods < 2 or model.nw == 0:
-        return math.nan, math.nan
-    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
-    if "noise_gain2" not in resp.memo:
-        if "noise_pinv" not in resp.memo:
-            resp.memo["noise_pinv"] = np.linalg.pinv(resp.p22)
-        resp.memo["noise_gain2"] = np.sum(np.abs(resp.memo["noise_pinv"]) ** 2, axis=1)
-    gain2 = resp.memo["noise_gain2"]
-    spread = spread_of_std([datum.noise_std], datum.n_periods)
-    return (
-        expected_noise_beta(spread.var, gain2, datum.bin_weights, mask),
-        noise_beta_lower(spread, gain2, datum.bin_weights, mask, NOISE_WARN_CONFIDENCE),
-    )
+    cost = noise_cost(datum, model, response, mask)
+    return cost.beta, cost.lower
 
 
 def noise_beta(
@@ -663,9 +714,9 @@ def result_caveats(
             "(an output without a noise weight, or a weight that vanishes there); give every "
             "measured output a noise weight"
         )
-    beta_noise, lower = noise_beta_bounds(datum, model, response, mask)
-    out.extend(noise_budget_warning(beta_noise, lower))
-    return Caveats(tuple(findings), rho, tuple(out), beta_noise)
+    cost = noise_cost(datum, model, response, mask)
+    out.extend(noise_budget_warning(cost.beta, cost.lower))
+    return Caveats(tuple(findings), rho, tuple(out), cost.beta, cost.floor)
 
 
 def result_warnings(

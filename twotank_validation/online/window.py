@@ -11,12 +11,12 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Collection, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from twotank_validation.core import fast
-from twotank_validation.core.band import Band, parse_band
+from twotank_validation.core.band import Band, excited_lines, parse_band
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
 from twotank_validation.core.datum import (
     MEASURED_INPUT_RTOL,
@@ -331,6 +331,14 @@ class WindowReport:
             noise weights (``ValidationResult.noise_beta``, from the period-to-period
             spread, docs/theory.md §13); NaN when not judged or with one period. A warning
             is given above 0.9: the noise weights alone use most of β's budget.
+        noise_floor: (n_bins,) float, its per-bin terms: the min ``||W(n)||`` the window's
+            noise alone is expected to cost at each bin of ``freqs_hz``
+            (``ValidationResult.noise_floor``, comparable to ``w_min``; over the band's bins
+            ``noise_beta² = Σ_n b_n noise_floor(n)²``); NaN with one period, empty when not
+            judged.
+        excited: (n_bins,) bool, the bins of ``freqs_hz`` the command excites (the harmonics
+            with power, :func:`~twotank_validation.core.band.excited_lines`: the band's
+            ``excited``, the report figures' markers); empty when not judged.
     """
 
     model: str
@@ -367,6 +375,8 @@ class WindowReport:
     beta_outside: float = math.nan
     lines_outside: tuple[tuple[float, float], ...] = ()
     noise_beta: float = math.nan
+    noise_floor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    excited: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 def raised_by(beta: float, beta_op: float, beta_total: float) -> RaisedBy:
@@ -829,6 +839,10 @@ class WindowMonitor:
                     beta_outside=math.nan if model.band is None else res.beta_outside,
                     lines_outside=res.lines_outside,
                     noise_beta=res.noise_beta,
+                    noise_floor=res.noise_floor,
+                    excited=excited_lines(
+                        datum.u_bins, datum.n_periods, noise_std=datum.u_noise_std
+                    ),
                 )
             )
         return reports

@@ -99,7 +99,10 @@ def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
 
     ``beta_outside`` (β over the bins outside the model's band; null where infinite) and
     ``lines_outside`` (``[Hz, share]`` of the bins that carry most of it) only in a judged
-    window of a model with a band.
+    window of a model with a band. ``excited_lines`` (how many lines the command excites)
+    and ``excited_band_hz`` (the lowest and highest of them) summarise the report's
+    ``excited`` bins; the per-bin arrays (``w_min``, ``noise_floor``, ``excited``) are the
+    spectrum's, which the entry leaves out (a window holds thousands of bins).
     """
     b_out = rep.beta_outside
     outside = (
@@ -129,12 +132,24 @@ def window_entry(rep: WindowReport, start_ns: int) -> dict[str, Any]:
             rep.input_noise_effect if math.isfinite(rep.input_noise_effect) else None
         ),
         "noise_beta": rep.noise_beta if math.isfinite(rep.noise_beta) else None,
+        **_excited_entry(rep),
         "beta_op": rep.beta_op if math.isfinite(rep.beta_op) else None,
         "beta_total": rep.beta_total if math.isfinite(rep.beta_total) else None,
         "raised_by": str(rep.raised_by),
         "operating_point": rep.operating_point,
         "op_state": None if rep.op_state is None else str(rep.op_state),
         "diagnosis": None if rep.diagnosis is None else rep.diagnosis.to_json(),
+    }
+
+
+def _excited_entry(rep: WindowReport) -> dict[str, Any]:
+    """``excited_lines`` and ``excited_band_hz`` of a window entry (null where not judged)."""
+    if not rep.judged or rep.excited.size != rep.freqs_hz.size:
+        return {"excited_lines": None, "excited_band_hz": None}
+    f = rep.freqs_hz[rep.excited]
+    return {
+        "excited_lines": int(f.size),
+        "excited_band_hz": [float(f.min()), float(f.max())] if f.size else None,
     }
 
 

@@ -22,7 +22,6 @@ import numpy as np
 from twotank_validation.core.band import excited_lines
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.model import LFTModel, PlantResponse, load_model
-from twotank_validation.core.noise_budget import noise_gain2, spread_of_std
 from twotank_validation.core.validate import ValidationResult, inverse_dft
 from twotank_validation.diagnose import Diagnosis, EvidencePoints, FittedEffect, excited_bins
 from twotank_validation.diagnose.effects import mode_shift_text
@@ -220,21 +219,6 @@ def plot_nyquist(
     return view
 
 
-def per_bin_noise_floor(model: LFTModel, d: Datum) -> np.ndarray:
-    """(n_bins,) float: the min ||W(n)|| the window's noise alone is expected to cost per bin.
-
-    ``sqrt(sum_c sigma_c(n)^2 |P22(n)^+ e_c|^2)`` with ``sigma_c(n)`` the outputs' noise from
-    the period-to-period spread: the per-bin terms of the window's ``noise_beta``
-    (:func:`~twotank_validation.core.validate.noise_beta_bounds`), comparable to ``w_min``.
-    NaN with one period (no spread) or without noise channels.
-    """
-    if d.n_periods < 2 or model.nw == 0:
-        return np.full(d.freqs_hz.shape, np.nan)
-    gain2 = noise_gain2(model.response(d.theta, d.ts_s).p22)
-    spread = spread_of_std([d.noise_std], d.n_periods)
-    return np.asarray(np.sqrt(np.sum(spread.var * gain2, axis=1)))
-
-
 def plot_per_bin(
     results: Mapping[str, ValidationResult],
     path: Path,
@@ -255,7 +239,8 @@ def plot_per_bin(
         excited: (n_bins,) bool, the excited harmonic bins: drawn as markers
             joined in order; the other bins (where only noise is) as faint dots. None: every
             bin joined.
-        noise_floor: per model, (n_bins,) float, :func:`per_bin_noise_floor`: drawn dotted.
+        noise_floor: per model, (n_bins,) float, the per-bin noise floor
+            (``ValidationResult.noise_floor``): drawn dotted.
     """
     fig, ax = plt.subplots(figsize=(8, 4))
     convention = ""
@@ -526,13 +511,13 @@ def _finite(x: float) -> float | None:
 
 
 def window_view_numbers(
-    model: LFTModel, d: Datum, res: ValidationResult, view: NyquistView, floor: np.ndarray
+    model: LFTModel, d: Datum, res: ValidationResult, view: NyquistView
 ) -> dict[str, Any]:
     """The numbers the figures of one window show (JSON-ready; the HTML page's too).
 
     The worst bin (:func:`nyquist_view`), its frequency, its min ||W(n)|| and the noise floor
-    there (:func:`per_bin_noise_floor`), the channel pair of the Nyquist figure, the band β
-    counts and the excited band.
+    there (``ValidationResult.noise_floor``), the channel pair of the Nyquist figure, the
+    band β counts and the excited band.
     """
     f_exc = d.freqs_hz[_excited_mask(d)]
     return _jsonable(
@@ -542,7 +527,7 @@ def window_view_numbers(
             "worst_bin": view.bin,
             "worst_bin_hz": view.freq_hz,
             "worst_bin_w_min": float(res.w_min[view.bin]),
-            "worst_bin_noise_floor": _finite(float(floor[view.bin])),
+            "worst_bin_noise_floor": _finite(float(res.noise_floor[view.bin])),
             "nyquist_output": model.output_names[view.output],
             "nyquist_input": model.input_names[view.input],
             "excited_band_hz": [float(f_exc.min()), float(f_exc.max())],
@@ -593,7 +578,6 @@ def write_replay_report(
             )
             res = validate(d, model)
             stem = f"{name}_{why}"
-            floor = per_bin_noise_floor(model, d)
             view = nyquist_view(model, d, res)
             plot_nyquist(model, d, res, out_dir / f"nyquist_{stem}.png")
             plot_per_bin(
@@ -601,7 +585,7 @@ def write_replay_report(
                 out_dir / f"per_bin_{stem}.png",
                 title=f"Model {name}, {html.WHY_TEXT.get(why, why)}",
                 excited=_excited_mask(d),
-                noise_floor={name: floor},
+                noise_floor={name: res.noise_floor},
             )
             t = (snap.stamps_ns - replay.bag_start_ns) / 1e9
             plot_window_records(
@@ -613,7 +597,7 @@ def write_replay_report(
                 out_dir / f"{kind}_{stem}.png"
                 for kind in ("per_bin", "nyquist", "records", "time_signals")
             ]
-            entry = window_view_numbers(model, d, res, view, floor)
+            entry = window_view_numbers(model, d, res, view)
             entry |= {"start": (rep.start_ns - replay.bag_start_ns) / 1e9}
             entry |= {"end": (rep.end_ns - replay.bag_start_ns) / 1e9, "stem": stem}
             views.setdefault(name, {})[why] = entry

@@ -209,6 +209,7 @@ def run_live(
     config: LiveConfig,
     *,
     on_report: Callable[[WindowReport], None] | None = None,
+    on_transition: Callable[[Transition], None] | None = None,
     on_step: Callable[[int], None] | None = None,
     context: Context | None = None,
     attach: Callable[[Context], tuple[Sequence[Node], Callable[[int], bool]]] | None = None,
@@ -219,6 +220,10 @@ def run_live(
     Args:
         config: run settings.
         on_report: called (from the driver thread) with each new report as it appears.
+        on_transition: called (from the driver thread) with each of the supervisor's mode
+            changes as it happens (``LiveConfig.supervisor``), after the reports that
+            appeared by then (the one that raised it among them); the result's
+            ``transitions`` holds them all again at the end.
         on_step: called (from the driver thread) with ``k`` once sample k (0-based) has
             reached the validator and the reports that appeared by then went to
             ``on_report``; e.g. to sample memory every simulated hour.
@@ -311,13 +316,23 @@ def run_live(
         ts_ns = round(config.ts_s * NS_PER_S)
         kept: list[WindowReport] = []
 
+        handed = 0  # the supervisor's transitions handed to on_transition so far
+
         def deliver() -> None:
+            nonlocal handed
             while val.new_reports:
                 rep = val.new_reports.popleft()
                 if config.keep_reports:
                     kept.append(rep)
                 if on_report is not None:
                     on_report(rep)
+            # the supervisor runs in this thread's executor: its log grows only while the
+            # driver spins, so what is new since the last call is complete here
+            if supervisor is not None and on_transition is not None:
+                log = supervisor.machine.log
+                while handed < len(log):
+                    on_transition(log[handed])
+                    handed += 1
 
         sync_every = max(1, config.period_samples // 8)
         start = time.monotonic()

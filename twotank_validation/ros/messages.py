@@ -128,4 +128,7 @@ def report_message(report: WindowReport, cls: Any) -> Any:
     msg.lines_outside = _doubles(np.array(report.lines_outside, dtype=np.float64).reshape(-1))
     msg.input_noise = float(report.input_noise)
     msg.input_noise_effect = float(report.input_noise_effect)
+    msg.excited_bins = array.array("I", np.flatnonzero(report.excited).astype(np.uint32).tobytes())
+    msg.noise_floor = _doubles(report.noise_floor)
+    msg.noise_beta = float(report.noise_beta)
     return msg

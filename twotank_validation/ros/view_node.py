@@ -6,8 +6,8 @@ M, ``validation/M/report`` (ValidationReport) and ``validation/M/diagnosis`` (Di
 :class:`~twotank_validation.view.ViewServer`. A report message is turned back into the
 :class:`~twotank_validation.online.window.WindowReport` the validator published it from
 (:func:`report_from_message`), so the page gets the same JSON entry as from ``live``; what the
-message does not carry (the warnings' texts, the periodicity measures, ``noise_beta``, the
-reference's typed state) is missing there (null).
+message does not carry (the warnings' texts, the periodicity measures, the reference's typed
+state) is missing there (null).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from twotank_validation.online.livediag import LiveDiagnosis
 from twotank_validation.online.states import RaisedBy
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import LATCHED
+from twotank_validation.view.messages import mode_message
 from twotank_validation.view.sinks import ReportSink
 
 REPORTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -78,7 +79,20 @@ def report_from_message(msg: Any) -> WindowReport:
         lines_outside=tuple((float(hz), float(share)) for hz, share in pairs),
         input_noise=float(msg.input_noise),
         input_noise_effect=float(msg.input_noise_effect),
+        noise_beta=float(msg.noise_beta),
+        noise_floor=_array(msg.noise_floor),
+        excited=_mask(msg.excited_bins, len(msg.frequencies_hz)),
     )
+
+
+def _mask(indices: Any, n_bins: int) -> np.ndarray:
+    """(n_bins,) bool, true at ``indices`` (a report's ``excited_bins``); empty if none given."""
+    idx = np.asarray(indices, dtype=np.int64)
+    if idx.size == 0 and n_bins == 0:
+        return np.zeros(0, dtype=bool)
+    out = np.zeros(n_bins, dtype=bool)
+    out[idx] = True
+    return out
 
 
 def diagnosis_from_message(msg: Any) -> LiveDiagnosis:
@@ -136,7 +150,7 @@ class ViewNode(Node):
 
     def _on_mode(self, msg: Any) -> None:
         now = self.get_clock().now().nanoseconds / 1e9
-        self.view.publish({"type": "mode", "mode": msg.data, "time": now, "wall": time.time()})
+        self.view.publish(mode_message(msg.data, now) | {"wall": time.time()})
 
 
 def run_view(

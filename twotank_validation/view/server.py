@@ -12,8 +12,9 @@ is refused (405), every other path is 404, and a request whose ``Host`` is not t
 loopback address is refused (403: a page elsewhere cannot reach it through a DNS name
 rebound to 127.0.0.1). It binds 127.0.0.1 only.
 
-A late visitor gets the history at once: the last ``history`` messages (the reports) and,
-per model, the latest window's spectrum, then the live stream.
+A late visitor gets the history at once: the last ``history`` messages (the reports), the
+supervisor's mode and each model's diagnosis in force where they are older, and, per model,
+the latest window's spectrum, then the live stream.
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ history anew)."""
 SPECTRUM_EVERY_S = 0.1
 """A page gets each model's latest spectrum at most this often (the reports themselves go at
 once): a replay as fast as it goes makes hundreds a second, which no page could draw."""
+STICKY = frozenset({"mode", "diagnosis"})
+"""Messages that hold until the next of their kind (per model): a late visitor gets the latest
+of each even when it is older than the history."""
 KEEPALIVE_S = 10.0
 """A comment line on an idle stream this often, so that a page that went away is noticed."""
 _FILES = {
@@ -129,7 +133,10 @@ class ViewServer:
         if history < 1:
             raise ValueError(f"history {history} must be >= 1")
         self._lock = threading.Lock()
-        self._history: deque[str] = deque(maxlen=history)
+        self._history: deque[tuple[int, str]] = deque(maxlen=history)  # (seq, JSON)
+        # the latest message of each kind that stays true until the next (the supervisor's
+        # mode; a model's diagnosis on its own topic): (type, model) -> (seq, JSON)
+        self._sticky: dict[tuple[str, str], tuple[int, str]] = {}
         # model -> (seq, report, start_ns) of its latest judged report; its JSON once made
         self._spectra: dict[str, tuple[int, WindowReport, int]] = {}
         self._spectrum_json: dict[str, tuple[int, str]] = {}
@@ -200,7 +207,7 @@ class ViewServer:
         judged = rep.judged and rep.freqs_hz.size > 0
         with self._lock:
             seq = self._stamp(doc)
-            self._history.append(light := _json(doc))
+            self._history.append((seq, light := _json(doc)))
             if judged:
                 self._spectra[rep.model] = (seq, rep, start_ns)
             self._send(light, _Due(rep.model) if judged else None)
@@ -213,8 +220,10 @@ class ViewServer:
         """
         doc = dict(message)
         with self._lock:
-            self._stamp(doc)
-            self._history.append(data := _json(doc))
+            seq = self._stamp(doc)
+            self._history.append((seq, data := _json(doc)))
+            if doc.get("type") in STICKY:
+                self._sticky[(str(doc["type"]), str(doc.get("model", "")))] = (seq, data)
             self._send(data, None)
 
     def _stamp(self, doc: dict[str, Any]) -> int:
@@ -271,7 +280,10 @@ class ViewServer:
         """A new page's first messages (hello, history, latest spectra, end) and its queue."""
         client = _Client()
         with self._lock:
-            first = [_json(self._hello), *self._history]
+            oldest = self._history[0][0] if self._history else self._seq + 1
+            # a mode or diagnosis older than the history still holds: it goes first
+            kept = sorted(v for v in self._sticky.values() if v[0] < oldest)
+            first = [_json(self._hello), *(m for _, m in kept), *(m for _, m in self._history)]
             models = sorted(self._spectra)
             ended = self._ended
             self._clients.append(client)

@@ -1,6 +1,6 @@
 // The live view's script: reads the server's event stream (/events) and draws the reports.
 // Plain canvas, no plotting library: two plots (beta over time, the per-bin minimum over
-// frequency) need lines, dots, a log axis and shading, about a hundred lines here, where a
+// frequency) need lines, dots, a log axis and shading, about two hundred lines here, where a
 // library would be a file to vendor, licence and keep; the numbers a reader (or a test)
 // checks are in the table's cells and data attributes, not in pixels.
 "use strict";
@@ -8,7 +8,8 @@
   const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
   const ALARM_COLORS = { OK: "#66bb6a", WARN: "#ffa726", ERROR: "#e53935", STALE: "#9e9e9e" };
   const view = { hello: null, models: new Map(), lastArrival: null, ended: null,
-                 connected: false, latencies: [], pending: [], received: 0, dirty: false };
+                 connected: false, latencies: [], pending: [], received: 0, dirty: false,
+                 binsDirty: false };
   window.twotankView = view;
 
   function fmt(x, digits) { return x === null || x === undefined ? "–" : Number(x).toFixed(digits); }
@@ -47,6 +48,7 @@
     document.getElementById("title").textContent = hello.title ? "— " + hello.title : "";
     document.querySelector("#latest tbody").textContent = "";
     for (const name of Object.keys(hello.models || {})) model(name);
+    view.binsDirty = true;
   }
 
   function verdict(r) {
@@ -111,8 +113,11 @@
       // the latest judged window's per-bin minimum of a model (sent after its report)
       const m = model(msg.model);
       if (!m.spectrum || msg.seq >= m.spectrum.seq) {
-        m.spectrum = Object.assign({}, msg, { spectrum: { freqs_hz: f64(msg.freqs_hz), w_min: f64(msg.w_min) } });
-        view.dirty = true;
+        m.spectrum = Object.assign({}, msg, { spectrum: {
+          freqs_hz: f64(msg.freqs_hz), w_min: f64(msg.w_min),
+          noise_floor: msg.noise_floor ? f64(msg.noise_floor) : null,
+          excited: msg.excited || null } });
+        view.binsDirty = true;
       }
       return;
     }
@@ -126,7 +131,10 @@
       const b = document.getElementById("mode");
       b.hidden = false;
       b.dataset.mode = msg.mode;
-      b.textContent = "supervisor: " + msg.mode + " (since " + fmt(msg.time, 1) + " s)";
+      b.dataset.time = attr(msg.time);
+      b.dataset.seq = attr(msg.seq);
+      b.textContent = "supervisor: " + msg.mode + " (since " + fmt(msg.time, 1) + " s" +
+        (msg.reason ? ": " + msg.reason : "") + ")";
       return;
     }
     if (msg.type !== "report") return;
@@ -273,17 +281,6 @@
     lg.appendChild(el("span", "solid β (dynamics), dashed β_total, dotted β_op; strips under the plot: alarm per model (green OK, amber WARN, red ERROR, grey STALE)"));
   }
 
-  function noiseLevel(m, f) {
-    // the noise's β (noise_beta) spread evenly over the band's bins (weight 2 each): the
-    // per-bin level that would total it; only an orientation, the report has no per-bin floor
-    const r = m.spectrum, nb = r.noise_beta;
-    if (nb === null || nb === undefined) return null;
-    const band = (view.hello && view.hello.models && view.hello.models[m.name]) || null;
-    const lo = band ? band.min_hz : 0, hi = band && band.max_hz !== null ? band.max_hz : Infinity;
-    const n = f.filter((x) => x >= lo && x <= hi).length;
-    return n > 0 ? nb / Math.sqrt(2 * n) : null;
-  }
-
   function drawBins() {
     const canvas = document.getElementById("bin-plot");
     const f = frame(canvas), c = f.ctx;
@@ -313,26 +310,72 @@
     const xt = ticks(f, lx0, lx1, X, Y, true);
     for (const e of xt.vals) if (e >= lx0 && e <= lx1) c.fillText(xt.label(e), X(Math.pow(10, e)) - 12, f.b + 14);
     const notes = [];
-    let k = 0;
+    // the excited band (the lines the command excites, as the report's excited bins say),
+    // shaded once: the models judge the same window of the same command
+    let exc = null;
+    for (const m of view.models.values()) {
+      const s = m.spectrum && m.spectrum.spectrum;
+      if (s && s.excited && s.excited.length) { exc = s; break; }
+    }
+    if (exc) {
+      const fe = exc.excited.map((i) => exc.freqs_hz[i]);
+      const lo = Math.min.apply(null, fe), hi = Math.max.apply(null, fe);
+      c.fillStyle = "#2ca02c16";
+      c.fillRect(X(lo) - 2, f.t, Math.max(X(hi) - X(lo), 1) + 4, f.b - f.t);
+      notes.push("shaded green: the excited band " + lo.toPrecision(3) + " – " + hi.toPrecision(3) + " Hz (" + fe.length + " excited lines: markers joined; the other bins faint)");
+    }
     for (const m of view.models.values()) {
       if (!m.spectrum) continue;
       const band = (view.hello && view.hello.models && view.hello.models[m.name]) || null;
       if (band) {
-        const a = X(Math.max(band.min_hz, flo)), b = X(band.max_hz === null ? fhi : Math.min(band.max_hz, fhi));
-        c.fillStyle = m.color + "18";
-        c.fillRect(a, f.t + k * 4, Math.max(b - a, 1), f.b - f.t - k * 4);
-        notes.push("shaded: model " + m.name + "'s band " + band.min_hz + " – " + (band.max_hz === null ? "Nyquist" : band.max_hz) + " Hz" + (band.excited ? " (its excited lines only)" : ""));
+        // the model's own band (the bins its β counts): dashed edges in its colour
+        c.strokeStyle = m.color; c.lineWidth = 1; c.setLineDash([4, 3]);
+        for (const hz of [band.min_hz, band.max_hz]) {
+          if (hz === null || !(hz > flo && hz < fhi)) continue;
+          c.beginPath(); c.moveTo(X(hz), f.t); c.lineTo(X(hz), f.b); c.stroke();
+        }
+        c.setLineDash([]);
+        notes.push("dashed edges: model " + m.name + "'s band " + band.min_hz + " – " + (band.max_hz === null ? "Nyquist" : band.max_hz) + " Hz" + (band.excited ? " (its excited lines only)" : "") + ", the bins its β counts");
       }
       const s = m.spectrum.spectrum;
-      c.fillStyle = m.color;
+      const excited = new Set(s.excited || []);
+      const all = !s.excited;  // no excited bins in the report: every bin drawn alike
+      // the bins not excited (only noise there): faint dots
+      c.fillStyle = m.color + "55";
       for (let i = 0; i < s.freqs_hz.length; i++) {
         const w = s.w_min[i];
-        if (!Number.isFinite(w)) continue;
-        c.fillRect(X(s.freqs_hz[i]) - 1.5, Y(w) - 1.5, 3, 3);
+        if (!Number.isFinite(w) || (!all && excited.has(i))) continue;
+        c.fillRect(X(s.freqs_hz[i]) - 1, Y(w) - 1, 2, 2);
       }
-      const nl = noiseLevel(m, s.freqs_hz);
-      if (nl !== null) { hline(f, Y(nl), [2, 4], m.color, ""); notes.push("dotted: model " + m.name + "'s noise level " + nl.toPrecision(3) + " (its noise_beta " + m.spectrum.noise_beta.toPrecision(3) + " spread evenly over the band's bins)"); }
-      k++;
+      // the excited lines: markers joined in order
+      if (!all) {
+        c.strokeStyle = m.color; c.fillStyle = m.color; c.lineWidth = 1; c.beginPath();
+        let pen = false;
+        for (const i of s.excited) {
+          const w = s.w_min[i];
+          if (!Number.isFinite(w)) { pen = false; continue; }
+          if (pen) c.lineTo(X(s.freqs_hz[i]), Y(w)); else c.moveTo(X(s.freqs_hz[i]), Y(w));
+          pen = true;
+        }
+        c.stroke();
+        for (const i of s.excited) if (Number.isFinite(s.w_min[i])) c.fillRect(X(s.freqs_hz[i]) - 2, Y(s.w_min[i]) - 2, 4, 4);
+      }
+      // the per-bin noise floor: what the window's noise alone is expected to cost per bin
+      const nf = s.noise_floor;
+      if (nf && nf.some((v) => Number.isFinite(v) && v > 0)) {
+        c.strokeStyle = m.color; c.lineWidth = 1.2; c.setLineDash([2, 3]); c.beginPath();
+        let pen = false;
+        for (let i = 0; i < nf.length; i++) {
+          if (!(Number.isFinite(nf[i]) && nf[i] > 0)) { pen = false; continue; }
+          if (pen) c.lineTo(X(s.freqs_hz[i]), Y(nf[i])); else c.moveTo(X(s.freqs_hz[i]), Y(nf[i]));
+          pen = true;
+        }
+        c.stroke(); c.setLineDash([]);
+        const nb = m.spectrum.noise_beta;
+        notes.push("dotted: model " + m.name + "'s noise floor per bin (what the window's noise alone is expected to cost" + (nb === null || nb === undefined ? "" : "; over the band noise_beta " + nb.toPrecision(3)) + ")");
+      } else {
+        notes.push("model " + m.name + ": no noise floor (one period per window, no noise channels, or a report without it)");
+      }
     }
     hline(f, Y(1), [6, 4], "#000", "1");
     const lg = document.getElementById("bin-legend");
@@ -345,7 +388,7 @@
       lg.appendChild(s);
     }
     for (const n of notes) lg.appendChild(el("span", n));
-    if (!notes.some((n) => n.startsWith("shaded"))) lg.appendChild(el("span", "no band: every bin counts"));
+    if (!notes.some((n) => n.startsWith("dashed"))) lg.appendChild(el("span", "no band: every bin counts"));
   }
 
   function drawLists() {
@@ -390,9 +433,15 @@
   }
 
   function redraw() {
+    // the per-bin plot changes only with a spectrum (at most every 0.1 s a model), the rest
+    // with every report: a replay as fast as it goes redraws it that much less often
+    if (view.binsDirty) {
+      view.binsDirty = false;
+      drawBins();
+    }
     if (view.dirty) {
       view.dirty = false;
-      drawBeta(); drawBins(); drawLists();
+      drawBeta(); drawLists();
       document.body.dataset.drawn = String(view.received);
       // latency: from the report pushed (the server's clock) to the frame that draws it
       const now = Date.now();
