@@ -30,8 +30,8 @@ def _norm(name: str) -> str:
 def _requirements(path: Path) -> dict[str, str]:
     """Normalised name -> pinned version of each requirement line of ``path``."""
     out = {}
-    for line in path.read_text().splitlines():
-        line = line.split("#", 1)[0].strip()
+    for raw in path.read_text().splitlines():
+        line = raw.split("#", 1)[0].strip()
         if not line:
             continue
         m = re.fullmatch(r"([A-Za-z0-9_.-]+)(\[[^\]]*\])?==(\S+)", line)
@@ -114,6 +114,8 @@ def test_licence_and_changelog_match_the_manifest() -> None:
     assert changelog is not None
     versions = [version for version, _date, _content in changelog.foreach_version()]
     assert versions[0] == pkg.version, f"CHANGELOG.rst starts at {versions[0]}"
-    assert (ROOT / "QUALITY_DECLARATION.md").read_text().startswith(
-        f"This document is a declaration of software quality for the `{pkg.name}`"
+    assert (
+        (ROOT / "QUALITY_DECLARATION.md")
+        .read_text()
+        .startswith(f"This document is a declaration of software quality for the `{pkg.name}`")
     )
