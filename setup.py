@@ -54,6 +54,8 @@ def _data_files() -> list[tuple[str, list[str]]]:
         (f"{SHARE}/scenarios", _files(f"{PACKAGE}/{SCENARIOS}")),
         # Foxglove/Lichtblick and PlotJuggler layouts of the reports (docs/view.md)
         (f"{SHARE}/layouts", _files("layouts/*")),
+        # diagnostic_aggregator analyzers of the nodes' /diagnostics statuses (docs/ros.md)
+        (f"{SHARE}/config", _files("config/*.yaml")),
     ]
     return [(dest, files) for dest, files in groups if files]
 
