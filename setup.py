@@ -56,6 +56,8 @@ def _data_files() -> list[tuple[str, list[str]]]:
         (f"{SHARE}/layouts", _files("layouts/*")),
         # the SROS2 access-control policy of the nodes (docs/ros.md, "Security")
         (f"{SHARE}/security", _files("security/*.xml")),
+        # diagnostic_aggregator analyzers of the nodes' /diagnostics statuses (docs/ros.md)
+        (f"{SHARE}/config", _files("config/*.yaml")),
     ]
     return [(dest, files) for dest, files in groups if files]
 

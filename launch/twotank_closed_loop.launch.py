@@ -2,15 +2,17 @@
 
 The simulated plant, the PI controller (which adds the excitation to its output or its
 setpoints), the validator, fed the controller's `flow_cmd` and the measurements, and the
-supervisor, which watches `supervisor_models` (default B) and switches the controller to
-its safe mode on their alarm or silence (`control/mode`).
-Arguments: `models` (comma-separated, default A,B), `faults` (comma-separated fault specs,
-e.g. `leak=0.06@1000`), `real_time_factor` (default 1; > 1 runs the plant's /clock faster),
-`excitation_entry` (`output` or `setpoint`, default output). The plant owns the simulated
-clock (/clock); every node uses it. The validator's input periodicity gate is opened
-(`input_periodic_rtol` 0.25): closed-loop commands are not periodic. `control/mode`
-(std_msgs/String "normal"/"safe", transient-local) switches the controller's safe mode. Not
-exercised by the test suite (no launch wheels on PyPI); `twotank-validation live
+supervisor, which watches `supervisor_models` and switches the controller to its safe mode on
+their alarm or silence (`control/mode`, std_msgs/String "normal"/"safe", transient-local).
+Arguments: `params_file`, `namespace`, `use_sim_time` (default true: the plant owns /clock and
+every node uses it), `log_level`, `models` (the validator's, comma-separated),
+`supervisor_models` (the supervisor's `models`), `faults` (comma-separated fault specs, e.g.
+`leak=0.06@1000`), `real_time_factor` (> 1 runs the plant's /clock faster),
+`excitation_entry` (`output` or `setpoint`); an argument left empty leaves the parameter to
+the params file or the node's default. The validator's input periodicity gate is opened
+(`input_periodic_rtol`, the closed-loop value of twotank_validation.sim.control): closed-loop
+commands are not periodic. Not run by the test suite (no launch wheels on PyPI;
+test/test_launch_files.py runs its logic with stand-ins); `twotank-validation live
 --closed-loop` composes the same nodes in-process.
 """
 
@@ -19,45 +21,53 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
+from twotank_validation.ros.controller_node import CONTROLLER_PARAMS
+from twotank_validation.ros.launching import common_arguments, node_options, parameter_arguments
+from twotank_validation.ros.plant_node import PLANT_PARAMS
+from twotank_validation.ros.supervisor_node import SUPERVISOR_PARAMS
+from twotank_validation.ros.validator_node import VALIDATOR_PARAMS
+from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 
-CLOSED_LOOP_INPUT_PERIODIC_RTOL = 0.25  # twotank_validation.sim.control's value
+PLANT_ARGS = {"faults": "faults", "real_time_factor": "real_time_factor"}
+CONTROLLER_ARGS = {"excitation_entry": "excitation_entry"}
+VALIDATOR_ARGS = {"models": "models"}
+SUPERVISOR_ARGS = {"supervisor_models": "models"}
+ARGUMENTS = (
+    *common_arguments(use_sim_time=True),
+    *parameter_arguments(PLANT_PARAMS, PLANT_ARGS),
+    *parameter_arguments(CONTROLLER_PARAMS, CONTROLLER_ARGS),
+    *parameter_arguments(VALIDATOR_PARAMS, VALIDATOR_ARGS),
+    *parameter_arguments(SUPERVISOR_PARAMS, SUPERVISOR_ARGS),
+)
 
 
 def _nodes(context, *args, **kwargs):
-    models = [m for m in LaunchConfiguration("models").perform(context).split(",") if m]
-    faults = [f for f in LaunchConfiguration("faults").perform(context).split(",") if f] or [""]
-    rtf = float(LaunchConfiguration("real_time_factor").perform(context))
-    entry = LaunchConfiguration("excitation_entry").perform(context)
-    supervised = [
-        m for m in LaunchConfiguration("supervisor_models").perform(context).split(",") if m
-    ]
-    sim = {"use_sim_time": True}
+    values = {a.name: LaunchConfiguration(a.name).perform(context) for a in ARGUMENTS}
     return [
         Node(
             package="twotank_validation",
             executable="twotank_plant",
-            parameters=[{**sim, "publish_clock": True, "real_time_factor": rtf, "faults": faults}],
+            **node_options(values, PLANT_PARAMS, PLANT_ARGS, fixed={"publish_clock": True}),
         ),
         Node(
             package="twotank_validation",
             executable="twotank_controller",
-            parameters=[{**sim, "excitation_entry": entry}],
+            **node_options(values, CONTROLLER_PARAMS, CONTROLLER_ARGS),
         ),
         Node(
             package="twotank_validation",
             executable="twotank_validator",
-            parameters=[
-                {
-                    **sim,
-                    "models": models,
-                    "input_periodic_rtol": CLOSED_LOOP_INPUT_PERIODIC_RTOL,
-                }
-            ],
+            **node_options(
+                values,
+                VALIDATOR_PARAMS,
+                VALIDATOR_ARGS,
+                fixed={"input_periodic_rtol": CLOSED_LOOP_INPUT_PERIODIC_RTOL},
+            ),
         ),
         Node(
             package="twotank_validation",
             executable="twotank_supervisor",
-            parameters=[{**sim, "models": supervised}],
+            **node_options(values, SUPERVISOR_PARAMS, SUPERVISOR_ARGS),
         ),
     ]
 
@@ -66,11 +76,15 @@ def generate_launch_description():
     """Launch description (ROS 2 launch entry point)."""
     return LaunchDescription(
         [
-            DeclareLaunchArgument("models", default_value="A,B"),
-            DeclareLaunchArgument("supervisor_models", default_value="B"),
-            DeclareLaunchArgument("faults", default_value=""),
-            DeclareLaunchArgument("real_time_factor", default_value="1.0"),
-            DeclareLaunchArgument("excitation_entry", default_value="output"),
+            *(
+                DeclareLaunchArgument(
+                    a.name,
+                    default_value=a.default,
+                    description=a.description,
+                    choices=list(a.choices) or None,
+                )
+                for a in ARGUMENTS
+            ),
             OpaqueFunction(function=_nodes),
         ]
     )

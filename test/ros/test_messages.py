@@ -364,6 +364,7 @@ def test_colcon_builds_both_packages(tmp_path: Path) -> None:
     assert names(share / "scenarios", "*") == names(package / "sim/scenarios", "*.yaml")
     assert names(share / "layouts", "*") == ["twotank_foxglove.json", "twotank_plotjuggler.xml"]
     assert names(share / "security", "*") == ["twotank_policy.xml"]
+    assert names(share / "config", "*") == ["twotank_analyzers.yaml"]
     # package data (importlib.resources), next to the modules
     installed = own / site / "twotank_validation"
     assert names(installed / "models", "*.yaml") == ["model_a.yaml", "model_b.yaml"]

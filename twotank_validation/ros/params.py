@@ -10,8 +10,9 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 
 from twotank_validation.errors import TwotankError
 from twotank_validation.online.streams import RigUnits
@@ -24,6 +25,40 @@ LATCHED = QoSProfile(
 """QoS of the state topics (``validation/M/invalidated``, ``control/mode``,
 ``supervisor/state``): reliable, the last value kept for a late subscriber. Publisher and
 subscribers must agree on it, hence one definition."""
+
+VERDICT_DEADLINE_HOPS = 3
+"""The verdict topics' offered deadline, in hops (windows): a new report, margin and alarm state
+at least every this many hops (a hop is one window's advance, ``hop * ts_s`` of data time)."""
+
+VERDICT_LEASE_S = 5.0
+"""The verdict topics' liveliness lease (s, wall clock): AUTOMATIC liveliness, asserted by the
+validator's DDS participant while its process lives."""
+
+
+def verdict_qos(hop_s: float, *, latched: bool = False) -> QoSProfile:
+    """QoS of the validator's verdict topics: report and margin, or the alarm (``latched``).
+
+    Offers a deadline of :data:`VERDICT_DEADLINE_HOPS` hops and AUTOMATIC liveliness with a
+    :data:`VERDICT_LEASE_S` lease, so that a subscriber that requests them hears of a stopped
+    validator (deadline missed) or a dead one (liveliness lost) from DDS itself. Both are wall
+    clock: under a simulated clock slower than real time the deadline is missed. A subscriber
+    requesting neither (the default) is compatible; one requesting them must request a
+    deadline and a lease at least as long (docs/ros.md, QoS).
+
+    Args:
+        hop_s: the validator's hop (s of data time; ``hop * ts_s``).
+        latched: the alarm topic ``validation/M/invalidated``: depth 1, transient-local
+            (:data:`LATCHED`); otherwise depth 10, volatile.
+    """
+    base = LATCHED if latched else QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    return QoSProfile(
+        depth=base.depth,
+        reliability=base.reliability,
+        durability=base.durability,
+        deadline=Duration(nanoseconds=round(VERDICT_DEADLINE_HOPS * hop_s * 1e9)),
+        liveliness=LivelinessPolicy.AUTOMATIC,
+        liveliness_lease_duration=Duration(nanoseconds=round(VERDICT_LEASE_S * 1e9)),
+    )
 
 
 class ParameterError(TwotankError, ValueError):

@@ -78,13 +78,13 @@ from twotank_validation.online.window import verdict_text
 from twotank_validation.replay import model_documents
 from twotank_validation.ros import messages
 from twotank_validation.ros.params import (
-    LATCHED,
     UNIT_PARAMS,
     Param,
     ParameterError,
     declare,
     run_node,
     setting_params,
+    verdict_qos,
 )
 from twotank_validation.settings import from_flat
 
@@ -306,16 +306,19 @@ class ValidatorNode(Node):
             except ImportError as err:
                 raise ParameterError(f"cannot start the validator: {err}") from err
             self.create_subscription(cls, topic, partial(self._on_message, topic), 1000)
+        # deadline (a few hops) and liveliness offered on the verdict topics (docs/ros.md, QoS)
+        verdict = verdict_qos(self.config.hop * self.config.ts_s)
+        alarm_qos = verdict_qos(self.config.hop * self.config.ts_s, latched=True)
         self._pub_report = {
-            m.name: self.create_publisher(self._report_cls, f"validation/{m.name}/report", 10)
+            m.name: self.create_publisher(self._report_cls, f"validation/{m.name}/report", verdict)
             for m in self.models
         }
         self._pub_margin = {
-            m.name: self.create_publisher(Float64, f"validation/{m.name}/margin", 10)
+            m.name: self.create_publisher(Float64, f"validation/{m.name}/margin", verdict)
             for m in self.models
         }
         self._pub_invalid = {
-            m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", LATCHED)
+            m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", alarm_qos)
             for m in self.models
         }
         self._diagnosis_cls = messages.diagnosis_class()
