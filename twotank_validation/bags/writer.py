@@ -22,6 +22,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Final
 
+import yaml
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -205,6 +206,74 @@ class BagWriter:
             with contextlib.suppress(Exception):
                 self._writer.abort()
             raise
+
+    def flush(self) -> None:
+        """Make everything written so far readable after a crash (MCAP storage).
+
+        Closes the pending chunk (rosbags' MCAP writer otherwise holds up to 1 MiB in memory),
+        flushes the file to the operating system and (re)writes ``metadata.yaml`` for what
+        is in the file now (atomically: a temporary file renamed), so that a bag killed at
+        any later point is a rosbag2 directory whose file holds every flushed message: its
+        summary is missing, and the reader scans it (:mod:`~twotank_validation.bags.scan`).
+        :meth:`close` replaces the metadata with the final one. SQLite3 storage: nothing to
+        do (each write is in the database already).
+
+        Raises:
+            BagError: the bag is closed.
+        """
+        self._check_open()
+        storage: Any = self._writer.storage
+        if self.storage != "mcap" or storage is None:
+            return
+        # rosbags' McapWriter (pinned 0.11.9): the pending chunk and the file object
+        if storage.chunk.bio.tell():
+            storage.close_chunk()
+        storage.bio.flush()
+        self._write_metadata()
+
+    def _write_metadata(self) -> None:
+        w = self._writer
+        count = sum(w.counts.values())
+        start = w.min_timestamp if count else 0
+        duration = max(0, w.max_timestamp - w.min_timestamp) if count else 0
+        name = f"{self.path.name}.mcap"
+        info = {
+            "version": BAG_VERSION,
+            "storage_identifier": "mcap",
+            "relative_file_paths": [name],
+            "duration": {"nanoseconds": duration},
+            "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": count,
+            "topics_with_message_count": [
+                {
+                    "topic_metadata": {
+                        "name": c.topic,
+                        "type": c.msgtype,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": [],
+                        "type_description_hash": c.digest,
+                    },
+                    "message_count": w.counts[c.id],
+                }
+                for c in w.connections
+            ],
+            "compression_format": "",
+            "compression_mode": "",
+            "files": [
+                {
+                    "path": name,
+                    "starting_time": {"nanoseconds_since_epoch": start},
+                    "duration": {"nanoseconds": duration},
+                    "message_count": count,
+                }
+            ],
+            "custom_data": dict(w.custom_data) or None,
+            "ros_distro": "rosbags",
+        }
+        meta = self.path / "metadata.yaml"
+        tmp = meta.with_suffix(".yaml.tmp")
+        tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}), "utf8")
+        tmp.replace(meta)
 
     @property
     def closed(self) -> bool:

@@ -27,6 +27,71 @@ from twotank_validation.settings import FlatSetting, check_settings, flat, group
 
 
 @dataclass(frozen=True)
+class EvidenceConfig:
+    """Evidence on an alarm: the data around a rising alarm written to a bag (docs/ros.md).
+
+    Attributes:
+        dir: directory of the evidence bags; empty: off.
+        periods_before: excitation periods kept before the rise (the ring buffer).
+        periods_after: periods written after the rise at most (the bag closes sooner, once
+            the live diagnosis's first answer is in).
+        max_bags: bags kept in ``dir`` (the oldest removed first).
+        max_bag_mb: largest bag (MB); beyond it the bag is closed.
+        queue: messages the writer thread may fall behind by; beyond, they are dropped.
+    """
+
+    dir: str = setting(
+        "",
+        "directory of the evidence bags written when a model's alarm rises (the periods "
+        "before the rise and the windows after it); empty: off",
+        option="--evidence-dir",
+    )
+    periods_before: int = setting(
+        16,
+        "excitation periods kept before the alarm's rise (at least settle_periods + "
+        "periods_per_window, what diagnose needs for one window)",
+        unit="periods",
+        low=1,
+        high=1000,
+        option="--evidence-periods-before",
+    )
+    periods_after: int = setting(
+        8,
+        "excitation periods written after the alarm's rise at most (the bag closes sooner "
+        "once the live diagnosis's first answer is in)",
+        unit="periods",
+        low=1,
+        high=1000,
+        option="--evidence-periods-after",
+    )
+    max_bags: int = setting(
+        10,
+        "evidence bags kept in evidence_dir; the oldest are removed",
+        low=1,
+        high=100000,
+        option="--evidence-max-bags",
+    )
+    max_bag_mb: float = setting(
+        64.0,
+        "largest evidence bag (MB); the bag is closed when it reaches it",
+        unit="MB",
+        low=0.01,
+        high=1e6,
+        option="--evidence-max-mb",
+    )
+    queue: int = setting(
+        65536,
+        "messages the evidence writer thread may fall behind by; beyond, messages are "
+        "dropped (never waited for) and /diagnostics says how many",
+        low=16,
+        high=10000000,
+    )
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
 class ValidatorSettings:
     """Every setting of the online validator (the node's parameters, by their flat names).
 
@@ -38,6 +103,7 @@ class ValidatorSettings:
         diagnosis: name the fault live once a model's alarm is ERROR.
         live_diagnosis: the live diagnosis's settings (flat names ``diagnosis_...``).
         oversampling: topics published faster than ``ts_s``, ``TOPIC=N`` each.
+        evidence: evidence on an alarm (flat names ``evidence_...``).
     """
 
     models: tuple[str, ...] = setting(
@@ -70,6 +136,7 @@ class ValidatorSettings:
         "flow_cmd=2 and height=2 with ts_s 0.2 for commands and level at 10 Hz, temperature "
         "at 5 Hz; empty: every topic at ts_s",
     )
+    evidence: EvidenceConfig = group(EvidenceConfig, prefix="evidence_")
 
     def __post_init__(self) -> None:
         check_settings(self)

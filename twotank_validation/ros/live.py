@@ -41,6 +41,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
+from twotank_validation.bags.evidence import EvidenceStatus
 from twotank_validation.defaults import NS_PER_S, PERIOD_SAMPLES, TS_S
 from twotank_validation.online import Sample, SampleBlock, WindowReport
 from twotank_validation.online import streams as itf
@@ -125,6 +126,8 @@ class LiveResult:
         transitions: the supervisor's mode changes (with ``LiveConfig.supervisor``).
         steps: samples simulated (all of them unless interrupted).
         interrupted: the run was stopped before its end (``run_live(stop=...)``).
+        evidence: what the evidence recorder did (validator parameter ``evidence_dir``;
+            None when off): the bags written on the alarms.
     """
 
     reports: list[WindowReport]
@@ -134,6 +137,7 @@ class LiveResult:
     transitions: list[Transition] = field(default_factory=list)
     steps: int = 0
     interrupted: bool = False
+    evidence: EvidenceStatus | None = None
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter[Any]]:
@@ -389,7 +393,13 @@ def run_live(
         wall = time.monotonic() - start
         counters = dataclasses.asdict(val.core.counters())
         log = list(supervisor.machine.log) if supervisor is not None else []
-        return LiveResult(kept, list(val.samples), wall, counters, log, steps, interrupted)
+        evidence = None
+        if val.evidence is not None:  # the bag being written is closed with what came
+            val.evidence.close()
+            evidence = val.evidence.status()
+        return LiveResult(
+            kept, list(val.samples), wall, counters, log, steps, interrupted, evidence
+        )
     finally:
         for n in nodes:
             n.destroy_node()

@@ -53,9 +53,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
+from twotank_validation.bags.evidence import EvidenceRecorder
 from twotank_validation.core.model import LFTModel, load_model_document, model_from_dict
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
@@ -73,7 +75,7 @@ from twotank_validation.online.interface_text import interface_map_from_text
 from twotank_validation.online.livediag import LiveDiagConfig, LiveDiagnoser, LiveDiagnosis
 from twotank_validation.online.sources import InterfaceMapError
 from twotank_validation.online.validator import parse_oversampling
-from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS
+from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS, EvidenceConfig
 from twotank_validation.online.window import verdict_text
 from twotank_validation.replay import model_documents
 from twotank_validation.ros import messages
@@ -124,6 +126,7 @@ class _Event:
     stamp_ns: int
     values: tuple[float, ...]
     received: float
+    msg: Any = None  # the message itself (serialised for the evidence bag by the worker)
 
 
 @dataclass(slots=True)
@@ -275,6 +278,7 @@ class ValidatorNode(Node):
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
+        self.evidence = _evidence_recorder(values, self.config, self.interface, self.models)
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
         _, self._report_cls = messages.message_classes()
         self._topics = self.interface.topics()
@@ -380,7 +384,7 @@ class ValidatorNode(Node):
             except InterfaceMapError:
                 values.append(math.nan)  # the aligner flags it as a non-finite sample
         stamp = source_stamp_ns(msg, sources.bindings[0].source, now)
-        self._queue.put(_Event(topic, stamp, tuple(values), received))
+        self._queue.put(_Event(topic, stamp, tuple(values), received, msg))
 
     def _on_time_jump(self, jump: Any) -> None:
         if jump.delta.nanoseconds < 0:
@@ -434,11 +438,16 @@ class ValidatorNode(Node):
                 with self._lock:
                     self.core.restart()
                 continue
-            self._process(item.topic, item.stamp_ns, item.values, item.received)
+            self._process(item.topic, item.stamp_ns, item.values, item.received, item.msg)
 
-    def _process(self, topic: str, stamp_ns: int, value: Any, received: float) -> None:
+    def _process(
+        self, topic: str, stamp_ns: int, value: Any, received: float, msg: Any = None
+    ) -> None:
         """Feed one message's values to the validator and publish the reports it completes."""
+        evidence = self.evidence
         try:
+            if evidence is not None and msg is not None:
+                evidence.note(topic, stamp_ns, serialize_message(msg))
             reports = self.feed(topic, stamp_ns, value)
         except Exception as err:  # keep the node alive; the status says what happened
             self.get_logger().error(f"validator failed on {topic} at {stamp_ns} ns: {err}")
@@ -450,6 +459,8 @@ class ValidatorNode(Node):
         if reports:
             status = dict(self._status)
             for rep in reports:
+                if evidence is not None:
+                    evidence.on_report(rep.model, rep.alarm, rep.end_ns, diagnosed=self._last(rep))
                 status[rep.model] = self._publish(rep)
             self._status = status
             self._publish_diagnostics()  # once every model's status is new
@@ -495,6 +506,27 @@ class ValidatorNode(Node):
             KeyValue(key="diagnosis_summary", value=d.summary),
         ]
 
+    def _last(self, rep: WindowReport) -> bool:
+        """The report carries the live diagnosis's last answer to its alarm (all are in)."""
+        d = rep.diagnosis
+        return (
+            d is not None
+            and self.diagnoser is not None
+            and (d.update >= self.diagnoser.config.max_updates)
+        )
+
+    def _evidence_values(self, name: str) -> list[KeyValue]:
+        """The /diagnostics keys of the evidence bags (none when evidence_dir is empty)."""
+        if self.evidence is None:
+            return []
+        st = self.evidence.status()
+        return [
+            KeyValue(key="evidence_bag", value=st.by_model.get(name, "")),
+            KeyValue(key="evidence_state", value=st.state),
+            KeyValue(key="evidence_dropped", value=str(st.dropped)),
+            KeyValue(key="evidence_error", value=st.error),
+        ]
+
     def _publish_invalidated(self, name: str, value: bool) -> None:
         self._pub_invalid[name].publish(Bool(data=value))
 
@@ -533,6 +565,7 @@ class ValidatorNode(Node):
                     KeyValue(key="operating_point", value=rep.operating_point),
                     KeyValue(key="op_reference", value=op_reference_text(ops[m.name])),
                     *self._diagnosis_values(m.name, rep),
+                    *self._evidence_values(m.name),
                 ]
             arr.status.append(st)
         self._pub_diag.publish(arr)
@@ -576,6 +609,9 @@ class ValidatorNode(Node):
         executor = getattr(self, "_executor", None)
         if executor is not None:
             executor.shutdown(wait=True, cancel_futures=True)
+        evidence = getattr(self, "evidence", None)
+        if evidence is not None:
+            evidence.close()  # the bag being written is closed: what came so far is in it
         super().destroy_node()
 
 
@@ -597,6 +633,34 @@ def _interface_map(values: dict[str, Any], units: itf.RigUnits) -> InterfaceMap:
             raise ParameterError("inputs and outputs go together: give every input and output")
         return interface_map_from_text(inputs, outputs)
     return itf.two_tank_map(units)
+
+
+def _evidence_recorder(
+    values: dict[str, Any], config: MonitorConfig, imap: InterfaceMap, models: Sequence[LFTModel]
+) -> EvidenceRecorder | None:
+    """The evidence recorder of the ``evidence_*`` parameters (None: ``evidence_dir`` empty).
+
+    Raises:
+        ParameterError: settings that cannot hold (too few periods kept, a directory that
+            cannot be made).
+    """
+    cfg = from_flat(EvidenceConfig, values, prefix="evidence_")
+    if not cfg.dir:
+        return None
+    topics = {t: s.msgtype for t, s in imap.topics().items()}
+    over = parse_oversampling(values["oversampling"])
+    try:
+        return EvidenceRecorder(
+            cfg,
+            topics=topics,
+            ts_s=config.ts_s,
+            period_samples=config.period_samples,
+            messages_per_sample=sum(over.get(t, 1) for t in topics),
+            needed_periods=config.settle_periods + config.periods_per_window,
+            models=[m.name for m in models],
+        )
+    except TwotankError as err:
+        raise ParameterError(f"cannot start the validator: {err}") from err
 
 
 def main(args: list[str] | None = None) -> int:
