@@ -29,7 +29,14 @@ from twotank_validation.sim.excitation import RIG_DESIGN, ExcitationDesign
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 BY_NAME = {s.name: s for s in VALIDATOR_SETTINGS}
 EXPOSED = [s for s in VALIDATOR_SETTINGS if not s.meta.hidden]
-BY_OPTION = {s.meta.option: s for s in VALIDATOR_SETTINGS if s.meta.option}
+BY_OPTION = {
+    s.meta.option: s for s in VALIDATOR_SETTINGS if s.meta.option and s.path[0] == "monitor"
+}
+"""The bag commands' window and alarm options."""
+LIVE_OPTIONS = {
+    s.meta.option: s for s in VALIDATOR_SETTINGS if s.meta.option and s.path[0] == "evidence"
+}
+"""``live``'s options of the tree: the evidence on an alarm (validator parameters)."""
 
 NOT_SETTINGS_PARAMS = {
     "pascal_per_unit": "interface: unit conversion (RigUnits), shared by the converting nodes",
@@ -324,6 +331,10 @@ def test_cli_options_are_settings_or_say_why_not(command: str) -> None:
             bag = command in ("validate", "diagnose", "calibrate")
             assert action.default == (None if bag else s.param_default), (command, option)
             continue
+        if command == "live" and option in LIVE_OPTIONS:
+            s = LIVE_OPTIONS[option]
+            assert (action.default, action.type) == (s.param_default, s.kind), option
+            continue
         assert option in BY_OPTION, (
             f"{command} {option} is neither a setting's option nor listed in NOT_SETTINGS_OPTIONS"
         )
@@ -447,6 +458,9 @@ def test_cli_docs_list_the_options_with_the_trees_defaults() -> None:
         assert _doc_value(bag[option][0]) == s.param_default, (option, bag[option][0])
     for option, name in TIMING_OPTIONS.items():
         assert _doc_value(live[option][0]) == BY_NAME[name].param_default, option
+    for option, s in LIVE_OPTIONS.items():
+        assert option in live, f"docs/cli.md's live table lacks {option}"
+        assert _doc_value(live[option][0]) == s.param_default, (option, live[option][0])
     debounce = bag["--debounce"][1]
     for name in ("alarm_windows", "alarm_evidence"):
         assert str(BY_NAME[name].default) in debounce, (name, debounce)

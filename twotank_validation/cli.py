@@ -38,10 +38,12 @@ from twotank_validation.cli_options import (
     absolute,
     add_calibrate_arguments,
     add_diagnose_arguments,
+    add_evidence_options,
     add_identify_arguments,
     add_recording_options,
     add_validate_arguments,
     check_fleet_options,
+    evidence_params,
     option_dest,
     read_settings,
     replay_config,
@@ -200,6 +202,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
         record_samples=False,
         keep_reports=False,
         node_info_log=False,  # the answers are printed on stdout, in simulated time
+        validator=evidence_params(args),
     )
     if cfg.supervisor and not cfg.closed_loop:
         print(
@@ -213,6 +216,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
         with Interrupts() as interrupts:
             on_transition = view.transition if view is not None else None
             result = run_live(cfg, on_report=report, on_transition=on_transition, stop=interrupts)
+        if result.evidence is not None:
+            for bag in result.evidence.bags:
+                print(f"evidence bag: {bag}", file=sys.stderr)
         code = _live_tail(args, output, result, cfg, interrupts)
         if view is not None:
             view.hold(f"live run ended (exit code {code})")
@@ -635,6 +641,7 @@ def build_parser() -> argparse.ArgumentParser:
         "while these models' alarm is ERROR (default: the supervisor's own, B); its "
         "transitions are printed at the end",
     )
+    add_evidence_options(live)
     add_live_model_options(live, _cmd_live)
 
     att = command(

@@ -96,6 +96,7 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
             "a duration of at least one sample"
         )
     loopback_only()
+    from twotank_validation.cli_options import evidence_params  # noqa: PLC0415
     from twotank_validation.ros.live_model import (  # noqa: PLC0415 (needs rclpy)
         ModelLiveConfig,
         run_model_live,
@@ -112,6 +113,7 @@ def cmd_live_model(args: argparse.Namespace, two_tank: Callable[[argparse.Namesp
         noise_scale=args.noise_scale,
         noise_seed=args.seed,
         record_samples=False,
+        validator=evidence_params(args),
     )
 
     import contextlib  # noqa: PLC0415 (here: the module's imports are shared by other commands)

@@ -165,7 +165,25 @@ def _check_tls_options(args: argparse.Namespace) -> None:
 
 def _option_settings() -> tuple[FlatSetting, ...]:
     """The settings that are options of the bag commands (the window and alarm options)."""
-    return tuple(s for s in VALIDATOR_SETTINGS if s.meta.option)
+    return tuple(s for s in VALIDATOR_SETTINGS if s.meta.option and s.path[0] == "monitor")
+
+
+def _evidence_settings() -> tuple[FlatSetting, ...]:
+    """The evidence settings that are ``live`` options (``--evidence-dir`` ...)."""
+    return tuple(s for s in VALIDATOR_SETTINGS if s.meta.option and s.path[0] == "evidence")
+
+
+def add_evidence_options(parser: argparse.ArgumentParser) -> None:
+    """``live``'s evidence options, generated from the settings tree (docs/ros.md)."""
+    for s in _evidence_settings():
+        parser.add_argument(
+            s.meta.option, type=s.kind, default=s.param_default, help=s.meta.description
+        )
+
+
+def evidence_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The validator parameters of ``live``'s evidence options (by their flat names)."""
+    return {s.name: getattr(args, option_dest(s.meta.option)) for s in _evidence_settings()}
 
 
 def option_dest(option: str) -> str:
