@@ -43,6 +43,7 @@ class _Diagnostics:
 
     def __init__(self) -> None:
         self.keys: list[dict[str, str]] = []
+        self.diagnoses: list = []
 
     def attach(self, ctx):
         from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
@@ -50,6 +51,9 @@ class _Diagnostics:
 
         node = Node("twotank_evidence_listener", context=ctx)
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 10)
+        node.create_subscription(
+            messages.diagnosis_class(), "/validation/B/diagnosis", self.diagnoses.append, 10
+        )
         # run_live's discovery wait counts an attached node among the interface's readers
         for topic, msgtype in two_tank_map().topics().items():
             cls = messages.message_class(msgtype.msgtype)
@@ -80,7 +84,7 @@ def leak_run(tmp_path_factory):
         },
         node_info_log=False,
     )
-    return run_live(cfg, attach=listener.attach), out, listener.keys
+    return run_live(cfg, attach=listener.attach), out, listener
 
 
 def _bag_values(bag_path: Path) -> dict[int, tuple[list[float], list[float]]]:
@@ -98,7 +102,8 @@ def _bag_values(bag_path: Path) -> dict[int, tuple[list[float], list[float]]]:
 
 
 def test_the_alarm_writes_the_samples_before_and_after_it_bit_for_bit(leak_run) -> None:
-    res, out, keys = leak_run
+    res, out, listener = leak_run
+    keys = listener.keys
     assert res.evidence is not None
     (bag,) = res.evidence.bags
     assert evidence_bags(out) == [Path(bag)]
@@ -106,6 +111,9 @@ def test_the_alarm_writes_the_samples_before_and_after_it_bit_for_bit(leak_run) 
     assert keys[0]["evidence_bag"] == ""
     assert keys[-1]["evidence_bag"] == bag
     assert {k["evidence_dropped"] for k in keys} == {"0"}
+    # and in the live diagnosis's message (its field evidence_bag)
+    assert listener.diagnoses
+    assert {d.evidence_bag for d in listener.diagnoses} == {bag}
     assert res.evidence.dropped == 0
     assert res.evidence.error == ""
     rise = next(r for r in res.reports if r.alarm is Alarm.ERROR)

@@ -8,8 +8,8 @@ buffer and the messages after it go to a new bag in ``EvidenceConfig.dir``, unti
 of that model carries the live diagnosis's last answer to the alarm (its
 ``diagnosis_max_updates``-th), or ``periods_after`` periods of data have followed the rise.
 ``twotank-validation diagnose BAG --model M`` reads the bag as it is: the same topics and
-types as the live system, the sample and excitation periods in its metadata (``custom_data``: ``ts_s``, ``period_samples``, and the
-alarm under :data:`CUSTOM_DATA_KEY`).
+types as the live system, the sample and excitation periods in its metadata
+(``custom_data``: ``ts_s``, ``period_samples``, and the alarm under :data:`CUSTOM_DATA_KEY`).
 
 Never blocking: :meth:`~EvidenceRecorder.note` and :meth:`~EvidenceRecorder.on_report` only
 append to a bounded deque or put to a bounded queue without waiting; a writer thread writes

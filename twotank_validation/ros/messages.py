@@ -54,8 +54,8 @@ def diagnosis_class() -> Any:
     return Diagnosis
 
 
-def diagnosis_message(diagnosis: LiveDiagnosis, cls: Any) -> Any:
-    """Fill a Diagnosis message from a :class:`LiveDiagnosis`."""
+def diagnosis_message(diagnosis: LiveDiagnosis, cls: Any, evidence_bag: str = "") -> Any:
+    """Fill a Diagnosis message from a :class:`LiveDiagnosis` (and its alarm's evidence bag)."""
     msg = cls()
     set_stamp(msg.header.stamp, diagnosis.window_end_ns)
     msg.model = diagnosis.model
@@ -70,6 +70,7 @@ def diagnosis_message(diagnosis: LiveDiagnosis, cls: Any) -> Any:
     msg.windows = int(diagnosis.windows)
     msg.update = int(diagnosis.update)
     msg.summary = diagnosis.summary
+    msg.evidence_bag = evidence_bag
     return msg
 
 

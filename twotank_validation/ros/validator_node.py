@@ -488,7 +488,10 @@ class ValidatorNode(Node):
         """A live diagnosis is ready (executor thread): publish it at once."""
         self._latest_diagnosis[d.model] = d
         self.diagnoses.append(d)
-        self._pub_diagnosis[d.model].publish(messages.diagnosis_message(d, self._diagnosis_cls))
+        bag = self.evidence.status().by_model.get(d.model, "") if self.evidence else ""
+        self._pub_diagnosis[d.model].publish(
+            messages.diagnosis_message(d, self._diagnosis_cls, bag)
+        )
         self.get_logger().info(diagnosis_text(d))
 
     def _diagnosis_values(self, name: str, rep: WindowReport) -> list[KeyValue]:
