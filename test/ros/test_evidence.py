@@ -23,10 +23,11 @@ import pytest
 
 from twotank_validation import cli
 from twotank_validation.bags import BagCorruptError, open_bag
-from twotank_validation.bags.evidence import EvidenceRecorder, evidence_bags
+from twotank_validation.bags.evidence import MAP_FILE, EvidenceRecorder, evidence_bags
 from twotank_validation.diagnose.kinds import expected_effect
 from twotank_validation.online import Alarm
 from twotank_validation.online.extraction import extract
+from twotank_validation.online.interface_map import load_interface_map
 from twotank_validation.online.streams import two_tank_map
 from twotank_validation.online.validator_settings import EvidenceConfig
 from twotank_validation.ros import messages
@@ -116,6 +117,8 @@ def test_the_alarm_writes_the_samples_before_and_after_it_bit_for_bit(leak_run) 
     assert {d.evidence_bag for d in listener.diagnoses} == {bag}
     assert res.evidence.dropped == 0
     assert res.evidence.error == ""
+    # the validator's interface map inside the bag (for a map other than the preset's)
+    assert load_interface_map(Path(bag) / MAP_FILE) == two_tank_map()
     rise = next(r for r in res.reports if r.alarm is Alarm.ERROR)
     meta = json.loads(open_bag(bag).info.custom_data["twotank_validation.evidence"])
     assert meta["alarm_rise_s"] == rise.end_ns / 1e9

@@ -46,11 +46,14 @@ from twotank_validation.bags.writer import BagWriter
 from twotank_validation.defaults import NS_PER_S
 from twotank_validation.errors import DatumError
 from twotank_validation.online.alarm import Alarm
+from twotank_validation.online.interface_map import InterfaceMap
 from twotank_validation.online.validator_settings import EvidenceConfig
+from twotank_validation.sim.model_record import write_interface_map
 
 __all__ = [
     "CUSTOM_DATA_KEY",
     "FLUSH_BYTES",
+    "MAP_FILE",
     "EvidenceRecorder",
     "EvidenceStatus",
     "evidence_bags",
@@ -58,6 +61,9 @@ __all__ = [
 
 CUSTOM_DATA_KEY: Final = "twotank_validation.evidence"
 """Key of the alarm's description (JSON) in an evidence bag's custom_data."""
+
+MAP_FILE: Final = "interface_map.yaml"
+"""The validator's interface map, written inside each evidence bag's directory."""
 
 FLUSH_BYTES: Final = 64 * 1024
 """Message bytes after which the writer flushes the bag (an MCAP chunk each)."""
@@ -123,6 +129,9 @@ class EvidenceRecorder:
         needed_periods: periods one judged window needs (settling + window): the ring
             buffer must hold at least this many.
         models: the models validated.
+        interface: the validator's interface map, written into each bag as
+            :data:`MAP_FILE` (``diagnose BAG --map BAG/interface_map.yaml`` for a map other
+            than the two-tank preset in its default units); None: none written.
 
     Raises:
         DatumError: ``periods_before`` below ``needed_periods``, or the directory cannot be
@@ -139,6 +148,7 @@ class EvidenceRecorder:
         messages_per_sample: int,
         needed_periods: int,
         models: Sequence[str] = (),
+        interface: InterfaceMap | None = None,
     ) -> None:
         if config.periods_before < needed_periods:
             raise DatumError(
@@ -156,6 +166,7 @@ class EvidenceRecorder:
         self.ts_s = ts_s
         self.period_samples = period_samples
         self.models = tuple(models)
+        self.interface = interface
         self.period_ns = round(period_samples * ts_s * NS_PER_S)
         self.span_ns = config.periods_before * self.period_ns
         self.max_ring = config.periods_before * period_samples * max(messages_per_sample, 1)
@@ -387,6 +398,8 @@ class EvidenceRecorder:
         for topic, msgtype in self.topics.items():
             bag.add_topic(topic, msgtype)
         bag.flush()  # a readable (empty) bag from the start
+        if self.interface is not None:
+            write_interface_map(self.interface, path / MAP_FILE)
         self._close_pending.clear()
         return bag
 

@@ -661,6 +661,7 @@ def _evidence_recorder(
             messages_per_sample=sum(over.get(t, 1) for t in topics),
             needed_periods=config.settle_periods + config.periods_per_window,
             models=[m.name for m in models],
+            interface=imap,
         )
     except TwotankError as err:
         raise ParameterError(f"cannot start the validator: {err}") from err
