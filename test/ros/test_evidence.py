@@ -25,6 +25,7 @@ from twotank_validation import cli
 from twotank_validation.bags import BagCorruptError, open_bag
 from twotank_validation.bags.evidence import MAP_FILE, EvidenceRecorder, evidence_bags
 from twotank_validation.diagnose.kinds import expected_effect
+from twotank_validation.errors import DatumError
 from twotank_validation.online import Alarm
 from twotank_validation.online.extraction import extract
 from twotank_validation.online.interface_map import load_interface_map
@@ -201,6 +202,11 @@ def _cdr(k: int) -> bytes:
     )
 
 
+def test_a_ring_buffer_shorter_than_a_window_is_refused(tmp_path) -> None:
+    with pytest.raises(DatumError, match=r"periods_before = 2 .* needs .* = 3 periods"):
+        _recorder(tmp_path, periods_before=2)
+
+
 def test_the_ring_buffer_and_the_disk_use_are_bounded(tmp_path) -> None:
     rec = _recorder(tmp_path, periods_before=3, periods_after=100, max_bags=2, max_bag_mb=0.01)
     msg = _cdr(1)
@@ -258,6 +264,7 @@ KILLED = """
 import sys, time
 from twotank_validation.bags.evidence import EvidenceRecorder
 from twotank_validation.bags.writer import fluid_pressure, typestore
+from twotank_validation.errors import DatumError
 from twotank_validation.online import Alarm
 from twotank_validation.online.validator_settings import EvidenceConfig
 

@@ -384,7 +384,8 @@ class ValidatorNode(Node):
             except InterfaceMapError:
                 values.append(math.nan)  # the aligner flags it as a non-finite sample
         stamp = source_stamp_ns(msg, sources.bindings[0].source, now)
-        self._queue.put(_Event(topic, stamp, tuple(values), received, msg))
+        kept = msg if self.evidence is not None else None  # serialised by the worker
+        self._queue.put(_Event(topic, stamp, tuple(values), received, kept))
 
     def _on_time_jump(self, jump: Any) -> None:
         if jump.delta.nanoseconds < 0:
