@@ -40,6 +40,7 @@ from twotank_validation.usecases import ValidateJob
 from twotank_validation.usecases.reading import ReadSettings
 from twotank_validation.view import Pacer, ViewServer
 from twotank_validation.view.messages import mode_message
+from twotank_validation.view.response import ResponseError, response_message
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
 ROWS = (
@@ -436,3 +437,21 @@ def test_a_wrong_view_response_file_is_exit_2_naming_the_fix(
     assert "identify a recording of these channels" in capsys.readouterr().err
     assert cli.main(["validate", str(leak_bag), "--view-response", str(identified)]) == 2
     assert "add --view" in capsys.readouterr().err
+
+
+def test_a_response_of_the_total_sigma_only_or_with_channel_names(identified: Path) -> None:
+    """The other forms of the report: the total σ alone (``std``), and named channels."""
+    doc = json.loads(identified.read_text())
+    rep = doc["report"]
+    rep["std"] = np.hypot(rep.pop("std_noise"), rep.pop("std_distortion")).tolist()
+    rep["std_noise"] = rep["std"]
+    msg = response_message(doc, ("hot", "cold"), ("height", "temperature"))
+    assert msg["matched"] == "shape"
+    entry = msg["entries"][1]  # height / cold
+    assert (entry["output"], entry["input"]) == ("height", "cold")
+    assert entry["std_distortion"] is None
+    assert entry["std_total"] == [line[0][1] for line in rep["std"]]
+    doc |= {"inputs": ["hot", "cold"], "outputs": ["height", "temperature"]}
+    assert response_message(doc, ("hot", "cold"), ("height", "temperature"))["matched"] == "names"
+    with pytest.raises(ResponseError, match="identify a recording of these channels"):
+        response_message(doc, ("cold", "hot"), ("height", "temperature"))

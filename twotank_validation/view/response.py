@@ -97,11 +97,12 @@ def response_message(
     shape = (freqs.size, n_y, n_u)
     nominal = _array(report, "nominal", (*shape, 2))
     std_noise = _array(report, "std_noise", shape)
+    std_dist: np.ndarray | None = None
     if "std_distortion" in report:
-        std_dist: np.ndarray | None = _array(report, "std_distortion", shape)
+        std_dist = _array(report, "std_distortion", shape)
         std_total = np.hypot(std_noise, std_dist)
     else:  # a report with the total only
-        std_dist, std_total = None, _array(report, "std", shape)
+        std_total = _array(report, "std", shape)
     pert = report.get("perturbation")
     weight = _array(pert if isinstance(pert, Mapping) else {}, "weight", (freqs.size, n_y))
     matched = _match(doc, inputs, outputs)
