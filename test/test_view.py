@@ -433,8 +433,9 @@ def test_a_wrong_view_response_file_is_exit_2_naming_the_fix(
         err = capsys.readouterr().err
         assert why in err, err
         assert err.count("\n") == 1, err  # one line
-    assert cli.main(["live", "--view", "--view-response", str(tmp_path / "one-input.json")]) == 2
-    assert "identify a recording of these channels" in capsys.readouterr().err
+    for cmd in (["live", "--view"], ["view"]):
+        assert cli.main([*cmd, "--view-response", str(tmp_path / "one-input.json")]) == 2
+        assert "identify a recording of these channels" in capsys.readouterr().err
     assert cli.main(["validate", str(leak_bag), "--view-response", str(identified)]) == 2
     assert "add --view" in capsys.readouterr().err
 
