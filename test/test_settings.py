@@ -101,6 +101,7 @@ NOT_SETTINGS_OPTIONS = {
     "--noise-scale": "live: the model plant node's noise",
     "--view": "validate, live: the live view (a listener of the reports, docs/view.md)",
     "--view-port": "validate, live: the live view's port",
+    "--view-response": "validate, live: an identify JSON the live view shows (docs/view.md)",
     "--replay-speed": "validate --view: the replay's pace for the view",
     "--foxglove": "validate, live: the reports over Foxglove's protocol (a listener, docs/view.md)",
     "--foxglove-port": "validate, live: the Foxglove server's port",

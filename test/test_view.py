@@ -32,6 +32,7 @@ import pytest
 from tools.browser import headless_page
 from twotank_validation import cli
 from twotank_validation.bags import write_scenario_bag
+from twotank_validation.cli_view import ViewRun, view_response
 from twotank_validation.online import Alarm, WindowReport
 from twotank_validation.online.window import MonitorConfig
 from twotank_validation.sim import scenario as sc
@@ -39,6 +40,7 @@ from twotank_validation.usecases import ValidateJob
 from twotank_validation.usecases.reading import ReadSettings
 from twotank_validation.view import Pacer, ViewServer
 from twotank_validation.view.messages import mode_message
+from twotank_validation.view.response import ResponseError, response_message
 
 FAST = MonitorConfig(ts_s=0.8, period_samples=256)
 ROWS = (
@@ -63,6 +65,14 @@ def leak_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
         base, ts_s=0.8, period_samples=256, duration_s=8 * 204.8, faults=("leak=0.04@1000",)
     )
     return write_scenario_bag(s, tmp_path_factory.mktemp("view") / "leak", storage="mcap")
+
+
+@pytest.fixture(scope="module")
+def identified(leak_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``identify --json`` of the module's record (orders 1..2: about a second)."""
+    out = tmp_path_factory.mktemp("identify") / "id.json"
+    assert cli.main(["identify", str(leak_bag), "--orders", "1..2", "--json", str(out)]) == 0
+    return out
 
 
 def _rows(page: Any) -> dict[str, dict[str, Any]]:
@@ -180,6 +190,7 @@ def test_the_page_says_when_reports_stop_and_clears_it_when_they_resume(browser:
         view.publish_report(_report(0, 0.25))
         page.wait_for_function("window.twotankView.received === 1")
         assert page.get_attribute("#status", "data-stopped") == "0"
+        assert page.is_hidden("#response")  # no --view-response: no such section
         # no report for longer than the limit: the sign shows (the page's own 250 ms poll)
         page.wait_for_selector('#status[data-stopped="1"]', timeout=3000)
         assert "reports stopped" in (page.text_content("#status") or "")
@@ -329,3 +340,119 @@ def test_live_view_shows_the_live_json(browser: Any) -> None:
     later = [x for x in lines if x["end"] > tr["time"]]
     assert later
     assert int(mode["seq"]) < max(int(r["seq"]) for r in rows.values())
+
+
+def _response_rows(page: Any) -> list[dict[str, str]]:
+    return page.eval_on_selector_all(
+        "#response-table tbody tr", "rs => rs.map(r => Object.assign({}, r.dataset))"
+    )
+
+
+def test_the_identified_response_reaches_every_page_with_the_json_s_numbers(
+    browser: Any, identified: Path, capsys: Any
+) -> None:
+    """``--view-response``: each page's table holds the identify JSON's report, number for number.
+
+    The reference is the JSON file itself, indexed (line, output, input) as identify writes
+    it, with the models' channel names in their order; a page that comes after reports (and
+    after the history has moved on, :func:`test_a_late_visitor_gets_the_identified_response_
+    first`) gets it as well.
+    """
+    doc = json.loads(identified.read_text())
+    rep = doc["report"]
+    msg = view_response(argparse.Namespace(view_response=str(identified)), ("A", "B"))
+    assert "matched by shape" in capsys.readouterr().err  # the JSON names no channels
+    outputs, inputs = ("height", "temperature"), ("hot", "cold")
+    with ViewRun(0, title="id", bands={}, speed=None, replay=False, response=msg) as run:
+        assert run.server is not None
+        early = browser.new_page()
+        early.goto(run.server.url)
+        early.wait_for_function("window.twotankView.response !== null")
+        for k in range(3):
+            run.report(_report(k))
+        late = browser.new_page()
+        late.goto(run.server.url)
+        late.wait_for_function("window.twotankView.received === 3")
+        for page in (early, late):
+            assert page.is_visible("#response")
+            assert page.locator("#response-plots canvas").count() == 4
+            rows = _response_rows(page)
+            assert len(rows) == len(rep["freqs_hz"]) * 4 > 0
+            for r in rows:
+                c, i = outputs.index(r["output"]), inputs.index(r["input"])
+                k = rep["freqs_hz"].index(float(r["freq"]))
+                assert [float(r["measuredRe"]), float(r["measuredIm"])] == rep["measured"][k][c][i]
+                assert [float(r["nominalRe"]), float(r["nominalIm"])] == rep["nominal"][k][c][i]
+                assert float(r["stdNoise"]) == rep["std_noise"][k][c][i]
+                assert float(r["stdDistortion"]) == rep["std_distortion"][k][c][i]
+                assert float(r["stdTotal"]) == pytest.approx(
+                    math.hypot(rep["std_noise"][k][c][i], rep["std_distortion"][k][c][i])
+                )
+                assert float(r["weight"]) == rep["perturbation"]["weight"][k][c]
+            legend = page.text_content("#response-legend") or ""
+            assert "excited band" in legend
+            assert "(1 ± |W|)" in legend
+            page.close()
+
+
+def test_a_late_visitor_gets_the_identified_response_first(identified: Path) -> None:
+    msg = view_response(argparse.Namespace(view_response=str(identified)), ("A",))
+    view = ViewServer(history=2)  # not started: subscribe() is what a new page's stream sends
+    try:
+        assert msg is not None
+        view.publish(msg)
+        for k in range(4):
+            view.publish_report(_report(k))
+        first, _ = view.subscribe()
+        kinds = [json.loads(m)["type"] for m in first]
+        assert kinds == ["hello", "response", "report", "report", "spectrum"]
+        assert json.loads(first[1])["entries"] == msg["entries"]
+    finally:
+        view.close()
+
+
+def test_a_wrong_view_response_file_is_exit_2_naming_the_fix(
+    capsys: Any, leak_bag: Path, identified: Path, tmp_path: Path
+) -> None:
+    doc = json.loads(identified.read_text())
+    one_input = json.loads(identified.read_text())
+    for key in ("measured", "nominal", "std_noise", "std_distortion"):
+        one_input["report"][key] = [[e[:1] for e in line] for line in doc["report"][key]]
+    elsewhere = json.loads(identified.read_text())
+    elsewhere["perturbation_weights"][0]["name"] = "pressure_multiplicative"
+    files = {
+        "not-json.json": ("not a json", "identify BAG --json FILE"),
+        "validate.json": (json.dumps({"models": {}}), "not an identify JSON"),
+        "one-input.json": (json.dumps(one_input), "2 output(s) x 1 input(s)"),
+        "elsewhere.json": (json.dumps(elsewhere), "'pressure', not one of the models' outputs"),
+    }
+    for name, (text, why) in files.items():
+        (tmp_path / name).write_text(text)
+        bad = str(tmp_path / name)
+        assert cli.main(["validate", str(leak_bag), "--view", "--view-response", bad]) == 2
+        err = capsys.readouterr().err
+        assert why in err, err
+        assert err.count("\n") == 1, err  # one line
+    for cmd in (["live", "--view"], ["view"]):
+        assert cli.main([*cmd, "--view-response", str(tmp_path / "one-input.json")]) == 2
+        assert "identify a recording of these channels" in capsys.readouterr().err
+    assert cli.main(["validate", str(leak_bag), "--view-response", str(identified)]) == 2
+    assert "add --view" in capsys.readouterr().err
+
+
+def test_a_response_of_the_total_sigma_only_or_with_channel_names(identified: Path) -> None:
+    """The other forms of the report: the total σ alone (``std``), and named channels."""
+    doc = json.loads(identified.read_text())
+    rep = doc["report"]
+    rep["std"] = np.hypot(rep.pop("std_noise"), rep.pop("std_distortion")).tolist()
+    rep["std_noise"] = rep["std"]
+    msg = response_message(doc, ("hot", "cold"), ("height", "temperature"))
+    assert msg["matched"] == "shape"
+    entry = msg["entries"][1]  # height / cold
+    assert (entry["output"], entry["input"]) == ("height", "cold")
+    assert entry["std_distortion"] is None
+    assert entry["std_total"] == [line[0][1] for line in rep["std"]]
+    doc |= {"inputs": ["hot", "cold"], "outputs": ["height", "temperature"]}
+    assert response_message(doc, ("hot", "cold"), ("height", "temperature"))["matched"] == "names"
+    with pytest.raises(ResponseError, match="identify a recording of these channels"):
+        response_message(doc, ("cold", "hot"), ("height", "temperature"))

@@ -49,7 +49,14 @@ from twotank_validation.cli_options import (
     replay_config,
     topic_map,
 )
-from twotank_validation.cli_view import VIEW_STOP, ViewRun, add_view_options, live_view, model_bands
+from twotank_validation.cli_view import (
+    VIEW_STOP,
+    ViewRun,
+    add_view_options,
+    live_view,
+    model_bands,
+    view_response,
+)
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import (
@@ -238,6 +245,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         speed=1.0,
         replay=False,
         foxglove=args.foxglove_port if args.foxglove else None,
+        response=view_response(args, models),
     )
     with view, Interrupts(VIEW_STOP) as interrupts:
         reports = run_view(view.sink, models, duration_s=args.duration, stop=interrupts)
@@ -389,12 +397,13 @@ def _run_with_bar(
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     if not _single_recording(args):
-        if args.view or args.foxglove:
-            shown = "--view" if args.view else "--foxglove"
+        if args.view or args.foxglove or args.view_response:
+            shown = "--view" if args.view else "--foxglove" if args.foxglove else "--view-response"
             raise UsageError(f"{shown} shows one recording: name one bag or table, without --out")
         check_fleet_options(args)
         return _cmd_fleet(args, _validate_job(args, fleet=True))
     job = _validate_job(args)
+    response = view_response(args, job.sources, page=args.view)
     if not (args.view or args.foxglove):
         if args.replay_speed is not None:
             raise UsageError("--replay-speed paces the view's replay: add --view or --foxglove")
@@ -409,6 +418,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         replay=True,
         page=args.view,
         foxglove=args.foxglove_port if args.foxglove else None,
+        response=response,
     ) as view:
         code = _run_with_bar(job, args.quiet, on_report=view.report)
         how = "interrupted" if code in (ExitCode.INTERRUPTED, ExitCode.TERMINATED) else "finished"

@@ -23,7 +23,15 @@ from twotank_validation.online import WindowReport
 from twotank_validation.online.supervisor import SupervisorState, Transition
 from twotank_validation.online.window import MonitorConfig
 
-__all__ = ["FOXGLOVE_PORT", "VIEW_STOP", "ViewRun", "add_view_options", "live_view", "model_bands"]
+__all__ = [
+    "FOXGLOVE_PORT",
+    "VIEW_STOP",
+    "ViewRun",
+    "add_view_options",
+    "live_view",
+    "model_bands",
+    "view_response",
+]
 
 FOXGLOVE_PORT = 8765
 """``--foxglove-port``'s default: the port Foxglove and Lichtblick propose for a connection."""
@@ -58,7 +66,9 @@ def _port(text: str) -> int:
 def add_view_options(
     parser: argparse.ArgumentParser, *, replay: bool, port_only: bool = False
 ) -> None:
-    """``--view``, ``--view-port``, ``--foxglove``, ``--foxglove-port``; ``--replay-speed``.
+    """The view's options: ``--view``, ``--view-port``, ``--view-response``, ``--foxglove*``.
+
+    ``replay``: ``--replay-speed`` besides.
 
     ``port_only``: without ``--view`` (the ``view`` command's: its page is always served).
     """
@@ -75,6 +85,13 @@ def add_view_options(
         default=0,
         metavar="P",
         help="the view's port on 127.0.0.1 (0: any free one)",
+    )
+    parser.add_argument(
+        "--view-response",
+        default=None,
+        metavar="FILE",
+        help="show on the page the measured frequency response ± σ against the nominal ± its "
+        "weight, from an identify JSON (`identify BAG --json FILE`; docs/view.md)",
     )
     parser.add_argument(
         "--foxglove",
@@ -98,6 +115,61 @@ def add_view_options(
             help="with --view or --foxglove: replay at X times real time (default: as fast as "
             "possible)",
         )
+
+
+def view_response(
+    args: argparse.Namespace, sources: Sequence[str], *, page: bool = True
+) -> dict[str, Any] | None:
+    """``--view-response FILE``'s message for the page (None without the option).
+
+    ``sources``: the models the view shows; the file's response must have their channels
+    (:func:`~twotank_validation.view.response.response_message`). ``page``: the page is
+    served (``--view``; the ``view`` command's always is).
+
+    Raises:
+        UsageError: no page to show it on, the file unreadable, not an identify JSON, or
+            not of the models' channels (one line naming the fix).
+    """
+    import json  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    from twotank_validation.usecases.reading import load  # noqa: PLC0415
+    from twotank_validation.view.response import ResponseError, response_message  # noqa: PLC0415
+
+    path = getattr(args, "view_response", None)
+    if path is None:
+        return None
+    if not page:
+        raise UsageError("--view-response shows the response on the page: add --view")
+    try:
+        doc = json.loads(Path(path).read_text())
+    except OSError as err:
+        raise UsageError(f"--view-response {path}: cannot read it ({err.strerror})") from err
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UsageError(
+            f"--view-response {path}: not JSON ({err}): give the file "
+            "`twotank-validation identify BAG --json FILE` wrote"
+        ) from err
+    message = None
+    for source in sources:
+        try:
+            model = load(source).model
+        except TwotankError:
+            continue  # the command says why when it loads it
+        try:
+            one = response_message(doc, model.input_names, model.output_names, Path(path).name)
+        except ResponseError as err:
+            raise UsageError(f"--view-response {path} (model {model.name}): {err}") from err
+        message = message or one
+    if message is None:
+        raise UsageError(f"--view-response {path}: none of the models loads to match it with")
+    if message["matched"] == "shape":
+        print(
+            f"view: {Path(path).name} names no channels; its entries are taken as "
+            f"{message['outputs']} x {message['inputs']} (matched by shape)",
+            file=sys.stderr,
+        )
+    return message
 
 
 def model_bands(sources: Sequence[str], monitor: MonitorConfig | None = None) -> dict[str, Any]:
@@ -132,6 +204,8 @@ class ViewRun:
             starts once a Foxglove client has subscribed (the SDK's server keeps no history).
         page: serve the page (``--view``).
         foxglove: ``--foxglove-port`` with ``--foxglove`` (None: no Foxglove server).
+        response: :func:`view_response`'s message (None: none), sent once; a page that
+            comes later gets it first.
 
     Raises:
         UsageError: a port is taken or cannot be bound (one line naming the fix).
@@ -147,6 +221,7 @@ class ViewRun:
         replay: bool,
         page: bool = True,
         foxglove: int | None = None,
+        response: dict[str, Any] | None = None,
     ) -> None:
         from twotank_validation.view import Pacer, ViewServer  # noqa: PLC0415
         from twotank_validation.view.sinks import ReportSink, Tee  # noqa: PLC0415
@@ -166,6 +241,8 @@ class ViewRun:
         self.sink: ReportSink = sinks[0] if len(sinks) == 1 else Tee(sinks)
         self.pacer = Pacer(pace) if replay else None
         self.replay = replay
+        if response is not None and self.server is not None:
+            self.server.publish(response)
 
     def __enter__(self) -> ViewRun:
         if self.server is not None:
@@ -237,6 +314,7 @@ def live_view(
     With ``--supervisor`` the page starts with the supervisor's initial mode; its changes go
     to :meth:`ViewRun.transition` (``run_live(on_transition=...)``).
     """
+    response = view_response(args, models, page=args.view)
     if not (args.view or args.foxglove):
         return None, first
     view = ViewRun(
@@ -247,6 +325,7 @@ def live_view(
         replay=False,
         page=args.view,
         foxglove=args.foxglove_port if args.foxglove else None,
+        response=response,
     )
     if getattr(args, "supervisor", None) is not None:
         from twotank_validation.view.messages import mode_message  # noqa: PLC0415

@@ -6,7 +6,8 @@ ROS-free, above the layers that make the reports: a listener of the same
 :class:`~twotank_validation.online.window.WindowReport` into the JSON the page gets (the
 ``validate --json`` window entry, with the model's name and the per-bin spectrum);
 :mod:`.server` serves the page and pushes each message (Server-Sent Events, stdlib);
-:mod:`.pacing` paces a replay at a multiple of real time. docs/view.md.
+:mod:`.pacing` paces a replay at a multiple of real time; :mod:`.response` turns an
+``identify --json`` file into the page's identified response. docs/view.md.
 """
 
 from twotank_validation.view.messages import report_message, spectrum

@@ -13,7 +13,8 @@ loopback address is refused (403: a page elsewhere cannot reach it through a DNS
 rebound to 127.0.0.1). It binds 127.0.0.1 only.
 
 A late visitor gets the history at once: the last ``history`` messages (the reports), the
-supervisor's mode and each model's diagnosis in force where they are older, and, per model,
+identified response, the supervisor's mode and each model's diagnosis in force where they are
+older, and, per model,
 the latest window's spectrum, then the live stream.
 """
 
@@ -45,9 +46,10 @@ history anew)."""
 SPECTRUM_EVERY_S = 0.1
 """A page gets each model's latest spectrum at most this often (the reports themselves go at
 once): a replay as fast as it goes makes hundreds a second, which no page could draw."""
-STICKY = frozenset({"mode", "diagnosis"})
+STICKY = frozenset({"mode", "diagnosis", "response"})
 """Messages that hold until the next of their kind (per model): a late visitor gets the latest
-of each even when it is older than the history."""
+of each even when it is older than the history (``response``: the identified frequency
+response, ``--view-response``, sent once at the start)."""
 KEEPALIVE_S = 10.0
 """A comment line on an idle stream this often, so that a page that went away is noticed."""
 _FILES = {

@@ -9,7 +9,7 @@
   const ALARM_COLORS = { OK: "#66bb6a", WARN: "#ffa726", ERROR: "#e53935", STALE: "#9e9e9e" };
   const view = { hello: null, models: new Map(), lastArrival: null, ended: null,
                  connected: false, latencies: [], pending: [], received: 0, dirty: false,
-                 binsDirty: false };
+                 binsDirty: false, response: null };
   window.twotankView = view;
 
   function fmt(x, digits) { return x === null || x === undefined ? "–" : Number(x).toFixed(digits); }
@@ -49,6 +49,8 @@
     document.querySelector("#latest tbody").textContent = "";
     for (const name of Object.keys(hello.models || {})) model(name);
     view.binsDirty = true;
+    view.response = null;
+    document.getElementById("response").hidden = true;
   }
 
   function verdict(r) {
@@ -121,6 +123,7 @@
       }
       return;
     }
+    if (msg.type === "response") { showResponse(msg); return; }
     if (msg.type === "diagnosis") {
       // an answer of the live diagnosis on its own topic (attached to a running system)
       model(msg.model).diagnosis = { diagnosis: msg.diagnosis };
@@ -389,6 +392,106 @@
     }
     for (const n of notes) lg.appendChild(el("span", n));
     if (!notes.some((n) => n.startsWith("dashed"))) lg.appendChild(el("span", "no band: every bin counts"));
+  }
+
+  // ---- the identified response (--view-response: identify --json's report, sent once) ----
+  function mag(p) { return p === null ? null : Math.hypot(p[0], p[1]); }
+
+  function showResponse(msg) {
+    view.response = msg;
+    document.getElementById("response").hidden = false;
+    document.getElementById("response-source").textContent = "— " + msg.source +
+      (msg.matched === "shape" ? " (it names no channels: entries taken by shape as the models' " +
+        msg.outputs.join(", ") + " × " + msg.inputs.join(", ") + ")" : "");
+    const body = document.querySelector("#response-table tbody");
+    body.textContent = "";
+    for (const e of msg.entries) {
+      for (let k = 0; k < msg.freqs_hz.length; k++) {
+        const tr = document.createElement("tr");
+        const d = tr.dataset;
+        d.output = e.output; d.input = e.input; d.freq = attr(msg.freqs_hz[k]);
+        const m = e.measured[k], n = e.nominal[k];
+        d.measuredRe = attr(m && m[0]); d.measuredIm = attr(m && m[1]);
+        d.stdNoise = attr(e.std_noise[k]); d.stdTotal = attr(e.std_total[k]);
+        d.stdDistortion = attr(e.std_distortion ? e.std_distortion[k] : null);
+        d.nominalRe = attr(n && n[0]); d.nominalIm = attr(n && n[1]);
+        d.weight = attr(e.weight[k]);
+        const p = (x) => x === null || x === undefined ? "–" : Number(x).toPrecision(4);
+        for (const text of [e.output, e.input, p(msg.freqs_hz[k]), p(mag(m)), p(e.std_noise[k]),
+                            e.std_distortion ? p(e.std_distortion[k]) : "–", p(e.std_total[k]),
+                            p(mag(n)), p(e.weight[k])]) tr.appendChild(el("td", text));
+        body.appendChild(tr);
+      }
+    }
+    drawResponse();
+  }
+
+  function drawResponse() {
+    const msg = view.response, box = document.getElementById("response-plots");
+    box.textContent = "";
+    const fs = msg.freqs_hz.filter((x) => x !== null && x > 0);
+    if (!fs.length) return;
+    const flo = Math.min.apply(null, fs), fhi = Math.max.apply(null, fs);
+    // the axis reaches a little past the excited lines, so that their band shows as a band
+    const lx0 = Math.log10(flo) - 0.25, lx1 = Math.log10(fhi) + 0.25;
+    const split = msg.entries.some((e) => e.std_distortion && e.std_distortion.some((v) => v > 0));
+    for (const e of msg.entries) {
+      const canvas = document.createElement("canvas");
+      canvas.width = 590; canvas.height = 280;
+      canvas.dataset.output = e.output; canvas.dataset.input = e.input;
+      canvas.setAttribute("aria-label", "identified response " + e.output + " / " + e.input);
+      box.appendChild(canvas);
+      const f = frame(canvas), c = f.ctx;
+      axes(f, "frequency (Hz)", "|G|");
+      c.fillStyle = "#333"; c.fillText(e.output + " / " + e.input, f.l + 6, f.t + 14);
+      const pts = [];  // [f, |Ĥ|, σ noise, σ total, |G nominal|, |W|]
+      for (let k = 0; k < msg.freqs_hz.length; k++) {
+        const hz = msg.freqs_hz[k];
+        if (!(hz > 0)) continue;
+        pts.push([hz, mag(e.measured[k]), e.std_noise[k], e.std_total[k], mag(e.nominal[k]), e.weight[k]]);
+      }
+      const vals = [];
+      for (const [, g, , st, gn, w] of pts) {
+        for (const v of [g, g === null || st === null ? null : g + st, gn,
+                         gn === null || w === null ? null : gn * (1 + w),
+                         gn === null || w === null ? null : gn * (1 - w)]) if (v !== null && v > 0) vals.push(v);
+      }
+      if (!vals.length) continue;
+      const ly0 = Math.log10(Math.min.apply(null, vals)) - 0.15, ly1 = Math.log10(Math.max.apply(null, vals)) + 0.15;
+      const X = (x) => f.l + (Math.log10(x) - lx0) / (lx1 - lx0) * (f.r - f.l);
+      const Y = (y) => f.b - (Math.log10(Math.max(y, Math.pow(10, ly0))) - ly0) / (ly1 - ly0) * (f.b - f.t);
+      const yt = ticks(f, ly0, ly1, X, Y, true);
+      for (const v of yt.vals) if (v >= ly0 && v <= ly1) { c.fillStyle = "#333"; c.fillText(yt.label(v), f.l - 40, Y(Math.pow(10, v)) + 4); }
+      const xt = ticks(f, lx0, lx1, X, Y, true);
+      for (const v of xt.vals) if (v >= lx0 && v <= lx1) c.fillText(xt.label(v), X(Math.pow(10, v)) - 12, f.b + 14);
+      // the excited band: the lines the report has (each an excited line in the band)
+      c.fillStyle = "#2ca02c16";
+      c.fillRect(X(flo) - 2, f.t, X(fhi) - X(flo) + 4, f.b - f.t);
+      // the nominal with its weight: |G|(1 ± |W|), the magnitudes the model set allows
+      c.fillStyle = "#ff7f0e33"; c.beginPath();
+      const band = pts.filter((p) => p[4] !== null && p[5] !== null);
+      band.forEach((p, i) => { const y = Y(p[4] * (1 + p[5])); if (i) c.lineTo(X(p[0]), y); else c.moveTo(X(p[0]), y); });
+      for (let i = band.length - 1; i >= 0; i--) c.lineTo(X(band[i][0]), Y(Math.max(band[i][4] * (1 - band[i][5]), 0)));
+      c.closePath(); c.fill();
+      c.strokeStyle = "#ff7f0e"; c.lineWidth = 1.6; c.beginPath();
+      band.forEach((p, i) => { if (i) c.lineTo(X(p[0]), Y(p[4])); else c.moveTo(X(p[0]), Y(p[4])); });
+      c.stroke();
+      // the measured response: points with ±σ (total thin; noise thick where they differ)
+      for (const [hz, g, sn, st] of pts) {
+        if (g === null) continue;
+        const x = X(hz);
+        c.strokeStyle = "#1f77b4";
+        if (st !== null) { c.lineWidth = 1; c.beginPath(); c.moveTo(x, Y(g + st)); c.lineTo(x, Y(Math.max(g - st, 0))); c.stroke(); }
+        if (split && sn !== null) { c.lineWidth = 3; c.beginPath(); c.moveTo(x, Y(g + sn)); c.lineTo(x, Y(Math.max(g - sn, 0))); c.stroke(); }
+        c.fillStyle = "#1f77b4"; c.fillRect(x - 2, Y(g) - 2, 4, 4);
+      }
+    }
+    const lg = document.getElementById("response-legend");
+    lg.textContent = "";
+    lg.appendChild(el("span", "blue points: the measured response |Ĥ| at each excited line, bars ± σ " +
+      (split ? "(thick: the noise's; thin: the total, noise and nonlinear distortion)" : "(the noise's; the record shows no nonlinear distortion)")));
+    lg.appendChild(el("span", "orange line: the nominal |G|; shaded orange: |G|(1 ± |W|), the magnitudes the model set allows (output-multiplicative weight)"));
+    lg.appendChild(el("span", "shaded green: the excited band " + flo.toPrecision(3) + " – " + fhi.toPrecision(3) + " Hz (" + fs.length + " lines)"));
   }
 
   function drawLists() {
