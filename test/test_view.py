@@ -361,7 +361,8 @@ def test_the_identified_response_reaches_every_page_with_the_json_s_numbers(
     doc = json.loads(identified.read_text())
     rep = doc["report"]
     msg = view_response(argparse.Namespace(view_response=str(identified)), ("A", "B"))
-    assert "matched by shape" in capsys.readouterr().err  # the JSON names no channels
+    assert "matched by shape" not in capsys.readouterr().err  # the JSON names its channels
+    assert msg["matched"] == "names"
     outputs, inputs = ("height", "temperature"), ("hot", "cold")
     with ViewRun(0, title="id", bands={}, speed=None, replay=False, response=msg) as run:
         assert run.server is not None
@@ -446,6 +447,7 @@ def test_a_response_of_the_total_sigma_only_or_with_channel_names(identified: Pa
     rep = doc["report"]
     rep["std"] = np.hypot(rep.pop("std_noise"), rep.pop("std_distortion")).tolist()
     rep["std_noise"] = rep["std"]
+    del doc["inputs"], doc["outputs"]  # as an identify JSON without its channels' names
     msg = response_message(doc, ("hot", "cold"), ("height", "temperature"))
     assert msg["matched"] == "shape"
     entry = msg["entries"][1]  # height / cold

@@ -232,6 +232,9 @@ def identification_json(
     fr = ident.response
     fit = ident.fit
     document = {
+        # the channels, in the order of every array's output and input axes
+        "inputs": list(made.document["inputs"]),
+        "outputs": list(made.document["outputs"]),
         "estimator": ident.estimator.value,
         "ts_s": ident.ts_s,
         "period_samples": ident.period_samples,

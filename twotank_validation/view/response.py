@@ -8,10 +8,10 @@ per output/input entry, ``|Ĥ| ± σ`` against ``|G| (1 ± |W_c|)``: the set of 
 model set allows at that line has magnitudes in that band (``H = (1 + W_c δ) G``,
 ``|δ| <= 1``).
 
-The identify JSON names no channels: the entries are matched to the models' channels by
-shape (outputs × inputs), and the written weights' names (``<output>_multiplicative``), where
-there are any, must name the models' outputs. A JSON that does carry ``inputs`` and
-``outputs`` lists is matched by name.
+The identify JSON names its channels (``inputs``, ``outputs``) and is matched by name; one
+without them (written before it named them) is matched by shape (outputs × inputs), and the
+written weights' names (``<output>_multiplicative``), where there are any, must name the
+models' outputs.
 """
 
 from __future__ import annotations
@@ -142,13 +142,13 @@ def _match(doc: Mapping[str, Any], inputs: Sequence[str], outputs: Sequence[str]
             names, are not the models' channels.
     """
     named = {k: doc.get(k) for k in ("inputs", "outputs")}
-    if all(isinstance(v, list) for v in named.values()):
-        if named["inputs"] != list(inputs) or named["outputs"] != list(outputs):
-            raise ResponseError(
-                f"its channels are {named['outputs']} x {named['inputs']}, the models' "
-                f"{list(outputs)} x {list(inputs)}: identify a recording of these channels"
-            )
-        return "names"
+    by_name = all(isinstance(v, list) for v in named.values())
+    if by_name and (named["inputs"] != list(inputs) or named["outputs"] != list(outputs)):
+        raise ResponseError(
+            f"its channels are {named['outputs']} x {named['inputs']}, the models' "
+            f"{list(outputs)} x {list(inputs)}: identify a recording of these channels"
+        )
+    # the weights' names are checked either way: they must agree with the channels too
     weights = doc.get("perturbation_weights") or []
     for w in weights if isinstance(weights, list) else []:
         name = str(w.get("name", "")) if isinstance(w, Mapping) else ""
@@ -158,4 +158,4 @@ def _match(doc: Mapping[str, Any], inputs: Sequence[str], outputs: Sequence[str]
                 f"its weight {name!r} is on output {out!r}, not one of the models' outputs "
                 f"{list(outputs)}: identify a recording of these channels"
             )
-    return "shape"
+    return "names" if by_name else "shape"
