@@ -181,6 +181,8 @@ def test_a_non_periodic_input_or_too_short_a_record_is_refused_with_the_fix(
     err = capsys.readouterr().err
     assert code != cli.EXIT_OK
     assert said in err
+    assert "no window to identify from could be judged" in err
+    assert "identify_probe" not in err  # no internal name
     assert "--period" in err  # the fix named
     assert "Traceback" not in err
 

@@ -213,6 +213,9 @@ class Unjudged:
         no_window: why it has no window at all; None where it has some.
         fix: the likely fix, in words.
         hints: what the data suggest of the timing (the timing's conflicts, in words).
+        subject: what the windows were for, in the text (``"of model B"`` by default; a
+            command that judges no model of the user's says what it does instead, e.g.
+            ``"to identify from"``).
     """
 
     model: str
@@ -222,6 +225,7 @@ class Unjudged:
     no_window: NoWindow | None
     fix: str
     hints: tuple[str, ...] = ()
+    subject: str = ""
 
     def text(self) -> str:
         """``"no window of model B could be judged: settling (5 of 5 window(s)); <fix>"``."""
@@ -229,9 +233,8 @@ class Unjudged:
             why = f"{self.reason.category} ({self.windows} of {self.of} window(s))"
         else:
             why = str(self.no_window)
-        return f"no window of model {self.model} could be judged: {why}; " + "; ".join(
-            [self.fix, *self.hints]
-        )
+        subject = self.subject or f"of model {self.model}"
+        return f"no window {subject} could be judged: {why}; " + "; ".join([self.fix, *self.hints])
 
 
 def unjudged(

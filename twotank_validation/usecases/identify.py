@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -137,6 +138,8 @@ class IdentifyJob:
             tell(Level.WARNING, problem)
         summary = replay.summary_json(replayed, [probe.name])
         if unjudged := replay.unjudged(replayed, [probe.name], timing, cfg):
+            # the probe is no model of the user's: say what the windows were for
+            unjudged = [dataclasses.replace(u, subject="to identify from") for u in unjudged]
             code, errors = exit_status(replayed.complete, unjudged, timing)
             return Outcome(
                 code, STATUS_OF_CODE[code], None, summary, tuple(tell.messages), (), tuple(errors)
