@@ -12,14 +12,12 @@ printed URL in headless Chromium (tools/browser.py) and saves the section.
 from __future__ import annotations
 
 import dataclasses
-import re
-import signal
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from tools.browser import headless_page
+from tools.view_screenshot import view_page
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.sim import scenario as sc
 
@@ -36,25 +34,10 @@ def main(out: str) -> None:
         subprocess.run([*cli, "identify", str(bag), "--json", ident, "--quiet"], check=True)
         cmd = [*cli, "validate", str(bag), "--ts", "0.8", "--period", "256", "--model", "A"]
         cmd += ["--view", "--view-response", ident, "--quiet"]
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        try:
-            url = None
-            assert proc.stderr is not None
-            for line in proc.stderr:
-                if m := re.match(r"view: (http://127\.0\.0\.1:\d+/)$", line.strip()):
-                    url = m.group(1)
-                if "page stays" in line:
-                    break
-            if url is None:
-                raise SystemExit("validate --view printed no URL")
-            with headless_page(1280, 900, bypass_csp=True) as page:
-                page.goto(url)
-                page.wait_for_function("window.twotankView.response !== null")
-                page.wait_for_timeout(300)
-                page.locator("#response").screenshot(path=out)
-        finally:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(timeout=20)
+        with view_page(cmd) as page:
+            page.wait_for_function("window.twotankView.response !== null")
+            page.wait_for_timeout(300)
+            page.locator("#response").screenshot(path=out)
     print(f"wrote {out}")
 
 

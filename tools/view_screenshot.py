@@ -17,11 +17,39 @@ import signal
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from tools.browser import headless_page
 from twotank_validation.bags import write_scenario_bag
 from twotank_validation.sim import scenario as sc
+
+
+@contextmanager
+def view_page(cmd: Sequence[str]) -> Iterator[Any]:
+    """A headless Chromium page at the view ``cmd`` serves, once its replay has ended.
+
+    ``cmd`` is a ``validate ... --view`` command line; it is stopped with SIGINT on leaving.
+    """
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if m := re.match(r"view: (http://127\.0\.0\.1:\d+/)$", line.strip()):
+                url = m.group(1)
+            if "page stays" in line:
+                break
+        if url is None:
+            raise SystemExit("validate --view printed no URL")
+        with headless_page(1280, 900, bypass_csp=True) as page:
+            page.goto(url)
+            yield page
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=20)
 
 
 def main(out: str) -> None:
@@ -35,26 +63,11 @@ def main(out: str) -> None:
         cmd = [sys.executable, "-m", "twotank_validation.cli", "validate", str(bag)]
         cmd += ["--ts", "0.8", "--period", "256", "--model", "A", "--model", "B"]
         cmd += ["--view", "--quiet"]
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        try:
-            url = None
-            assert proc.stderr is not None
-            for line in proc.stderr:
-                if m := re.match(r"view: (http://127\.0\.0\.1:\d+/)$", line.strip()):
-                    url = m.group(1)
-                if "page stays" in line:
-                    break
-            if url is None:
-                raise SystemExit("validate --view printed no URL")
-            with headless_page(1280, 900, bypass_csp=True) as page:
-                page.goto(url)
-                page.wait_for_function("window.twotankView.ended !== null")
-                page.wait_for_function("document.body.dataset.drawn > 0")
-                page.wait_for_timeout(300)
-                page.screenshot(path=out, full_page=True)
-        finally:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(timeout=20)
+        with view_page(cmd) as page:
+            page.wait_for_function("window.twotankView.ended !== null")
+            page.wait_for_function("document.body.dataset.drawn > 0")
+            page.wait_for_timeout(300)
+            page.screenshot(path=out, full_page=True)
     print(f"wrote {out}")
 
 
