@@ -50,6 +50,7 @@ import numpy as np
 
 from tools import answer_calibration as cal
 from tools.events import record_events
+from tools.rig_faults import TWICE_STATED_LIMITS
 from twotank_validation.core.model import load_model, load_model_document
 from twotank_validation.diagnose.kinds import expected_effect
 from twotank_validation.diagnose.live_jobs import catalogue_diagnosis
@@ -69,20 +70,7 @@ ANSWERS = ROOT / "bench" / "data" / "isolation_answers.csv"
 MAP = ROOT / "twotank_validation" / "diagnose" / "answer_probability.json"
 DATE = "2026-11-27"
 
-FAULTS = (
-    "leak=0.06",
-    "sensor_bias:height=0.05",
-    "sensor_bias:temperature=0.16",
-    "valve_weak:hot=0.86",
-    "valve_weak:cold=0.86",
-    "sensor_delay:height=10",
-    "sensor_delay:temperature=30",
-    "mixing_delay=35",
-    "heat_loss=0.2",
-    "valve_stuck:hot=0",
-    "valve_saturation:hot=0.38",
-    "hot_supply=-0.15",
-)
+FAULTS = TWICE_STATED_LIMITS  # each rig fault at twice its stated limit
 
 FAULTS_AT_LIMIT = (  # the stated limits themselves (--calibrate: answers near the edge)
     "leak=0.03",

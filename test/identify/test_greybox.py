@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tools import rig_experiments as rx
+from tools.rig_faults import TWICE_STATED_LIMITS
 from twotank_validation import cli
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.validate import validate
@@ -139,20 +140,7 @@ ONSET_S = (rx.SETTLE + 0.25) * rx.PERIOD * rx.TS_S
 # Each rig fault at twice its stated limit (docs/detection.md "Stated limits", the default
 # alarm), and the kinds without a stated limit at the detection matrix's sizes that
 # test/online/test_livediag.py also uses.
-FAULTS = [
-    "leak=0.06",
-    "sensor_bias:height=0.05",
-    "sensor_bias:temperature=0.16",
-    "valve_weak:hot=0.86",
-    "valve_weak:cold=0.86",
-    "sensor_delay:height=10",
-    "sensor_delay:temperature=30",
-    "mixing_delay=35",
-    "heat_loss=0.2",
-    "valve_stuck:hot=0",
-    "valve_saturation:hot=0.38",
-    "hot_supply=-0.15",
-]
+FAULTS = list(TWICE_STATED_LIMITS)
 
 
 def _held_out(spec: str | None) -> float:
