@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import rclpy
@@ -319,5 +320,75 @@ def test_without_the_interface_package_the_switch_names_what_to_install(
                     Parameter("fallback_controllers", value=["hold"]),
                 ],
             )
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def _doc_cell(text: str):
+    text = text.replace("`", "").strip()
+    if text in ("true", "false"):
+        return text == "true"
+    if text.startswith("[") and text.endswith("]"):
+        return [t.strip() for t in text[1:-1].split(",") if t.strip()]
+    if text == '""':
+        return ""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def test_docs_list_the_supervisor_parameters_with_their_defaults_and_ranges() -> None:
+    """docs/ros.md's supervisor table against SUPERVISOR_PARAMS (the switch's included)."""
+    from twotank_validation.ros.supervisor_node import SUPERVISOR_PARAMS  # noqa: PLC0415
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "ros.md").read_text()
+    section = text.split("\n## Supervisor\n")[1].split("\n## ")[0]
+    header = "| parameter | default | range | meaning |"
+    rows = {}
+    for line in section.split(header)[1].strip().splitlines()[1:]:
+        if not line.startswith("|"):
+            break
+        name, default, rng, _ = (c.strip() for c in line.strip("|").split("|", 3))
+        rows[name.strip("`")] = (default, rng)
+    assert set(rows) == {p.name for p in SUPERVISOR_PARAMS}
+    for p in SUPERVISOR_PARAMS:
+        default, rng = rows[p.name]
+        assert _doc_cell(default) == p.default, p.name
+        if p.choices:
+            assert sorted(c.strip() for c in rng.split(",")) == sorted(p.choices), p.name
+        elif p.low is not None:
+            low, high = (float(x) for x in rng.replace("–", " ").split())
+            assert (low, high) == (p.low, p.high), p.name
+
+
+def test_the_supervisor_reads_what_the_validator_publishes() -> None:
+    """Each validation/ topic the supervisor subscribes to is one the validator publishes,
+    with the same type (the node graph is the reference)."""
+    from twotank_validation.ros.validator_node import ValidatorNode  # noqa: PLC0415
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        ab = Parameter("models", value=["B"])
+        val = ValidatorNode(context=ctx, parameter_overrides=[ab])
+        sup = SupervisorNode(context=ctx, parameter_overrides=[ab])
+        subs = {
+            (t, tuple(ty))
+            for t, ty in val.get_subscriber_names_and_types_by_node(sup.get_name(), "/")
+            if t.startswith("/validation/")
+        }
+        pubs = {
+            (t, tuple(ty))
+            for t, ty in val.get_publisher_names_and_types_by_node(val.get_name(), "/")
+        }
+        assert {t for t, _ in subs} == {
+            "/validation/B/invalidated",
+            "/validation/B/report",
+            "/validation/B/diagnosis",
+        }
+        assert subs <= pubs, subs - pubs
+        val.destroy_node()
+        sup.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
