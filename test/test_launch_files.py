@@ -162,11 +162,7 @@ def _check_overrides(node: Node) -> dict:
             assert isinstance(value, bool)
             continue
         assert name in table, f"{node.executable} declares no parameter {name!r}"
-        default = table[name].default
-        # an empty list is declared as a string array (ros/params.py, declare)
-        want = (
-            Parameter(name, value=default).type_ if default != [] else Parameter.Type.STRING_ARRAY
-        )
+        want = Parameter(name, value=table[name].default).type_
         assert Parameter(name, value=value).type_ == want, (node.executable, name, value)
     if node.executable == "twotank_validator":
         tree = {s.name for s in VALIDATOR_SETTINGS}

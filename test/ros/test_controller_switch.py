@@ -329,7 +329,7 @@ def _doc_cell(text: str):
     if text in ("true", "false"):
         return text == "true"
     if text.startswith("[") and text.endswith("]"):
-        return [t.strip() for t in text[1:-1].split(",") if t.strip()]
+        return [t.strip().strip('"') for t in text[1:-1].split(",")] if text != "[]" else []
     if text == '""':
         return ""
     try:

@@ -47,13 +47,13 @@ SWITCH_PARAMS = (
     ),
     Param(
         "normal_controllers",
-        list(_DEFAULTS.normal_controllers),
-        "ros2_control controllers active in normal mode (deactivated in safe)",
+        list(_DEFAULTS.normal_controllers) or [""],
+        "ros2_control controllers active in normal mode (deactivated in safe); '' for none",
     ),
     Param(
         "fallback_controllers",
-        list(_DEFAULTS.fallback_controllers),
-        "ros2_control controllers active in safe mode (deactivated in normal)",
+        list(_DEFAULTS.fallback_controllers) or [""],
+        "ros2_control controllers active in safe mode (deactivated in normal); '' for none",
     ),
     Param(
         "switch_strictness",
@@ -88,8 +88,8 @@ def switch_config(values: Mapping[str, Any]) -> SwitchConfig:
     try:
         return SwitchConfig(
             controller_manager=str(values["controller_manager"]).rstrip("/"),
-            normal_controllers=tuple(str(c) for c in values["normal_controllers"] or ()),
-            fallback_controllers=tuple(str(c) for c in values["fallback_controllers"] or ()),
+            normal_controllers=tuple(str(c) for c in values["normal_controllers"] if c),
+            fallback_controllers=tuple(str(c) for c in values["fallback_controllers"] if c),
             strictness=Strictness(str(values["switch_strictness"])),
             timeout_s=float(values["switch_timeout_s"]),
         )

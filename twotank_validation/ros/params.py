@@ -12,7 +12,6 @@ import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 
 from twotank_validation.errors import TwotankError
@@ -174,15 +173,10 @@ def declare(node: Node, params: Sequence[Param]) -> dict[str, Any]:
                 ]
         if p.choices:
             desc.additional_constraints = f"one of {list(p.choices)}"
-        # an empty list says no element type: declared as a string array (empty if not set)
-        empty_list = isinstance(p.default, list) and not p.default
-        default = Parameter.Type.STRING_ARRAY if empty_list else p.default
         try:
-            value = node.declare_parameter(p.name, default, desc).value
+            value = node.declare_parameter(p.name, p.default, desc).value
         except Exception as err:  # rclpy raises several types for an out-of-range override
             raise ParameterError(f"parameter {p.name!r}: {err}") from err
-        if empty_list and value is None:
-            value = []
         if p.choices:
             items = value if isinstance(value, list | tuple) else [value]
             bad = [v for v in items if v not in p.choices]
