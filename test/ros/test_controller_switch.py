@@ -243,6 +243,7 @@ def test_a_refused_switch_is_a_published_fault_and_retried_at_each_check(rig) ->
     assert r.spin_until(lambda: r.modes[-1:] == ["normal"])
     v = r.wait_switch("refused")
     assert r.states[-1].level == DiagnosticStatus.WARN
+    assert r.states[-1].message.endswith("; controller switch to normal refused (attempt 1)")
     assert (v["mode"], v["switch_wanted"], v["switch_applied"]) == ("normal", "normal", "safe")
     assert r.cm.active() == {FALLBACK}
 

@@ -244,6 +244,13 @@ class SwitchClient:
         failing = s.state.fault or (s.state is SwitchState.PENDING and s.attempt > 1)
         return DiagnosticStatus.WARN if failing else DiagnosticStatus.OK
 
+    def message(self) -> str:
+        """The suffix of the status message while the switch has failed (``""`` otherwise)."""
+        s = self.machine.status
+        if not s.state.fault:
+            return ""
+        return f"; controller switch to {s.wanted.value} {s.state.value} (attempt {s.attempt})"
+
     def values(self) -> dict[str, str]:
         """The switch's keys on ``supervisor/state`` and ``/diagnostics`` (none when off)."""
         s = self.machine.status

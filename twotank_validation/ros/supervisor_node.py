@@ -289,6 +289,7 @@ class SupervisorNode(Node):
         st.hardware_id = self.get_fully_qualified_name()
         st.message = f"{s.mode.value}: {s.reason}" + (" (latched)" if s.latched else "")
         st.level = max(st.level, self.switch.level())
+        st.message += self.switch.message()
         values = {
             "mode": s.mode.value,
             "reason": s.reason,
