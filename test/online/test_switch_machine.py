@@ -9,6 +9,8 @@ in order, whatever the faults in between; a fault is retried only when the node 
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from twotank_validation.online.controller_switch import (
     ControllerSwitch,
@@ -144,3 +146,70 @@ def test_a_fault_then_a_return_to_the_applied_mode_needs_no_call() -> None:
     sw.want(Mode.NORMAL)  # the controllers never left normal
     assert sw.due() is None
     assert sw.status.state is SwitchState.IN_PLACE
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["bad", "good", "tick", "reset"]),
+            st.sampled_from(["ok", "refused", "timed_out", "unavailable", "silent"]),
+        ),
+        max_size=60,
+    ),
+    st.booleans(),
+)
+def test_drawn_runs_follow_the_supervisor_and_never_drop_a_switch(steps, latch) -> None:
+    """Drawn alarms, reports, resets and call outcomes; the supervisor's mode is the reference.
+
+    At every step: at most one call on its way; a call sent targets the mode wanted when it is
+    sent, which differs from the controllers known to run; the applied mode changes only by a
+    successful call. At the end, checks with every call answered ok bring the controllers to
+    the supervisor's mode.
+    """
+    sup = Supervisor(SupervisorConfig(clear_after_s=2.0, clear_reports=1, latch=latch))
+    sw = ControllerSwitch(CFG)
+    t = 100.0
+    open_call: SwitchCall | None = None
+    for what, outcome in steps:
+        t += 1.0
+        ev = {
+            "bad": Invalidated("B", True),
+            "good": Invalidated("B", False),
+            "tick": Report("B", t),
+            "reset": Reset(),
+        }[what]
+        for e in (Report("B", t), ev) if what == "good" else (ev,):
+            tr = sup.step(t, e)
+            if tr is not None:
+                sw.want(tr.to_mode)
+        assert sw.status.wanted is sup.mode
+        applied = sw.status.applied
+        call = sw.due()
+        if call is not None:
+            assert open_call is None  # one at a time
+            assert call.target is sup.mode
+            assert call.target is not applied
+            assert lists(call) == (TO_SAFE if call.target is Mode.SAFE else TO_NORMAL)
+            open_call = call
+        if open_call is not None and outcome != "silent":
+            before = sw.status.applied
+            if outcome == "ok":
+                sw.answered(open_call, True)
+                assert sw.status.applied is open_call.target
+            else:
+                fault = {
+                    "refused": lambda c: sw.answered(c, False, "no"),
+                    "timed_out": sw.timed_out,
+                    "unavailable": lambda c: sw.unavailable(c, "not offered"),
+                }[outcome]
+                fault(open_call)
+                assert sw.status.applied is before
+                assert sw.status.state.fault
+            open_call = None
+    if open_call is not None:
+        sw.answered(open_call, True)
+    for _ in range(3):  # the next checks, every call answered ok
+        if (call := sw.due()) is not None:
+            sw.answered(call, True)
+    assert (sw.status.applied, sw.status.state) == (sup.mode, SwitchState.IN_PLACE)
