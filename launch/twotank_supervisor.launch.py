@@ -26,6 +26,12 @@ SUPERVISOR_ARGS = {
         "clear_reports",
         "stale_after_s",
         "startup_grace_s",
+        # the ros2_control switch (docs/ros.md, ros2_control)
+        "controller_manager",
+        "normal_controllers",
+        "fallback_controllers",
+        "switch_strictness",
+        "switch_timeout_s",
     )
 }
 ARGUMENTS = (

@@ -195,7 +195,7 @@ def _text(default) -> str:
         return "false" if default else "true"  # the other value, so that it shows
     if isinstance(default, list | tuple):
         return ",".join(["X", "Y"])
-    return str(default)
+    return str(default) or "X"  # an empty text would mean not given
 
 
 @pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)

@@ -535,7 +535,9 @@ class Harness:
         self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
         self.pub_flag = self.src.create_publisher(Bool, "validation/B/invalidated", LATCHED)
         self.pub_report = self.src.create_publisher(self.report_cls, "validation/B/report", 10)
-        self.pub_text = self.src.create_publisher(String, "validation/B/diagnosis_text", 10)
+        self.pub_diagnosis = self.src.create_publisher(
+            messages.diagnosis_class(), "validation/B/diagnosis", 10
+        )
         self.modes: list[str] = []
         self.states: list[DiagnosticStatus] = []
         # transient-local like the publishers, deep enough to keep every message
@@ -556,7 +558,7 @@ class Harness:
             lambda: (
                 self.pub_report.get_subscription_count() >= 1
                 and self.pub_flag.get_subscription_count() >= 1
-                and self.pub_text.get_subscription_count() >= 1
+                and self.pub_diagnosis.get_subscription_count() >= 1
                 and self.modes == ["normal"]
                 and len(self.states) >= 1  # the initial state, latched (a loaded machine
                 # may match the subscription after the first spin)
@@ -681,8 +683,10 @@ def test_node_switches_on_invalidated_and_back_after_hysteresis(harness) -> None
     # each transition was published on supervisor/state: the states seen carry 1 then 2
     counts = [{kv.key: kv.value for kv in s.values}["transitions"] for s in h.states]
     assert [k for k, _ in groupby(counts)] == ["0", "1", "2"]
-    # the diagnosis hook: carried in the state, nothing else changes
-    h.pub_text.publish(String(data="leak: 0.04"))
+    # the validator's diagnosis (what its node publishes): its summary carried in the state,
+    # nothing else changes
+    d = messages.diagnosis_class()(model="B", kind="leak", summary="leak: 0.04")
+    h.pub_diagnosis.publish(d)
     assert h.spin_until(lambda: h.state_values().get("diagnosis/B") == "leak: 0.04")
     assert h.sup.machine.mode is Mode.NORMAL
 

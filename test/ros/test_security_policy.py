@@ -34,6 +34,11 @@ POLICY = ROOT / "security" / "twotank_policy.xml"
 SCHEMA = ROOT / "test" / "data" / "sros2_policy.xsd"
 PREFIX = "/twotank_validation/"
 RESETS = {"/reset_alarm", "/reset_operating_point", "/supervisor/reset"}
+# the supervisor with its ros2_control switch on (its client is then in the graph)
+SWITCH_ON = [
+    Parameter("controller_manager", value="/controller_manager"),
+    Parameter("fallback_controllers", value=["hold"]),
+]
 # what each permission of a <topics>/<services> element is about
 KINDS = {"publish": "pub", "subscribe": "sub", "reply": "srv", "request": "cli"}
 
@@ -87,7 +92,7 @@ def graph():
         PlantNode(context=ctx, parameter_overrides=[sim, Parameter("publish_clock", value=True)]),
         ExcitationNode(context=ctx, parameter_overrides=[sim]),
         ControllerNode(context=ctx, parameter_overrides=[sim]),
-        SupervisorNode(context=ctx, parameter_overrides=[sim, ab]),
+        SupervisorNode(context=ctx, parameter_overrides=[sim, ab, *SWITCH_ON]),
         ViewNode(None, ["A", "B"], context=ctx),  # type: ignore[arg-type]  # never fed here
     ]
     try:
@@ -145,7 +150,10 @@ def test_only_the_supervisor_and_the_operator_may_call_the_resets():
     }
     assert callers == {PREFIX + "supervisor", PREFIX + "operator"}
     assert grants[PREFIX + "operator", "ALLOW", "cli"] == RESETS
-    assert grants[PREFIX + "supervisor", "ALLOW", "cli"] == RESETS - {"/supervisor/reset"}
+    switch = "/controller_manager/switch_controller"  # the supervisor's ros2_control switch
+    assert grants[PREFIX + "supervisor", "ALLOW", "cli"] - {switch} == RESETS - {
+        "/supervisor/reset"
+    }
     # and every other enclave is denied them outright (a later wildcard cannot grant them)
     for path in {p for p, _, _ in grants} - callers:
         assert grants[path, "DENY", "cli"] == RESETS, path

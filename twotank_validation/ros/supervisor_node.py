@@ -5,13 +5,16 @@ there). Topics (node-relative, remappable), per watched model M:
 
 * in: ``validation/M/invalidated`` (std_msgs/Bool, transient-local, as the validator publishes
   it), ``validation/M/report`` (twotank_validation_msgs/ValidationReport: its header stamp
-  feeds the stale rule), and optionally ``validation/M/diagnosis_text`` (std_msgs/String: the
-  last one is carried in the state, nothing depends on it);
+  feeds the stale rule), and ``validation/M/diagnosis`` (twotank_validation_msgs/Diagnosis,
+  as the validator publishes it: the last summary is carried in the state, nothing depends on
+  it);
 * out: ``control/mode`` (std_msgs/String ``"normal"`` or ``"safe"``, transient-local),
   ``supervisor/state`` (diagnostic_msgs/DiagnosticStatus, transient-local: OK in normal, ERROR
   in safe, the reason as message, the counters as values), the same status on ``/diagnostics``
   every check;
-* service ``supervisor/reset`` (std_srvs/Trigger): clears the latch when no fault is present.
+* service ``supervisor/reset`` (std_srvs/Trigger): clears the latch when no fault is present;
+* optionally, ``<controller_manager>/switch_controller`` calls (ros2_control) at each
+  transition (:mod:`twotank_validation.ros.controller_switch`).
 
 Time is the node's clock (``use_sim_time`` follows ``/clock``); a timer every
 ``check_period_s`` of it applies the stale rule and the hysteresis. A backward jump of the
@@ -51,7 +54,7 @@ from twotank_validation.online.supervisor import (
     judged_age_s,
     report_age_s,
 )
-from twotank_validation.ros import messages
+from twotank_validation.ros import controller_switch, messages
 from twotank_validation.ros.params import LATCHED, Param, ParameterError, declare, run_node
 
 _DEFAULTS = SupervisorConfig()
@@ -102,6 +105,7 @@ SUPERVISOR_PARAMS = (
         1e-3,
         3600,
     ),
+    *controller_switch.SWITCH_PARAMS,
 )
 
 
@@ -130,7 +134,8 @@ class SupervisorNode(Node):
 
     Attributes:
         machine: the state machine (its ``log`` holds every transition).
-        diagnosis: the last ``validation/M/diagnosis_text`` of each watched model.
+        diagnosis: the summary of the last ``validation/M/diagnosis`` of each watched model.
+        switch: the ros2_control controller switch (its state ``off`` when not configured).
         received: messages received per input topic (node-relative name).
         states_published: ``supervisor/state`` messages published.
         modes_published: ``control/mode`` messages published.
@@ -141,6 +146,7 @@ class SupervisorNode(Node):
         values = declare(self, SUPERVISOR_PARAMS)
         self.machine = Supervisor(supervisor_config(values))
         _, report_cls = messages.message_classes()
+        diagnosis_cls = messages.diagnosis_class()
         self.diagnosis: dict[str, str] = {}
         self.received: dict[str, int] = {}
         self.states_published = 0
@@ -159,8 +165,9 @@ class SupervisorNode(Node):
                 report_cls, f"validation/{m}/report", partial(self._on_report, m), 10
             )
             self.create_subscription(
-                String, f"validation/{m}/diagnosis_text", partial(self._on_diagnosis, m), 10
+                diagnosis_cls, f"validation/{m}/diagnosis", partial(self._on_diagnosis, m), 10
             )
+        self.switch = controller_switch.SwitchClient(self, values, self._publish_state)
         self.create_service(Trigger, "supervisor/reset", self._on_reset)
         self.create_timer(float(values["check_period_s"]), self._on_tick)
         # a backward jump of the (simulated) clock restarts the stale rule's timing at once
@@ -223,6 +230,7 @@ class SupervisorNode(Node):
         else:
             self.get_logger().info(text)
         self._publish_mode()
+        self.switch.want(tr.to_mode)
         self._publish_state()
 
     def _count(self, topic: str) -> None:
@@ -246,9 +254,9 @@ class SupervisorNode(Node):
             )
         self._step(Report(model, stamp_s, bool(msg.judged)))
 
-    def _on_diagnosis(self, model: str, msg: String) -> None:
-        self._count(f"validation/{model}/diagnosis_text")
-        self.diagnosis[model] = str(msg.data)
+    def _on_diagnosis(self, model: str, msg: Any) -> None:
+        self._count(f"validation/{model}/diagnosis")
+        self.diagnosis[model] = str(msg.summary)
         self._publish_state()
 
     def _on_tick(self) -> None:
@@ -256,6 +264,7 @@ class SupervisorNode(Node):
             return  # simulated time has not started
         self._step(Tick())
         self._pub_diag.publish(DiagnosticArray(status=[self.status()]))
+        self.switch.check()  # after: /diagnostics shows a failed switch before its retry
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         before = self.machine.counters.resets_accepted
@@ -279,6 +288,8 @@ class SupervisorNode(Node):
         st.name = "twotank_validation: supervisor"
         st.hardware_id = self.get_fully_qualified_name()
         st.message = f"{s.mode.value}: {s.reason}" + (" (latched)" if s.latched else "")
+        st.level = max(st.level, self.switch.level())
+        st.message += self.switch.message()
         values = {
             "mode": s.mode.value,
             "reason": s.reason,
@@ -300,6 +311,7 @@ class SupervisorNode(Node):
             values[f"invalidated/{m}"] = str(m in s.invalidated).lower()
             if m in self.diagnosis:
                 values[f"diagnosis/{m}"] = self.diagnosis[m]
+        values.update(self.switch.values())
         st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         return st
 
