@@ -23,6 +23,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.supervisor_node import SupervisorNode
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -90,19 +91,23 @@ def _published_names() -> set[str]:
     rclpy.init(context=ctx)
     names: set[str] = set()
     try:
-        val = ValidatorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("models", value=["A", "B"]),
-                Parameter("diagnosis", value=False),
-            ],
+        val = bring_up(
+            ValidatorNode(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("models", value=["A", "B"]),
+                    Parameter("diagnosis", value=False),
+                ],
+            )
         )
-        sup = SupervisorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("models", value=["A", "B"]),
-                Parameter("check_period_s", value=0.1),
-            ],
+        sup = bring_up(
+            SupervisorNode(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("models", value=["A", "B"]),
+                    Parameter("check_period_s", value=0.1),
+                ],
+            )
         )
         listener = Node("diagnostics_listener", context=ctx)
         listener.create_subscription(

@@ -114,8 +114,8 @@ class ManagedNode(LifecycleNode):
         """Check a run-time change (``values``: every parameter, the new ones in).
 
         Returns:
-            What applies it to the configured node (None: nothing to apply now, e.g. the node
-            is unconfigured and configure reads it).
+            What applies it to the configured node (None: nothing to apply now: the node is
+            unconfigured (:attr:`is_configured`) and configure reads it).
 
         Raises:
             ParameterError: the values cannot hold together (the message names the fix).
@@ -138,6 +138,11 @@ class ManagedNode(LifecycleNode):
     def lifecycle_state(self) -> str:
         """``"unconfigured"``, ``"inactive"``, ``"active"`` or ``"finalized"``."""
         return str(self._state_machine.current_state[1])
+
+    @property
+    def is_configured(self) -> bool:
+        """The node is configured (inactive or active): its core exists."""
+        return self.lifecycle_state in ("inactive", "active")
 
     @property
     def is_active(self) -> bool:
@@ -282,7 +287,7 @@ class ManagedNode(LifecycleNode):
                 return SetParametersResult(successful=False, reason=problem)
         values = {**self.parameter_values(), **{p.name: p.value for p in mine}}
         try:
-            apply = self.check_runtime(values) if self.lifecycle_state != "unconfigured" else None
+            apply = self.check_runtime(values)
         except ParameterError as err:
             return SetParametersResult(successful=False, reason=str(err))
         if apply is not None:

@@ -180,14 +180,14 @@ class SupervisorNode(ManagedNode):
             self.create_lifecycle_publisher(DiagnosticStatus, "supervisor/state", LATCHED)
         )
 
-    def check_runtime(self, values: dict[str, Any]) -> Callable[[], None]:
+    def check_runtime(self, values: dict[str, Any]) -> Callable[[], None] | None:
         """The new rules (:func:`supervisor_config` checks them), applied at once."""
         config = supervisor_config(values)
 
         def apply() -> None:
             self.machine.config = config
 
-        return apply
+        return apply if self.is_configured else None
 
     def activate_node(self) -> None:
         """Subscribe to the watched models, start the check timer, publish the mode."""
