@@ -54,8 +54,8 @@ from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online import Alarm
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.lifecycle import bring_up
+from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.validator_node import ValidatorNode
 
 CONFIG = streamfuzz.CONFIG
@@ -306,7 +306,7 @@ class _Driver:
                 self.diag_published += 1
             publish(msg)
 
-        self.val._pub_status.publish = counted  # type: ignore[method-assign]
+        self.val._pub_status.publish = counted
         self.flow_cls, report_cls = messages.message_classes()
         self.src = Node("nodefuzz_driver", context=self.ctx, **_LEAN)
         self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
@@ -447,7 +447,8 @@ def run(
             _drive(drv, res, Step(-1, t_end + j * TS_NS, []), strict=True, watchdog=True)
             if res.violations and res.violations[-1].startswith("crash"):
                 return res
-        res.worker_alive = drv.val._worker.is_alive()
+        worker = drv.val._worker
+        res.worker_alive = worker is not None and worker.is_alive()
     finally:
         drv.close()
         res.wall_s = time.perf_counter() - start

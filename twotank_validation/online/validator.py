@@ -401,8 +401,10 @@ class OnlineValidator:
         self._monitor.reset_alarms()
 
     def set_alarm(self, alarm: AlarmConfig) -> None:
-        """Debounce the windows judged from now on with ``alarm`` (between two windows: a
-        node's run-time parameter change); the alarm states reached so far are kept."""
+        """Debounce the windows judged from now on with ``alarm``; the alarm states are kept.
+
+        Called between two windows (a node's run-time parameter change).
+        """
         self._monitor.set_alarm(alarm)
         self.config = dataclasses.replace(self.config, alarm=alarm)
 
