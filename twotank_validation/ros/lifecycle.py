@@ -160,11 +160,17 @@ class ManagedNode(LifecycleNode):
         values = self.parameter_values()
         try:
             if self._declare_errors:
-                fix = (
-                    "; set a valid value (ros2 param set, for a run-time parameter) and "
-                    "configure again, or fix the params file or launch argument and restart"
+                raise ParameterError(
+                    "; ".join(
+                        f"{why} (fix: "
+                        + (
+                            "ros2 param set it, then configure again)"
+                            if name in self.RUNTIME
+                            else "set it in the params file or on the command line and restart)"
+                        )
+                        for name, why in self._declare_errors.items()
+                    )
                 )
-                raise ParameterError("; ".join(self._declare_errors.values()) + fix)
             self._pub_status = self.configured(
                 self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             )
