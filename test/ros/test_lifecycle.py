@@ -10,9 +10,11 @@ rclpy's parameter services (what ``ros2 param set`` gets back).
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from functools import cache
+from pathlib import Path
 
 import pytest
 import rclpy
@@ -424,3 +426,19 @@ def test_the_executables_autostart_unless_told_not_to() -> None:
     assert autostart_of(["--autostart", "false", "--ros-args"]) == (False, ["--ros-args"])
     with pytest.raises(SystemExit, match="true or false"):
         autostart_of(["--autostart", "maybe"])
+
+
+def test_the_run_time_parameters_are_parameters_and_documented() -> None:
+    """Each managed node's RUNTIME names parameters of its table, and docs/ros.md's table of
+    run-time parameters lists exactly them."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "ros.md").read_text()
+    section = text.split("**Run-time parameters.**", 1)[1].split("\n\n**", 1)[0]
+    rows = {
+        m.group(1): set(re.findall(r"`(\w+)`", m.group(2)))
+        for m in re.finditer(r"^\| `(twotank_\w+)` \| ([^|]*) \|", section, re.M)
+    }
+    nodes = (ValidatorNode, SupervisorNode, PlantNode, ControllerNode)
+    assert set(rows) == {f"twotank_{n.ROLE}" for n in nodes}
+    for cls in nodes:
+        assert {p.name for p in cls.PARAMS} >= cls.RUNTIME, cls.ROLE
+        assert rows[f"twotank_{cls.ROLE}"] == set(cls.RUNTIME), cls.ROLE
