@@ -18,6 +18,10 @@ Time is the node's clock (``use_sim_time`` follows ``/clock``); a timer every
 clock restarts the supervisor's timing (:class:`~twotank_validation.online.supervisor.Restart`).
 Every transition is logged (warning into safe, info back to normal) and published on both
 topics.
+
+A managed node (:mod:`twotank_validation.ros.lifecycle`): it watches only while active. An
+inactive validator sends no report, which the stale rule treats as a dead one (docs/ros.md,
+"Managed nodes"). The rules' settings change at run time (:data:`SUPERVISOR_RUNTIME`).
 """
 
 from __future__ import annotations

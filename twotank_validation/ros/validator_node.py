@@ -31,6 +31,11 @@ type, and from the moment input arrives that makes the coming windows unfit to j
 of stale stamps) until a window after it is judged (the validator keeps that state,
 :attr:`~twotank_validation.online.validator.OnlineValidator.input_fault`); otherwise it carries
 the last window's level (published once all models' reports of a window are out).
+
+A managed node (:mod:`twotank_validation.ros.lifecycle`, docs/ros.md "Managed nodes"): it
+takes input and judges only while active; inactive, ``/diagnostics`` says so. The alarm's
+debouncing and the watchdog's timeout change at run time (:data:`VALIDATOR_RUNTIME`); the
+other parameters are read-only.
 """
 
 from __future__ import annotations
