@@ -11,8 +11,9 @@ conventional semantics (docs/ros.md, Managed nodes):
 * **activate** creates the subscriptions, timers and services and starts the work;
 * **deactivate** stops the work, destroys what activate created, and publishes the node's
   ``/diagnostics`` status as ``inactive`` (level WARN, key ``lifecycle_state``) once and then every
-  :data:`INACTIVE_PERIOD_S` of wall time while inactive, so that a monitor sees why it is
-  quiet;
+  :data:`STATUS_PERIOD_S` of wall time while inactive, so that a monitor sees why it is
+  quiet (a node without statuses of its own, the plant or the controller, says ``active``,
+  level OK, while active);
 * **cleanup** (and **shutdown**, from any state) releases everything configure built
   (publishers, the evidence recorder, worker threads).
 
@@ -48,9 +49,10 @@ from rclpy.timer import Timer
 
 from twotank_validation.ros.params import Param, ParameterError, check_value, declare
 
-INACTIVE_PERIOD_S = 1.0
-"""Wall-clock period (s) of the ``inactive`` status on ``/diagnostics`` while inactive (a
-diagnostic aggregator marks a status stale after a few seconds without one)."""
+STATUS_PERIOD_S = 1.0
+"""Wall-clock period (s) of the lifecycle status on ``/diagnostics`` (``inactive``; ``active``
+too for a node without statuses of its own): a diagnostic aggregator marks a status stale
+after a few seconds without one."""
 
 INACTIVE_LEVEL = DiagnosticStatus.WARN
 """Level of the ``inactive`` status: not OK (nothing is being checked or controlled), not
@@ -67,6 +69,9 @@ class ManagedNode(LifecycleNode):
         RUNTIME: the parameters that may change at run time (validated by
             :meth:`check_runtime`); all others are ``read_only``.
         ROLE: the node's role in messages (``"validator"``).
+        OWN_STATUS: the node publishes statuses of its own on ``/diagnostics`` while active
+            (the validator, the supervisor); otherwise the base publishes ``active`` (OK)
+            every :data:`STATUS_PERIOD_S` then.
 
     Attributes:
         configure_error: why the last configure failed ("" if it did not).
@@ -75,6 +80,7 @@ class ManagedNode(LifecycleNode):
     PARAMS: ClassVar[tuple[Param, ...]] = ()
     RUNTIME: ClassVar[frozenset[str]] = frozenset()
     ROLE: ClassVar[str] = "node"
+    OWN_STATUS: ClassVar[bool] = False
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
@@ -84,7 +90,8 @@ class ManagedNode(LifecycleNode):
         self.configure_error = ""
         self._configured: list[Any] = []  # entities configure created (cleanup destroys)
         self._activated: list[Any] = []  # entities activate created (deactivate destroys)
-        self._inactive_timer: Any = None
+        self._status_timer: Any = None  # the lifecycle status's (steady clock)
+        self._status_state = "inactive"
         self._pub_status: Any = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -189,9 +196,13 @@ class ManagedNode(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Create subscriptions, timers and services; start working."""
-        self._leave_inactive()
+        if self.OWN_STATUS:
+            self._stop_status_timer()  # the node's own statuses take over
         ret = super().on_activate(state)  # enables the lifecycle publishers
         self.activate_node()
+        if not self.OWN_STATUS:
+            self._status_state = "active"
+            self.publish_status()
         self.get_logger().info(f"{self.ROLE} active")
         return ret
 
@@ -205,7 +216,7 @@ class ManagedNode(LifecycleNode):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Release what configure built."""
-        self._leave_inactive()
+        self._stop_status_timer()
         self._release_configured()
         return super().on_cleanup(state)
 
@@ -223,7 +234,7 @@ class ManagedNode(LifecycleNode):
         """Stop and release everything, from whatever state (shutdown, destroy_node)."""
         if self._activated:
             self._stop_active()
-        self._leave_inactive()
+        self._stop_status_timer()
         self._release_configured()
 
     def destroy_node(self) -> None:
@@ -247,32 +258,42 @@ class ManagedNode(LifecycleNode):
         self._pub_status = None
 
     def _enter_inactive(self) -> None:
-        self.publish_inactive()
-        if self._inactive_timer is None:
-            self._inactive_timer = self.create_timer(
-                INACTIVE_PERIOD_S,
-                self.publish_inactive,
+        self._status_state = "inactive"
+        self.publish_status()
+        if self._status_timer is None:
+            self._status_timer = self.create_timer(
+                STATUS_PERIOD_S,
+                self.publish_status,
                 clock=Clock(clock_type=ClockType.STEADY_TIME),
             )
 
-    def _leave_inactive(self) -> None:
-        if self._inactive_timer is not None:
-            self.destroy_timer(self._inactive_timer)
-            self._inactive_timer = None
+    def _stop_status_timer(self) -> None:
+        if self._status_timer is not None:
+            self.destroy_timer(self._status_timer)
+            self._status_timer = None
 
-    def publish_inactive(self) -> None:
-        """Publish the node's statuses as ``inactive`` on ``/diagnostics``."""
+    def publish_status(self) -> None:
+        """Publish the node's lifecycle status on ``/diagnostics``.
+
+        ``inactive`` (WARN); or ``active`` (OK) for a node without statuses of its own
+        (:attr:`OWN_STATUS`).
+        """
         if self._pub_status is None:
             return
+        state = self._status_state
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         for name in self.inactive_names():
             st = DiagnosticStatus()
-            st.level = INACTIVE_LEVEL
             st.name = name
             st.hardware_id = self.get_fully_qualified_name()
-            st.message = f"inactive: the {self.ROLE} is not working (lifecycle state inactive)"
-            st.values = [KeyValue(key="lifecycle_state", value="inactive")]
+            if state == "active":
+                st.level = DiagnosticStatus.OK
+                st.message = f"active: the {self.ROLE} is working"
+            else:
+                st.level = INACTIVE_LEVEL
+                st.message = f"inactive: the {self.ROLE} is not working (lifecycle state inactive)"
+            st.values = [KeyValue(key="lifecycle_state", value=state)]
             arr.status.append(st)
         self._pub_status.publish(arr)
 

@@ -161,6 +161,7 @@ class SupervisorNode(ManagedNode):
     PARAMS = SUPERVISOR_PARAMS
     RUNTIME = SUPERVISOR_RUNTIME
     ROLE = "supervisor"
+    OWN_STATUS = True
 
     def __init__(self, *, name: str = "twotank_supervisor", **kwargs: Any) -> None:
         self.diagnosis: dict[str, str] = {}

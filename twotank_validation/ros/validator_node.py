@@ -253,6 +253,7 @@ class ValidatorNode(ManagedNode):
     PARAMS = VALIDATOR_PARAMS
     RUNTIME = VALIDATOR_RUNTIME
     ROLE = "validator"
+    OWN_STATUS = True
 
     def __init__(
         self,
