@@ -31,6 +31,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import String
 
+from twotank_validation.bags import open_bag
+from twotank_validation.bags.evidence import evidence_bags
 from twotank_validation.online import Alarm
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
@@ -442,3 +444,27 @@ def test_the_run_time_parameters_are_parameters_and_documented() -> None:
     for cls in nodes:
         assert {p.name for p in cls.PARAMS} >= cls.RUNTIME, cls.ROLE
         assert rows[f"twotank_{cls.ROLE}"] == set(cls.RUNTIME), cls.ROLE
+
+
+def test_cleanup_during_an_alarm_closes_the_evidence_bag_with_every_sample_fed(tmp_path) -> None:
+    """Model A is invalidated by the nominal rig: its alarm rises and the evidence recorder
+    writes a bag. Cleaned up while that bag is being written, the node closes it: the bag
+    reads back and holds every sample fed up to the cleanup (the reference: the stamps fed)."""
+    rig = Rig(tmp_path, models=["A"])
+    try:
+        bring_up(rig.val)
+        assert rig.spin_until(lambda: rig.pub_flow.get_subscription_count() == 1)
+        rig.feed(256 + 3 * 64)
+        assert any(r.alarm is Alarm.ERROR for r in rig.val.reports)
+        assert rig.val.evidence is not None
+        assert rig.val.evidence.status().state == "writing"  # the episode is still open
+        rig.val.trigger_deactivate()
+        rig.val.trigger_cleanup()
+        (bag,) = evidence_bags(tmp_path / "evidence")
+        with open_bag(bag) as reader:
+            stamps = {m.log_time_ns for m in reader.messages(["flow_cmd", "height", "temperature"])}
+        fed = rig_record(8)[0][: rig.k]
+        assert max(stamps) == int(fed[-1])  # the last sample fed is in the bag
+        assert stamps == {int(t) for t in fed if t >= min(stamps)}  # and none missing
+    finally:
+        rig.close()
