@@ -172,11 +172,6 @@ def _sample_arrived(val: ValidatorNode, k: int) -> bool:
     return min(val.received.values()) > k
 
 
-# DRAIN_TIMEOUT_S: longest wall time the driver waits for the validator's worker to catch up
-# (at the end of a run, and every eighth of a period with a supervisor); with the diagnosis
-# inline the worker may be a few diagnoses behind, each taking seconds
-
-
 def wait_worker(val: ValidatorNode) -> None:
     """Block until the validator's worker processed everything queued.
 

@@ -94,7 +94,9 @@ from twotank_validation.ros.params import (
 from twotank_validation.settings import from_flat
 
 DRAIN_TIMEOUT_S = 600.0
-"""Longest wall time deactivate waits for the worker to judge what was queued."""
+"""Longest wall time to wait for the worker to judge what was queued: at deactivate, and in
+``live``'s driver (at the end of a run, and every eighth of a period with a supervisor); with
+the diagnosis inline the worker may be a few diagnoses behind, each taking seconds."""
 
 VALIDATOR_PARAMS = (
     *setting_params(VALIDATOR_SETTINGS),  # the settings tree (online/validator_settings.py)
@@ -563,7 +565,12 @@ class ValidatorNode(ManagedNode):
             self.report_latency_s.append(perf_counter() - received)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
-        """Block until the worker has processed every queued event (tests, composition)."""
+        """Block until the worker has processed every queued event (tests, composition).
+
+        Not active (no worker): nothing is judged, True at once.
+        """
+        if self._worker is None:
+            return True
         done = threading.Event()
         self._queue.put(_Marker(done))
         return done.wait(timeout_s)
