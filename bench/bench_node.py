@@ -68,10 +68,11 @@ def child() -> None:
     import rclpy  # noqa: PLC0415
     from rclpy.parameter import Parameter  # noqa: PLC0415
 
+    from twotank_validation.ros.lifecycle import bring_up  # noqa: PLC0415
     from twotank_validation.ros.validator_node import ValidatorNode  # noqa: PLC0415
 
     rclpy.init()
-    node = ValidatorNode(parameter_overrides=[Parameter("use_sim_time", value=True)])
+    node = bring_up(ValidatorNode(parameter_overrides=[Parameter("use_sim_time", value=True)]))
     spinner = threading.Thread(target=rclpy.spin, args=(node,), daemon=True)
     spinner.start()
     out = sys.stdout

@@ -5,7 +5,8 @@ setpoints), the validator, fed the controller's `flow_cmd` and the measurements,
 supervisor, which watches `supervisor_models` and switches the controller to its safe mode on
 their alarm or silence (`control/mode`, std_msgs/String "normal"/"safe", transient-local).
 Arguments: `params_file`, `namespace`, `use_sim_time` (default true: the plant owns /clock and
-every node uses it), `log_level`, `models` (the validator's, comma-separated),
+every node uses it), `log_level`, `autostart` (default true: launch configures and activates
+the managed nodes), `models` (the validator's, comma-separated),
 `supervisor_models` (the supervisor's `models`), `faults` (comma-separated fault specs, e.g.
 `leak=0.06@1000`), `real_time_factor` (> 1 runs the plant's /clock faster),
 `excitation_entry` (`output` or `setpoint`); an argument left empty leaves the parameter to
@@ -18,11 +19,15 @@ test/test_launch_files.py runs its logic with stand-ins); `twotank-validation li
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode
 
 from launch import LaunchDescription
 from twotank_validation.ros.controller_node import CONTROLLER_PARAMS
-from twotank_validation.ros.launching import common_arguments, node_options, parameter_arguments
+from twotank_validation.ros.launching import (
+    common_arguments,
+    lifecycle_options,
+    parameter_arguments,
+)
 from twotank_validation.ros.plant_node import PLANT_PARAMS
 from twotank_validation.ros.supervisor_node import SUPERVISOR_PARAMS
 from twotank_validation.ros.validator_node import VALIDATOR_PARAMS
@@ -44,30 +49,33 @@ ARGUMENTS = (
 def _nodes(context, *args, **kwargs):
     values = {a.name: LaunchConfiguration(a.name).perform(context) for a in ARGUMENTS}
     return [
-        Node(
+        LifecycleNode(
             package="twotank_validation",
             executable="twotank_plant",
-            **node_options(values, PLANT_PARAMS, PLANT_ARGS, fixed={"publish_clock": True}),
+            **lifecycle_options(
+                values, "twotank_plant", PLANT_PARAMS, PLANT_ARGS, fixed={"publish_clock": True}
+            ),
         ),
-        Node(
+        LifecycleNode(
             package="twotank_validation",
             executable="twotank_controller",
-            **node_options(values, CONTROLLER_PARAMS, CONTROLLER_ARGS),
+            **lifecycle_options(values, "twotank_controller", CONTROLLER_PARAMS, CONTROLLER_ARGS),
         ),
-        Node(
+        LifecycleNode(
             package="twotank_validation",
             executable="twotank_validator",
-            **node_options(
+            **lifecycle_options(
                 values,
+                "twotank_validator",
                 VALIDATOR_PARAMS,
                 VALIDATOR_ARGS,
                 fixed={"input_periodic_rtol": CLOSED_LOOP_INPUT_PERIODIC_RTOL},
             ),
         ),
-        Node(
+        LifecycleNode(
             package="twotank_validation",
             executable="twotank_supervisor",
-            **node_options(values, SUPERVISOR_PARAMS, SUPERVISOR_ARGS),
+            **lifecycle_options(values, "twotank_supervisor", SUPERVISOR_PARAMS, SUPERVISOR_ARGS),
         ),
     ]
 

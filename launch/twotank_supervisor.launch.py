@@ -4,17 +4,22 @@ Starts the supervisor beside a running validator (e.g. `twotank_sim.launch.py`, 
 validator on a rig): it watches `validation/M/invalidated` and `validation/M/report` of the
 given models and publishes `control/mode` for the controller. Arguments: `params_file`,
 `namespace` (the validator's), `use_sim_time` (default false; true beside the simulated rig,
-whose plant owns /clock), `log_level`, and the supervisor's `models` (comma-separated),
+whose plant owns /clock), `log_level`, `autostart` (default true), and the supervisor's `models`
+(comma-separated),
 `latch`, `clear_after_s`, `clear_reports`, `stale_after_s`, `startup_grace_s`; an argument
 left empty leaves the parameter to the params file or the node's default.
 """
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode
 
 from launch import LaunchDescription
-from twotank_validation.ros.launching import common_arguments, node_options, parameter_arguments
+from twotank_validation.ros.launching import (
+    common_arguments,
+    lifecycle_options,
+    parameter_arguments,
+)
 from twotank_validation.ros.supervisor_node import SUPERVISOR_PARAMS
 
 SUPERVISOR_ARGS = {
@@ -43,10 +48,10 @@ ARGUMENTS = (
 def _nodes(context, *args, **kwargs):
     values = {a.name: LaunchConfiguration(a.name).perform(context) for a in ARGUMENTS}
     return [
-        Node(
+        LifecycleNode(
             package="twotank_validation",
             executable="twotank_supervisor",
-            **node_options(values, SUPERVISOR_PARAMS, SUPERVISOR_ARGS),
+            **lifecycle_options(values, "twotank_supervisor", SUPERVISOR_PARAMS, SUPERVISOR_ARGS),
         )
     ]
 

@@ -3,16 +3,22 @@
 Remap `flow_cmd`, `height` and `temperature` to the rig's topics and set the unit
 conversions (`pascal_per_unit`, `temperature_offset_c`, `temperature_span_c`) if they differ,
 e.g. in a `params_file`. Arguments: `params_file`, `namespace`, `use_sim_time` (default
-false), `log_level` (default info), `models` (comma-separated) and `latch_alarm`; an argument
+false), `log_level` (default info), `autostart` (default true: launch configures and
+activates the validator; false: it waits unconfigured), `models` (comma-separated) and
+`latch_alarm`; an argument
 left empty leaves the parameter to the params file or the node's default.
 """
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode
 
 from launch import LaunchDescription
-from twotank_validation.ros.launching import common_arguments, node_options, parameter_arguments
+from twotank_validation.ros.launching import (
+    common_arguments,
+    lifecycle_options,
+    parameter_arguments,
+)
 from twotank_validation.ros.validator_node import VALIDATOR_PARAMS
 
 VALIDATOR_ARGS = {"models": "models", "latch_alarm": "latch_alarm"}
@@ -25,7 +31,7 @@ ARGUMENTS = (
 def _nodes(context, *args, **kwargs):
     values = {a.name: LaunchConfiguration(a.name).perform(context) for a in ARGUMENTS}
     return [
-        Node(
+        LifecycleNode(
             package="twotank_validation",
             executable="twotank_validator",
             remappings=[
@@ -33,7 +39,7 @@ def _nodes(context, *args, **kwargs):
                 ("height", "height"),
                 ("temperature", "temperature"),
             ],
-            **node_options(values, VALIDATOR_PARAMS, VALIDATOR_ARGS),
+            **lifecycle_options(values, "twotank_validator", VALIDATOR_PARAMS, VALIDATOR_ARGS),
         )
     ]
 

@@ -18,6 +18,7 @@ from sensor_msgs.msg import FluidPressure, Temperature
 
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.validator_node import ValidatorNode
 
 
@@ -28,13 +29,15 @@ def validator_node(params: Mapping[str, object], **kwargs: object) -> Iterator[V
     ctx = Context()
     rclpy.init(context=ctx)
     try:
-        node = ValidatorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("use_sim_time", value=True),
-                *[Parameter(k, value=v) for k, v in params.items()],
-            ],
-            **kwargs,
+        node = bring_up(
+            ValidatorNode(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("use_sim_time", value=True),
+                    *[Parameter(k, value=v) for k, v in params.items()],
+                ],
+                **kwargs,
+            )
         )
         try:
             yield node

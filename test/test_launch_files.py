@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 import sys
 import types
 from importlib import metadata
@@ -30,11 +31,12 @@ from rclpy.parameter import Parameter
 
 from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS
 from twotank_validation.ros.launching import LOG_LEVELS, typed
+from twotank_validation.ros.lifecycle import ManagedNode
 from twotank_validation.ros.params import Param
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH_FILES = sorted((ROOT / "launch").glob("*.launch.py"))
-COMMON = {"params_file", "namespace", "use_sim_time", "log_level"}
+COMMON = {"params_file", "namespace", "use_sim_time", "log_level", "autostart"}
 
 
 class _Context:
@@ -86,7 +88,14 @@ class Node:
         arguments=None,
     ):
         self.executable, self.package, self.namespace = executable, package, namespace
+        self.name = name
         self.parameters, self.arguments, self.remappings = parameters, arguments, remappings
+
+
+class LifecycleNode(Node):
+    def __init__(self, *, name, namespace, autostart=False, **kwargs):
+        super().__init__(name=name, namespace=namespace, **kwargs)
+        self.name, self.autostart = name, autostart
 
 
 @pytest.fixture
@@ -99,7 +108,7 @@ def stub_launch(monkeypatch):
         },
         "launch.substitutions": {"LaunchConfiguration": LaunchConfiguration},
         "launch_ros": {},
-        "launch_ros.actions": {"Node": Node},
+        "launch_ros.actions": {"Node": Node, "LifecycleNode": LifecycleNode},
     }
     for name, attrs in modules.items():
         mod = types.ModuleType(name)
@@ -151,6 +160,42 @@ def _node_params() -> dict[str, tuple[Param, ...]]:
 NODE_PARAMS = _node_params()
 
 
+def _managed() -> dict[str, str]:
+    """Executable -> its managed node's default name (the executables of ManagedNode classes)."""
+    out = {}
+    for ep in metadata.distribution("twotank_validation").entry_points:
+        if ep.group == "console_scripts" and ep.name.startswith("twotank_"):
+            module = importlib.import_module(ep.value.split(":")[0])
+            for v in vars(module).values():
+                mine = isinstance(v, type) and v.__module__ == module.__name__
+                if mine and issubclass(v, ManagedNode):
+                    out[ep.name] = inspect.signature(v).parameters["name"].default
+    assert set(out) == {
+        "twotank_validator",
+        "twotank_supervisor",
+        "twotank_controller",
+        "twotank_plant",
+    }
+    return out
+
+
+MANAGED = _managed()
+
+
+def _check_lifecycle(node: Node, autostart: bool, level: str) -> None:
+    """A managed node is launched as a LifecycleNode that launch starts (or not); the
+    executable is told not to start itself; a plain node as a Node."""
+    ros_args = ["--ros-args", "--log-level", level]
+    if node.executable in MANAGED:
+        assert isinstance(node, LifecycleNode), node.executable
+        assert node.name == MANAGED[node.executable]
+        assert node.autostart is autostart
+        assert node.arguments == ["--autostart", "false", *ros_args]
+    else:
+        assert not isinstance(node, LifecycleNode), node.executable
+        assert node.arguments == ros_args
+
+
 def _check_overrides(node: Node) -> dict:
     """The node's override dict, each name declared by the node and of its declared type."""
     assert node.package == "twotank_validation"
@@ -181,7 +226,7 @@ def test_defaults_pass_only_what_the_file_fixes(stub_launch, path: Path) -> None
     for node in nodes:
         assert node.executable in NODE_PARAMS
         assert node.namespace == ""
-        assert node.arguments == ["--ros-args", "--log-level", "info"]
+        _check_lifecycle(node, True, "info")
         overrides = _check_overrides(node)
         assert len(node.parameters) == 1  # no params file by default
         assert overrides["use_sim_time"] is sim
@@ -207,6 +252,7 @@ def test_every_argument_reaches_its_node_typed(stub_launch, path: Path) -> None:
     by_arg = {arg: param for m in maps.values() for arg, param in m.items()}
     assert set(declared) == COMMON | set(by_arg), "every argument is common or names a parameter"
     given = {"params_file": "/tmp/rig.yaml", "namespace": "rig1", "log_level": "debug"}
+    given["autostart"] = "false"
     given["use_sim_time"] = "false" if declared["use_sim_time"].default_value == "true" else "true"
     values: dict[str, object] = {}
     for map_name, mapping in maps.items():
@@ -219,7 +265,7 @@ def test_every_argument_reaches_its_node_typed(stub_launch, path: Path) -> None:
     passed: dict[str, list] = {}
     for node in nodes:
         assert node.namespace == "rig1"
-        assert node.arguments == ["--ros-args", "--log-level", "debug"]
+        _check_lifecycle(node, False, "debug")
         assert node.parameters[0] == "/tmp/rig.yaml"  # first: the arguments override it
         overrides = _check_overrides(node)
         assert overrides["use_sim_time"] is (given["use_sim_time"] == "true")

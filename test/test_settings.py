@@ -223,6 +223,7 @@ def test_declared_parameters_carry_the_tree_on_a_real_node() -> None:
     from rclpy.node import Node  # noqa: PLC0415
     from rclpy.parameter import Parameter  # noqa: PLC0415
 
+    from twotank_validation.ros.lifecycle import bring_up  # noqa: PLC0415
     from twotank_validation.ros.params import ParameterError, declare  # noqa: PLC0415
     from twotank_validation.ros.validator_node import (  # noqa: PLC0415
         VALIDATOR_PARAMS,
@@ -271,15 +272,17 @@ def test_declared_parameters_carry_the_tree_on_a_real_node() -> None:
                 declare(probe, VALIDATOR_PARAMS)
             probe.destroy_node()
         # the validator node itself: its config is the tree's, with overrides by flat name
-        val = ValidatorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("diagnosis", value=False),
-                Parameter("hop_samples", value=512),
-                Parameter("latch_alarm", value=True),
-                Parameter("op_reference_u", value=[0.4, 0.4]),
-                Parameter("op_reference_y", value=[0.47, 0.5]),
-            ],
+        val = bring_up(
+            ValidatorNode(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("diagnosis", value=False),
+                    Parameter("hop_samples", value=512),
+                    Parameter("latch_alarm", value=True),
+                    Parameter("op_reference_u", value=[0.4, 0.4]),
+                    Parameter("op_reference_y", value=[0.47, 0.5]),
+                ],
+            )
         )
         try:
             tree = ValidatorSettings().monitor

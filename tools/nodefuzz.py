@@ -54,6 +54,7 @@ from twotank_validation.defaults import NS_PER_S
 from twotank_validation.online import Alarm
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -286,24 +287,26 @@ class _Driver:
             "period_samples": CONFIG.period_samples,
             **(extra_params or {}),
         }
-        self.val = ValidatorNode(
-            models=_models(),
-            context=self.ctx,
-            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+        self.val = bring_up(
+            ValidatorNode(
+                models=_models(),
+                context=self.ctx,
+                parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+            )
         )
         self.published = 0
         self._count_lock = threading.Lock()
         self.val.report_listeners.append(self._count)
         # count the node's /diagnostics messages too (the worker and the watchdog publish)
         self.diag_published = 0
-        publish = self.val._pub_diag.publish
+        publish = self.val._pub_status.publish
 
         def counted(msg: DiagnosticArray) -> None:
             with self._count_lock:
                 self.diag_published += 1
             publish(msg)
 
-        self.val._pub_diag.publish = counted  # type: ignore[method-assign]
+        self.val._pub_status.publish = counted
         self.flow_cls, report_cls = messages.message_classes()
         self.src = Node("nodefuzz_driver", context=self.ctx, **_LEAN)
         self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
@@ -444,7 +447,8 @@ def run(
             _drive(drv, res, Step(-1, t_end + j * TS_NS, []), strict=True, watchdog=True)
             if res.violations and res.violations[-1].startswith("crash"):
                 return res
-        res.worker_alive = drv.val._worker.is_alive()
+        worker = drv.val._worker
+        res.worker_alive = worker is not None and worker.is_alive()
     finally:
         drv.close()
         res.wall_s = time.perf_counter() - start

@@ -423,3 +423,31 @@ def test_alarm_stays_warn_while_the_operating_point_is_unchecked() -> None:
         levels.append(state.level)
     ok, w, e = Alarm.OK, Alarm.WARN, Alarm.ERROR
     assert levels == [w, e, e, w, w, ok]
+
+
+def test_a_new_alarm_config_judges_the_windows_after_it() -> None:
+    """``set_alarm`` between two windows (a node's run-time parameter): the windows before are
+    those of a monitor with the old settings, the ones after those of a monitor that had the
+    new settings from the start (the betas untouched; here only WARN depends on it)."""
+    stamps, u, y = rig_record()
+    new = dataclasses.replace(FAST.alarm, warn_beta=1e-3)
+    switched = online.WindowMonitor(FAST, models())
+    old_ref = online.WindowMonitor(FAST, models())
+    new_ref = online.WindowMonitor(dataclasses.replace(FAST, alarm=new), models())
+    half = len(stamps) // 2
+    b_alarms: list[tuple[bool, Alarm]] = []  # (after the switch, alarm) of model B
+    for k in range(len(stamps)):
+        if k == half:
+            switched.set_alarm(new)
+        s = online.Sample(k, int(stamps[k]), u[k].copy(), y[k].copy(), None)
+        got = switched.push(s)
+        want_old, want_new = old_ref.push(s), new_ref.push(s)
+        want = want_old if k < half else want_new
+        assert [(r.model, r.beta, r.alarm) for r in got] == [
+            (r.model, r.beta, r.alarm) for r in want
+        ]
+        b_alarms += [(k >= half, r.alarm) for r in got if r.model == "B" and r.judged]
+    # the switch mattered: model B's judged windows are OK before it and WARN after it
+    assert {a for after, a in b_alarms if not after} == {Alarm.OK}
+    assert {a for after, a in b_alarms if after} == {Alarm.WARN}
+    assert switched.config.alarm.warn_beta == 1e-3

@@ -48,6 +48,7 @@ from twotank_validation.online.supervisor import (
     report_records,
 )
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.params import LATCHED, ParameterError
 from twotank_validation.ros.supervisor_node import SupervisorNode
 
@@ -529,7 +530,7 @@ class Harness:
         overrides = [Parameter("use_sim_time", value=True)] + [
             Parameter(k, value=v) for k, v in values.items()
         ]
-        self.sup = SupervisorNode(context=self.ctx, parameter_overrides=overrides)
+        self.sup = bring_up(SupervisorNode(context=self.ctx, parameter_overrides=overrides))
         self.src = Node("test_validator", context=self.ctx)
         _, self.report_cls = messages.message_classes()
         self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
@@ -772,8 +773,16 @@ def test_node_refuses_invalid_parameters() -> None:
     rclpy.init(context=ctx)
     try:
         with pytest.raises(ParameterError, match="twice"):
-            SupervisorNode(context=ctx, parameter_overrides=[Parameter("models", value=["B", "B"])])
+            bring_up(
+                SupervisorNode(
+                    context=ctx, parameter_overrides=[Parameter("models", value=["B", "B"])]
+                )
+            )
         with pytest.raises(ParameterError, match="stale_after_s"):
-            SupervisorNode(context=ctx, parameter_overrides=[Parameter("stale_after_s", value=0.0)])
+            bring_up(
+                SupervisorNode(
+                    context=ctx, parameter_overrides=[Parameter("stale_after_s", value=0.0)]
+                )
+            )
     finally:
         rclpy.shutdown(context=ctx)

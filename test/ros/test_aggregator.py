@@ -23,6 +23,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from twotank_validation.ros.controller_node import ControllerNode
+from twotank_validation.ros.lifecycle import bring_up
+from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.supervisor_node import SupervisorNode
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -90,19 +93,31 @@ def _published_names() -> set[str]:
     rclpy.init(context=ctx)
     names: set[str] = set()
     try:
-        val = ValidatorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("models", value=["A", "B"]),
-                Parameter("diagnosis", value=False),
-            ],
+        val = bring_up(
+            ValidatorNode(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("models", value=["A", "B"]),
+                    Parameter("diagnosis", value=False),
+                ],
+            )
         )
-        sup = SupervisorNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter("models", value=["A", "B"]),
-                Parameter("check_period_s", value=0.1),
-            ],
+        sup = bring_up(
+            SupervisorNode(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("models", value=["A", "B"]),
+                    Parameter("check_period_s", value=0.1),
+                ],
+            )
+        )
+        # the plant and the controller say only their lifecycle state: one active, one inactive
+        plant = bring_up(
+            PlantNode(context=ctx, parameter_overrides=[Parameter("self_timed", value=False)])
+        )
+        ctl = bring_up(
+            ControllerNode(context=ctx, parameter_overrides=[Parameter("self_timed", value=False)]),
+            activate=False,
         )
         listener = Node("diagnostics_listener", context=ctx)
         listener.create_subscription(
@@ -112,13 +127,13 @@ def _published_names() -> set[str]:
             10,
         )
         ex = SingleThreadedExecutor(context=ctx)
-        for n in (val, sup, listener):
+        for n in (val, sup, plant, ctl, listener):
             ex.add_node(n)
         end = time.monotonic() + 5.0
-        while time.monotonic() < end and len(names) < 3:
+        while time.monotonic() < end and len(names) < 5:
             ex.spin_once(timeout_sec=0.05)
         ex.shutdown()
-        for n in (listener, sup, val):
+        for n in (listener, ctl, plant, sup, val):
             n.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
@@ -131,6 +146,8 @@ def test_each_published_status_lands_in_one_analyzer_under_a_clean_name() -> Non
         "twotank_validation: model A",
         "twotank_validation: model B",
         "twotank_validation: supervisor",
+        "twotank_validation: plant",
+        "twotank_validation: controller",
     }
     doc = yaml.safe_load(CONFIG.read_text())
     params = doc["analyzers"]["ros__parameters"]
@@ -146,4 +163,6 @@ def test_each_published_status_lands_in_one_analyzer_under_a_clean_name() -> Non
         "twotank_validation: model A": "Model validation/Models/A",
         "twotank_validation: model B": "Model validation/Models/B",
         "twotank_validation: supervisor": "Model validation/Supervisor/supervisor",
+        "twotank_validation: plant": "Model validation/Rig/plant",
+        "twotank_validation: controller": "Model validation/Rig/controller",
     }

@@ -23,6 +23,7 @@ from twotank_validation.online import streams as itf
 from twotank_validation.online.supervisor import Transition
 from twotank_validation.ros import messages
 from twotank_validation.ros.controller_node import MODE_TOPIC, ControllerNode
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.live import LiveConfig, run_live, samples_as_record, spin_until
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.sim import excitation
@@ -93,7 +94,7 @@ def _step(ex, rig: _Rig, ctl: ControllerNode, k: int, height: float, temperature
 
 
 def test_controller_node_holds_in_safe_mode_and_resumes_bumplessly(context) -> None:
-    ctl = ControllerNode(context=context, parameter_overrides=_params())
+    ctl = bring_up(ControllerNode(context=context, parameter_overrides=_params()))
     rig = _Rig(context)
     ex = SingleThreadedExecutor(context=context)
     for n in (ctl, rig):
@@ -143,7 +144,7 @@ def test_a_late_controller_gets_the_latched_safe_mode(context) -> None:
     """control/mode is transient-local: a controller started after "safe" holds at once."""
     rig = _Rig(context)
     rig.mode("safe")
-    ctl = ControllerNode(context=context, parameter_overrides=_params())
+    ctl = bring_up(ControllerNode(context=context, parameter_overrides=_params()))
     ex = SingleThreadedExecutor(context=context)
     for n in (ctl, rig):
         ex.add_node(n)
@@ -159,9 +160,11 @@ def test_a_late_controller_gets_the_latched_safe_mode(context) -> None:
 
 def test_controller_node_refuses_bad_parameters(context) -> None:
     with pytest.raises(ParameterError, match="tracking times"):
-        ControllerNode(context=context, parameter_overrides=_params(tt_level_s=0.01))
+        bring_up(ControllerNode(context=context, parameter_overrides=_params(tt_level_s=0.01)))
     with pytest.raises(ParameterError, match="excitation_entry"):
-        ControllerNode(context=context, parameter_overrides=_params(excitation_entry="input"))
+        bring_up(
+            ControllerNode(context=context, parameter_overrides=_params(excitation_entry="input"))
+        )
 
 
 @pytest.mark.parametrize("entry", ["output", "setpoint"])

@@ -30,6 +30,7 @@ from std_srvs.srv import Trigger
 from twotank_validation.online import streams as itf
 from twotank_validation.online.supervisor import Mode
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.params import LATCHED, ParameterError
 from twotank_validation.ros.supervisor_node import SupervisorNode, main
 
@@ -62,7 +63,7 @@ class Rig:
             Parameter(k, value=v) for k, v in values.items()
         ]
         self.cm = FakeControllerManager([NORMAL], [FALLBACK, "other"], context=self.ctx)
-        self.sup = SupervisorNode(context=self.ctx, parameter_overrides=overrides)
+        self.sup = bring_up(SupervisorNode(context=self.ctx, parameter_overrides=overrides))
         self.src = Node("test_validator", context=self.ctx)
         _, report_cls = messages.message_classes()
         self.report_cls = report_cls
@@ -310,16 +311,18 @@ def test_without_the_interface_package_the_switch_names_what_to_install(
     ctx = Context()
     rclpy.init(context=ctx)
     try:
-        node = SupervisorNode(context=ctx)
+        node = bring_up(SupervisorNode(context=ctx))
         assert node.switch.service == ""
         node.destroy_node()
         with pytest.raises(ParameterError, match="controller_manager_msgs is not installed"):
-            SupervisorNode(
-                context=ctx,
-                parameter_overrides=[
-                    Parameter("controller_manager", value="/cm"),
-                    Parameter("fallback_controllers", value=["hold"]),
-                ],
+            bring_up(
+                SupervisorNode(
+                    context=ctx,
+                    parameter_overrides=[
+                        Parameter("controller_manager", value="/cm"),
+                        Parameter("fallback_controllers", value=["hold"]),
+                    ],
+                )
             )
     finally:
         rclpy.shutdown(context=ctx)
@@ -372,8 +375,8 @@ def test_the_supervisor_reads_what_the_validator_publishes() -> None:
     rclpy.init(context=ctx)
     try:
         ab = Parameter("models", value=["B"])
-        val = ValidatorNode(context=ctx, parameter_overrides=[ab])
-        sup = SupervisorNode(context=ctx, parameter_overrides=[ab])
+        val = bring_up(ValidatorNode(context=ctx, parameter_overrides=[ab]))
+        sup = bring_up(SupervisorNode(context=ctx, parameter_overrides=[ab]))
         subs = {
             (t, tuple(ty))
             for t, ty in val.get_subscriber_names_and_types_by_node(sup.get_name(), "/")

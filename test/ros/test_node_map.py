@@ -28,6 +28,7 @@ from tools import streamfuzz
 from twotank_validation.core.model import load_model
 from twotank_validation.online import MonitorConfig, OnlineValidator
 from twotank_validation.online import streams as itf
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -59,7 +60,7 @@ class MapHarness:
                 **params,
             }.items()
         ]
-        self.val = ValidatorNode(context=self.ctx, parameter_overrides=overrides)
+        self.val = bring_up(ValidatorNode(context=self.ctx, parameter_overrides=overrides))
         self.reports: list = []
         self.val.report_listeners.append(self.reports.append)
         self.src = Node("test_rig", context=self.ctx)
@@ -226,7 +227,7 @@ def test_bad_map_parameters_stop_the_node_with_a_clear_message(params, match) ->
             }.items()
         ]
         with pytest.raises(ParameterError, match=match):
-            ValidatorNode(context=ctx, parameter_overrides=overrides)
+            bring_up(ValidatorNode(context=ctx, parameter_overrides=overrides))
     finally:
         rclpy.shutdown(context=ctx)
 

@@ -37,7 +37,7 @@ def test_diagnostics_and_report_carry_the_warnings() -> None:
     params = {**FAST, "models": ["B"], "settle_periods": 0}
     with validator_node(params) as node:
         diag = _Recorder()
-        node._pub_diag = diag  # white-box: the node's /diagnostics publisher
+        node._pub_status = diag  # white-box: the node's /diagnostics publisher
         # the diagnostics of a window go out after its report: pair each with the next one
         node.report_listeners.append(lambda rep: pairs.append((rep, None)))
         seen = [0]

@@ -29,6 +29,7 @@ from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, WindowMonitor
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.live import LiveConfig, run_live
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.validator_node import ValidatorNode
@@ -104,7 +105,7 @@ class Harness:
             Parameter(k, value=v)
             for k, v in {**FAST, "models": ["B"], "stale_timeout_s": 5.0, **params}.items()
         ]
-        self.val = ValidatorNode(context=self.ctx, parameter_overrides=overrides)
+        self.val = bring_up(ValidatorNode(context=self.ctx, parameter_overrides=overrides))
         self.src = Node("test_source", context=self.ctx)
         flow_cls, _ = messages.message_classes()
         self.flow_cls = flow_cls
@@ -270,10 +271,15 @@ def test_invalid_parameters_stop_the_node_with_a_clear_message() -> None:
     rclpy.init(context=ctx)
     try:
         with pytest.raises(ParameterError, match="warn_beta"):
-            ValidatorNode(context=ctx, parameter_overrides=[Parameter("warn_beta", value=-1.0)])
+            bring_up(
+                ValidatorNode(context=ctx, parameter_overrides=[Parameter("warn_beta", value=-1.0)])
+            )
         with pytest.raises(ParameterError, match="model file"):
-            ValidatorNode(
-                context=ctx, parameter_overrides=[Parameter("models", value=["/nonexistent.yaml"])]
+            bring_up(
+                ValidatorNode(
+                    context=ctx,
+                    parameter_overrides=[Parameter("models", value=["/nonexistent.yaml"])],
+                )
             )
     finally:
         rclpy.shutdown(context=ctx)
@@ -313,7 +319,9 @@ def test_plant_faults_switch_at_run_time_through_parameters() -> None:
     ctx = Context()
     rclpy.init(context=ctx)
     try:
-        plant = PlantNode(context=ctx, parameter_overrides=[Parameter("self_timed", value=False)])
+        plant = bring_up(
+            PlantNode(context=ctx, parameter_overrides=[Parameter("self_timed", value=False)])
+        )
         ok = plant.set_parameters(
             [Parameter("faults", value=["leak=0.03@100", "sensor_bias:height=0.01@50"])]
         )

@@ -24,6 +24,7 @@ from rclpy.parameter import Parameter
 
 from twotank_validation.ros.controller_node import ControllerNode
 from twotank_validation.ros.excitation_node import ExcitationNode
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.supervisor_node import SupervisorNode
 from twotank_validation.ros.validator_node import ValidatorNode
@@ -88,11 +89,15 @@ def graph():
     sim = Parameter("use_sim_time", value=True)  # as the launch files run them
     ab = Parameter("models", value=["A", "B"])
     nodes = [
-        ValidatorNode(context=ctx, parameter_overrides=[sim, ab]),
-        PlantNode(context=ctx, parameter_overrides=[sim, Parameter("publish_clock", value=True)]),
+        bring_up(ValidatorNode(context=ctx, parameter_overrides=[sim, ab])),
+        bring_up(
+            PlantNode(
+                context=ctx, parameter_overrides=[sim, Parameter("publish_clock", value=True)]
+            )
+        ),
         ExcitationNode(context=ctx, parameter_overrides=[sim]),
-        ControllerNode(context=ctx, parameter_overrides=[sim]),
-        SupervisorNode(context=ctx, parameter_overrides=[sim, ab, *SWITCH_ON]),
+        bring_up(ControllerNode(context=ctx, parameter_overrides=[sim])),
+        bring_up(SupervisorNode(context=ctx, parameter_overrides=[sim, ab, *SWITCH_ON])),
         ViewNode(None, ["A", "B"], context=ctx),  # type: ignore[arg-type]  # never fed here
     ]
     try:

@@ -21,6 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
 
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.params import VERDICT_DEADLINE_HOPS, VERDICT_LEASE_S
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -39,7 +40,7 @@ def graph():
         Parameter("models", value=["B"]),
         Parameter("diagnosis", value=False),
     ]
-    val = ValidatorNode(context=ctx, parameter_overrides=overrides)
+    val = bring_up(ValidatorNode(context=ctx, parameter_overrides=overrides))
     sub = Node("verdict_consumer", context=ctx)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(val)

@@ -19,7 +19,7 @@ import numpy as np
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import JITTER_FRACTION
 from twotank_validation.errors import DatumError
-from twotank_validation.online.alarm import Alarm
+from twotank_validation.online.alarm import Alarm, AlarmConfig
 from twotank_validation.online.aligner import (
     COMMAND,
     AlignerCounters,
@@ -399,6 +399,14 @@ class OnlineValidator:
     def reset_alarms(self) -> None:
         """Clear latched alarms of every model."""
         self._monitor.reset_alarms()
+
+    def set_alarm(self, alarm: AlarmConfig) -> None:
+        """Debounce the windows judged from now on with ``alarm``; the alarm states are kept.
+
+        Called between two windows (a node's run-time parameter change).
+        """
+        self._monitor.set_alarm(alarm)
+        self.config = dataclasses.replace(self.config, alarm=alarm)
 
     def reset_operating_points(self) -> None:
         """Forget every model's reference operating point (given again, or commission anew)."""

@@ -539,6 +539,11 @@ class WindowMonitor:
         """Clear latched alarms of every model."""
         self.alarms = {k: reset_alarm(v) for k, v in self.alarms.items()}
 
+    def set_alarm(self, alarm: AlarmConfig) -> None:
+        """Debounce the next windows with ``alarm`` (the alarm states so far are kept)."""
+        self.config = replace(self.config, alarm=alarm)
+        self._alarm = evidence_alarm(alarm, self.config.period_samples // self.config.hop)
+
     def reset_operating_points(self) -> None:
         """Forget every model's reference operating point (the given one again, or commission)."""
         for tracker in self.operating_points.values():

@@ -29,7 +29,6 @@ import sys
 from typing import Any
 
 import numpy as np
-from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure, Temperature
 from std_msgs.msg import String
 
@@ -37,15 +36,14 @@ from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import ManagedNode, run_managed
 from twotank_validation.ros.params import (
     LATCHED,
     UNIT_PARAMS,
     Param,
     ParameterError,
-    declare,
     design_of,
     design_params,
-    run_node,
 )
 from twotank_validation.sim import control, excitation, rig
 
@@ -123,12 +121,31 @@ CONTROLLER_PARAMS = (
 )
 
 
-class ControllerNode(Node):
-    """PI control of level and temperature through the two valves, excitation added."""
+class ControllerNode(ManagedNode):
+    """PI control of level and temperature through the two valves, excitation added.
+
+    A managed node (:mod:`twotank_validation.ros.lifecycle`): configure builds the PI
+    controller, the excitation table and the ``flow_cmd`` publisher; activate subscribes to
+    the measurements and the mode and starts the sample timer; inactive, it publishes no
+    command (the valves keep the last one). Every parameter is read-only.
+    """
+
+    PARAMS = CONTROLLER_PARAMS
+    ROLE = "controller"
 
     def __init__(self, *, name: str = "twotank_controller", **kwargs: Any) -> None:
+        self.mode = "normal"
+        self.transitions = 0
+        self.k = 0
+        self.height: float | None = None
+        self.temperature: float | None = None
+        self.last_measurement_ns: dict[str, int] = {}
+        self.last_command: np.ndarray | None = None
         super().__init__(name, **kwargs)
-        v = declare(self, CONTROLLER_PARAMS)
+
+    def configure_node(self, values: dict[str, Any]) -> None:
+        """The PI controller, the excitation table and the command publisher."""
+        v = values
         ts_s, period = float(v["ts_s"]), int(v["period_samples"])
         entry = str(v["excitation_entry"])
         try:
@@ -174,22 +191,22 @@ class ControllerNode(Node):
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the controller: {err}") from err
+        self.ts_s = ts_s
         self.ts_ns = round(ts_s * NS_PER_S)
-        self.k = 0
-        self.mode = "normal"
-        self.transitions = 0
-        self.height: float | None = None
-        self.temperature: float | None = None
-        self.last_measurement_ns: dict[str, int] = {}
-        self.last_command: np.ndarray | None = None
+        self.self_timed = bool(v["self_timed"])
         flow_cls, _ = messages.message_classes()
         self._cls = flow_cls
-        self.pub = self.create_publisher(flow_cls, itf.FLOW_CMD, 100)
-        self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 100)
-        self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 100)
-        self.create_subscription(String, MODE_TOPIC, self._on_mode, LATCHED)
-        if v["self_timed"]:
-            self.create_timer(ts_s, self.tick)
+        self.pub = self.configured(self.create_lifecycle_publisher(flow_cls, itf.FLOW_CMD, 100))
+
+    def activate_node(self) -> None:
+        """Subscribe to the measurements and the mode; start the sample timer."""
+        self.activated(self.create_subscription(FluidPressure, itf.HEIGHT, self._on_height, 100))
+        self.activated(
+            self.create_subscription(Temperature, itf.TEMPERATURE, self._on_temperature, 100)
+        )
+        self.activated(self.create_subscription(String, MODE_TOPIC, self._on_mode, LATCHED))
+        if self.self_timed:
+            self.activated(self.create_timer(self.ts_s, self.tick))
 
     # --- inputs ---------------------------------------------------------------------------
 
@@ -264,7 +281,7 @@ class ControllerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_controller`` entry point."""
-    return run_node(ControllerNode, args)
+    return run_managed(ControllerNode, args)
 
 
 if __name__ == "__main__":

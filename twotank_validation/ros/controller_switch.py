@@ -137,6 +137,12 @@ class SwitchClient:
         """The service's resolved name (``""`` when off)."""
         return self._client.service_name if self._client is not None else ""
 
+    def close(self) -> None:
+        """Destroy the service client (the supervisor's cleanup); calls stop."""
+        if self._client is not None:
+            self._node.destroy_client(self._client)
+            self._client = None
+
     def want(self, mode: Mode) -> None:
         """A supervisor transition to ``mode``: switch to its controllers now."""
         if self._client is None:

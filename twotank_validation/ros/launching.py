@@ -1,8 +1,10 @@
 """What the launch files share: their arguments and each node's options, without ``launch``.
 
 ``launch/*.launch.py`` declare :func:`common_arguments` (``params_file``, ``namespace``,
-``use_sim_time``, ``log_level``) and, per node, the :func:`parameter_arguments` they expose,
-and build each node's ``launch_ros`` options with :func:`node_options` inside an
+``use_sim_time``, ``log_level``, ``autostart``) and, per node, the :func:`parameter_arguments`
+they expose, and build each node's ``launch_ros`` options with :func:`node_options` (a plain
+node) or :func:`lifecycle_options` (a managed node, launched as ``launch_ros.actions.
+LifecycleNode``, whose ``autostart`` drives configure and activate) inside an
 ``OpaqueFunction``. Nothing here imports ``launch`` (not on PyPI), so the tests run the launch
 files' logic with stand-ins (``test/test_launch_files.py``).
 
@@ -36,7 +38,7 @@ class LaunchArg:
 
 
 def common_arguments(*, use_sim_time: bool) -> tuple[LaunchArg, ...]:
-    """The four arguments every launch file declares.
+    """The five arguments every launch file declares.
 
     Args:
         use_sim_time: the default of ``use_sim_time`` (true where the simulated plant owns
@@ -62,6 +64,13 @@ def common_arguments(*, use_sim_time: bool) -> tuple[LaunchArg, ...]:
             BOOLEANS,
         ),
         LaunchArg("log_level", "info", "log level of every node", LOG_LEVELS),
+        LaunchArg(
+            "autostart",
+            "true",
+            "configure and activate the managed nodes at start (false: they wait unconfigured "
+            "for `ros2 lifecycle set` or a lifecycle manager)",
+            BOOLEANS,
+        ),
     )
 
 
@@ -138,3 +147,22 @@ def node_options(
         "parameters": [*files, overrides],
         "arguments": ["--ros-args", "--log-level", values["log_level"]],
     }
+
+
+def lifecycle_options(
+    values: Mapping[str, str],
+    name: str,
+    params: Sequence[Param],
+    names: Mapping[str, str] | None = None,
+    fixed: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """``launch_ros.actions.LifecycleNode`` keyword arguments of a managed node.
+
+    :func:`node_options`' plus the node's ``name`` (LifecycleNode requires it) and
+    ``autostart`` (the launch argument: launch configures and activates the node through its
+    lifecycle services); the executable is told ``--autostart false`` so that launch, not the
+    node itself, drives the transitions.
+    """
+    opts = node_options(values, params, names, fixed)
+    opts["arguments"] = ["--autostart", "false", *opts["arguments"]]
+    return {**opts, "name": name, "autostart": values["autostart"].lower() == "true"}

@@ -48,9 +48,10 @@ from twotank_validation.online import streams as itf
 from twotank_validation.online.supervisor import Transition
 from twotank_validation.ros.controller_node import ControllerNode
 from twotank_validation.ros.excitation_node import ExcitationNode
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.supervisor_node import SupervisorNode
-from twotank_validation.ros.validator_node import ValidatorNode
+from twotank_validation.ros.validator_node import DRAIN_TIMEOUT_S, ValidatorNode
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 
 
@@ -171,12 +172,6 @@ def _sample_arrived(val: ValidatorNode, k: int) -> bool:
     return min(val.received.values()) > k
 
 
-DRAIN_TIMEOUT_S = 600.0
-"""Longest wall time the driver waits for the validator's worker to catch up (at the end of a
-run, and every eighth of a period with a supervisor); with the diagnosis inline the worker may
-be a few diagnoses behind, each taking seconds."""
-
-
 def wait_worker(val: ValidatorNode) -> None:
     """Block until the validator's worker processed everything queued.
 
@@ -197,9 +192,14 @@ class _RecordingValidator(ValidatorNode):
         # reports not yet handed to the driver (appended by the worker thread, drained by the
         # driver; deque append/popleft are thread-safe)
         self.new_reports: deque[WindowReport] = deque()
+        self._record_samples = record_samples
         super().__init__(**kwargs)
         self.report_listeners.append(self.new_reports.append)
-        if record_samples:
+
+    def configure_node(self, values: dict[str, Any]) -> None:
+        """The validator's, then the sample recorder on its core."""
+        super().configure_node(values)
+        if self._record_samples:
             self.core.sample_listeners.append(self._record)
 
     def _record(self, piece: Sample | SampleBlock) -> None:
@@ -256,9 +256,11 @@ def run_live(
         exc: ExcitationNode | ControllerNode
         validator_extra: dict[str, Any] = {}
         if config.closed_loop:
-            exc = ControllerNode(
-                context=ctx,
-                parameter_overrides=[sim, *_overrides({**source, **config.controller})],
+            exc = bring_up(
+                ControllerNode(
+                    context=ctx,
+                    parameter_overrides=[sim, *_overrides({**source, **config.controller})],
+                )
             )
             validator_extra["input_periodic_rtol"] = CLOSED_LOOP_INPUT_PERIODIC_RTOL
         else:
@@ -273,7 +275,9 @@ def run_live(
             "faults": list(config.faults) or [""],
             **config.plant,
         }
-        plant = PlantNode(context=ctx, parameter_overrides=[sim, *_overrides(plant_params)])
+        plant = bring_up(
+            PlantNode(context=ctx, parameter_overrides=[sim, *_overrides(plant_params)])
+        )
         val = _RecordingValidator(
             record_samples=config.record_samples,
             inline_diagnosis=config.inline_diagnosis,
@@ -292,13 +296,16 @@ def run_live(
         )
         if not config.node_info_log:
             val.get_logger().set_level(LoggingSeverity.WARN)
+        bring_up(val)  # configure, then activate (the managed nodes' transitions)
         driver = Node("twotank_clock", context=ctx)
         extra_nodes, synced = attach(ctx) if attach is not None else ((), None)
         nodes = [exc, plant, val, driver, *extra_nodes]
         supervisor = None
         if config.supervisor:
-            supervisor = SupervisorNode(
-                context=ctx, parameter_overrides=[sim, *_overrides(config.supervisor_params)]
+            supervisor = bring_up(
+                SupervisorNode(
+                    context=ctx, parameter_overrides=[sim, *_overrides(config.supervisor_params)]
+                )
             )
             nodes.append(supervisor)
         n_extra = 1 if attach is not None else 0

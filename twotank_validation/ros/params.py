@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -151,15 +151,47 @@ UNIT_PARAMS: tuple[Param, ...] = (
 convert: the defaults are RigUnits' own."""
 
 
-def declare(node: Node, params: Sequence[Param]) -> dict[str, Any]:
+def check_value(p: Param, value: Any) -> str | None:
+    """Why ``value`` does not fit ``p`` (outside its range, not among its choices), or None."""
+    if p.choices:
+        items = value if isinstance(value, list | tuple) else [value]
+        bad = [v for v in items if v not in p.choices]
+        if bad:
+            return f"parameter {p.name!r}: {bad} not among {list(p.choices)}"
+    numeric = isinstance(value, int | float) and not isinstance(value, bool)
+    high = p.high if p.high is not None else math.inf
+    if p.low is not None and numeric and not p.low <= value <= high:
+        return f"parameter {p.name!r} = {value} is outside [{p.low}, {p.high}]"
+    return None
+
+
+def declare(
+    node: Node,
+    params: Sequence[Param],
+    *,
+    runtime: Collection[str] | None = None,
+    errors: dict[str, str] | None = None,
+) -> dict[str, Any]:
     """Declare ``params`` on ``node`` and return their values, checked.
 
+    Args:
+        node: the node.
+        params: its parameter table.
+        runtime: the names that may change at run time (a managed node's, which validates
+            them in its on-set callback); every other one is declared ``read_only``. None: no
+            parameter is read-only (the plain nodes).
+        errors: collect each refused value here (parameter name -> reason; the parameter then
+            keeps its default) instead of raising: a managed node refuses to configure with
+            them rather than failing to exist.
+
     Raises:
-        ParameterError: a value outside its range or not among its choices.
+        ParameterError: a value outside its range or not among its choices (``errors`` None).
     """
     values: dict[str, Any] = {}
     for p in params:
         desc = ParameterDescriptor(description=p.description)
+        if runtime is not None:
+            desc.read_only = p.name not in runtime
         if p.low is not None and p.high is not None:
             if isinstance(p.default, bool):
                 pass
@@ -176,16 +208,15 @@ def declare(node: Node, params: Sequence[Param]) -> dict[str, Any]:
         try:
             value = node.declare_parameter(p.name, p.default, desc).value
         except Exception as err:  # rclpy raises several types for an out-of-range override
-            raise ParameterError(f"parameter {p.name!r}: {err}") from err
-        if p.choices:
-            items = value if isinstance(value, list | tuple) else [value]
-            bad = [v for v in items if v not in p.choices]
-            if bad:
-                raise ParameterError(f"parameter {p.name!r}: {bad} not among {list(p.choices)}")
-        numeric = isinstance(value, int | float) and not isinstance(value, bool)
-        high = p.high if p.high is not None else math.inf
-        if p.low is not None and numeric and not p.low <= value <= high:
-            raise ParameterError(f"parameter {p.name!r} = {value} is outside [{p.low}, {p.high}]")
+            if errors is None:
+                raise ParameterError(f"parameter {p.name!r}: {err}") from err
+            errors[p.name] = f"parameter {p.name!r}: {err}"
+            value = node.declare_parameter(p.name, p.default, desc, ignore_override=True).value
+        problem = check_value(p, value)
+        if problem is not None:
+            if errors is None:
+                raise ParameterError(problem)
+            errors[p.name] = problem
         values[p.name] = value
     return values
 

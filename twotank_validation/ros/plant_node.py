@@ -14,15 +14,12 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 import rclpy
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock_type import ClockType
-from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, Temperature
 
@@ -30,7 +27,8 @@ from twotank_validation.defaults import NS_PER_S, TS_S
 from twotank_validation.errors import TwotankError
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
-from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError, declare, run_node
+from twotank_validation.ros.lifecycle import ManagedNode, run_managed
+from twotank_validation.ros.params import UNIT_PARAMS, Param, ParameterError
 from twotank_validation.sim import faults, rig, simulator
 from twotank_validation.sim.faults import parse_fault
 
@@ -70,12 +68,32 @@ def parse_faults(specs: Sequence[str]) -> list[faults.Fault]:
     return [parse_fault(s) for s in specs if s.strip()]
 
 
-class PlantNode(Node):
-    """The simulated rig on ROS topics."""
+PLANT_RUNTIME = frozenset({"faults"})
+"""The plant's parameters that change at run time: ``faults`` (replaces the fault set);
+every other one is read-only."""
+
+
+class PlantNode(ManagedNode):
+    """The simulated rig on ROS topics.
+
+    A managed node (:mod:`twotank_validation.ros.lifecycle`): configure builds the simulator
+    and the publishers; activate subscribes to ``flow_cmd`` and starts the sample (or
+    ``/clock``) timer; inactive, the simulated time stands still.
+    """
+
+    PARAMS = PLANT_PARAMS
+    RUNTIME = PLANT_RUNTIME
+    ROLE = "plant"
 
     def __init__(self, *, name: str = "twotank_plant", **kwargs: Any) -> None:
+        self.last_command_ns: int | None = None
+        self._clock_pub: Any = None
+        self._sim_ns = 0
         super().__init__(name, **kwargs)
-        v = declare(self, PLANT_PARAMS)
+
+    def configure_node(self, values: dict[str, Any]) -> None:
+        """The simulator and the measurement (and ``/clock``) publishers."""
+        v = values
         try:
             params = rig.RigParams(
                 mixing_delay_s=float(v["mixing_delay_s"]),
@@ -98,42 +116,53 @@ class PlantNode(Node):
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the plant: {err}") from err
-        self.ts_ns = round(float(v["ts_s"]) * NS_PER_S)
+        self.ts_s = float(v["ts_s"])
+        self.ts_ns = round(self.ts_s * NS_PER_S)
         self.command = op.commands.copy()
-        self.last_command_ns: int | None = None
-        flow_cls, _ = messages.message_classes()
-        self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 100)
-        self.pub_height = self.create_publisher(FluidPressure, itf.HEIGHT, 100)
-        self.pub_temperature = self.create_publisher(Temperature, itf.TEMPERATURE, 100)
-        self.add_on_set_parameters_callback(self._on_params)
+        self.self_timed = bool(v["self_timed"])
+        self.real_time_factor = float(v["real_time_factor"])
+        pub = self.create_lifecycle_publisher
+        self.pub_height = self.configured(pub(FluidPressure, itf.HEIGHT, 100))
+        self.pub_temperature = self.configured(pub(Temperature, itf.TEMPERATURE, 100))
         self._clock_pub = None
         if v["publish_clock"]:
-            self._clock_pub = self.create_publisher(Clock, "/clock", 10)
-            self._sim_ns = 0
-            wall = self.ts_ns / NS_PER_S / float(v["real_time_factor"])
-            self.create_timer(
-                wall, self._on_clock_tick, clock=rclpy.clock.Clock(clock_type=ClockType.STEADY_TIME)
+            self._clock_pub = self.configured(pub(Clock, "/clock", 10))
+
+    def activate_node(self) -> None:
+        """Subscribe to ``flow_cmd``; start the sample (or ``/clock``) timer."""
+        flow_cls, _ = messages.message_classes()
+        self.activated(self.create_subscription(flow_cls, itf.FLOW_CMD, self._on_flow, 100))
+        if self._clock_pub is not None:
+            wall = self.ts_s / self.real_time_factor
+            self.activated(
+                self.create_timer(
+                    wall,
+                    self._on_clock_tick,
+                    clock=rclpy.clock.Clock(clock_type=ClockType.STEADY_TIME),
+                )
             )
-        elif v["self_timed"]:
-            self.create_timer(float(v["ts_s"]), self.tick)
+        elif self.self_timed:
+            self.activated(self.create_timer(self.ts_s, self.tick))
+
+    def check_runtime(self, values: dict[str, Any]) -> Callable[[], None] | None:
+        """A new fault set (parsed now: a bad one is refused with the reason)."""
+        try:
+            new = parse_faults(values["faults"])
+        except TwotankError as err:
+            raise ParameterError(f"parameter 'faults': {err}") from err
+
+        def apply() -> None:
+            self.sim.clear_faults()
+            for f in new:
+                self.sim.add_fault(f)
+
+        return apply if self.is_configured else None
 
     def _on_flow(self, msg: Any) -> None:
         hot, cold = float(msg.hot), float(msg.cold)
         if np.isfinite(hot) and np.isfinite(cold):
             self.command = np.array([hot, cold])
         self.last_command_ns = itf.stamp_ns(msg)
-
-    def _on_params(self, params: list[Parameter[Any]]) -> SetParametersResult:
-        for p in params:
-            if p.name == "faults":
-                try:
-                    faults = parse_faults(p.value)
-                except TwotankError as err:
-                    return SetParametersResult(successful=False, reason=str(err))
-                self.sim.clear_faults()
-                for f in faults:
-                    self.sim.add_fault(f)
-        return SetParametersResult(successful=True)
 
     def _on_clock_tick(self) -> None:
         assert self._clock_pub is not None
@@ -162,7 +191,7 @@ class PlantNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_plant`` entry point."""
-    return run_node(PlantNode, args)
+    return run_managed(PlantNode, args)
 
 
 if __name__ == "__main__":

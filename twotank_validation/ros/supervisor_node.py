@@ -21,19 +21,23 @@ Time is the node's clock (``use_sim_time`` follows ``/clock``); a timer every
 clock restarts the supervisor's timing (:class:`~twotank_validation.online.supervisor.Restart`).
 Every transition is logged (warning into safe, info back to normal) and published on both
 topics.
+
+A managed node (:mod:`twotank_validation.ros.lifecycle`): it watches only while active. An
+inactive validator sends no report, which the stale rule treats as a dead one (docs/ros.md,
+"Managed nodes"). The rules' settings change at run time (:data:`SUPERVISOR_RUNTIME`).
 """
 
 from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
-from rclpy.node import Node
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
@@ -55,7 +59,8 @@ from twotank_validation.online.supervisor import (
     report_age_s,
 )
 from twotank_validation.ros import controller_switch, messages
-from twotank_validation.ros.params import LATCHED, Param, ParameterError, declare, run_node
+from twotank_validation.ros.lifecycle import ManagedNode, run_managed
+from twotank_validation.ros.params import LATCHED, Param, ParameterError
 
 _DEFAULTS = SupervisorConfig()
 
@@ -129,24 +134,42 @@ def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:
         raise ParameterError(f"cannot start the supervisor: {err}") from err
 
 
-class SupervisorNode(Node):
+SUPERVISOR_RUNTIME = frozenset(
+    {
+        "clear_after_s",
+        "clear_reports",
+        "latch",
+        "stale_after_s",
+        "startup_grace_s",
+        "unjudged_after_s",
+    }
+)
+"""The supervisor's parameters that change at run time (the state machine's rules, applied at
+its next event); ``models`` and ``check_period_s`` are read-only."""
+
+
+class SupervisorNode(ManagedNode):
     """Switches ``control/mode`` to safe on the watched models' alarm or silence, and back.
 
+    A managed node (:mod:`twotank_validation.ros.lifecycle`): configure builds the state
+    machine and the publishers, activate subscribes and starts the check timer.
+
     Attributes:
-        machine: the state machine (its ``log`` holds every transition).
+        machine: the state machine (its ``log`` holds every transition); built by configure.
         diagnosis: the summary of the last ``validation/M/diagnosis`` of each watched model.
-        switch: the ros2_control controller switch (its state ``off`` when not configured).
+        switch: the ros2_control controller switch (its state ``off`` when not configured);
+            built by configure.
         received: messages received per input topic (node-relative name).
         states_published: ``supervisor/state`` messages published.
         modes_published: ``control/mode`` messages published.
     """
 
+    PARAMS = SUPERVISOR_PARAMS
+    RUNTIME = SUPERVISOR_RUNTIME
+    ROLE = "supervisor"
+    OWN_STATUS = True
+
     def __init__(self, *, name: str = "twotank_supervisor", **kwargs: Any) -> None:
-        super().__init__(name, **kwargs)
-        values = declare(self, SUPERVISOR_PARAMS)
-        self.machine = Supervisor(supervisor_config(values))
-        _, report_cls = messages.message_classes()
-        diagnosis_cls = messages.diagnosis_class()
         self.diagnosis: dict[str, str] = {}
         self.received: dict[str, int] = {}
         self.states_published = 0
@@ -154,29 +177,68 @@ class SupervisorNode(Node):
         self.modes_published = 0
         self._clock_started = False
         self._warned_interval = False
-        self._pub_mode = self.create_publisher(String, "control/mode", LATCHED)
-        self._pub_state = self.create_publisher(DiagnosticStatus, "supervisor/state", LATCHED)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        for m in self.machine.config.watched:
-            self.create_subscription(
-                Bool, f"validation/{m}/invalidated", partial(self._on_invalidated, m), LATCHED
-            )
-            self.create_subscription(
-                report_cls, f"validation/{m}/report", partial(self._on_report, m), 10
-            )
-            self.create_subscription(
-                diagnosis_cls, f"validation/{m}/diagnosis", partial(self._on_diagnosis, m), 10
-            )
+        super().__init__(name, **kwargs)
+
+    def configure_node(self, values: dict[str, Any]) -> None:
+        """The state machine of the parameters; the mode and state publishers."""
+        self.machine = Supervisor(supervisor_config(values))
+        self._check_period_s = float(values["check_period_s"])
+        _, self._report_cls = messages.message_classes()
+        self._diagnosis_cls = messages.diagnosis_class()
+        self._pub_mode = self.configured(
+            self.create_lifecycle_publisher(String, "control/mode", LATCHED)
+        )
+        self._pub_state = self.configured(
+            self.create_lifecycle_publisher(DiagnosticStatus, "supervisor/state", LATCHED)
+        )
         self.switch = controller_switch.SwitchClient(self, values, self._publish_state)
-        self.create_service(Trigger, "supervisor/reset", self._on_reset)
-        self.create_timer(float(values["check_period_s"]), self._on_tick)
+        self.configured(self.switch.close)
+
+    def check_runtime(self, values: dict[str, Any]) -> Callable[[], None] | None:
+        """The new rules (:func:`supervisor_config` checks them), applied at once."""
+        config = supervisor_config(values)
+
+        def apply() -> None:
+            self.machine.config = config
+
+        return apply if self.is_configured else None
+
+    def activate_node(self) -> None:
+        """Subscribe to the watched models, start the check timer, publish the mode."""
+        report_cls = self._report_cls
+        for m in self.machine.config.watched:
+            self.activated(
+                self.create_subscription(
+                    Bool, f"validation/{m}/invalidated", partial(self._on_invalidated, m), LATCHED
+                )
+            )
+            self.activated(
+                self.create_subscription(
+                    report_cls, f"validation/{m}/report", partial(self._on_report, m), 10
+                )
+            )
+            self.activated(
+                self.create_subscription(
+                    self._diagnosis_cls,
+                    f"validation/{m}/diagnosis",
+                    partial(self._on_diagnosis, m),
+                    10,
+                )
+            )
+        self.activated(self.create_service(Trigger, "supervisor/reset", self._on_reset))
+        self.activated(self.create_timer(self._check_period_s, self._on_tick))
         # a backward jump of the (simulated) clock restarts the stale rule's timing at once
-        self._jump_handle = self.get_clock().create_jump_callback(
+        handle = self.get_clock().create_jump_callback(
             JumpThreshold(
                 min_forward=None, min_backward=Duration(nanoseconds=-1), on_clock_change=False
             ),
             post_callback=self._on_time_jump,
         )
+        self.activated(handle.unregister)
+        if self.machine.state.now_s is not None:
+            # reactivated: what happened while inactive went unseen; the stale rule's timing
+            # restarts as after a clock jump
+            self.machine.step(self._now_s(), Restart())
         self._publish_mode()
         self._publish_state()
 
@@ -263,7 +325,7 @@ class SupervisorNode(Node):
         if self._now_s() <= 0.0:
             return  # simulated time has not started
         self._step(Tick())
-        self._pub_diag.publish(DiagnosticArray(status=[self.status()]))
+        self._pub_status.publish(DiagnosticArray(status=[self.status()]))
         self.switch.check()  # after: /diagnostics shows a failed switch before its retry
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
@@ -327,7 +389,7 @@ class SupervisorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_supervisor`` entry point."""
-    return run_node(SupervisorNode, args)
+    return run_managed(SupervisorNode, args)
 
 
 if __name__ == "__main__":

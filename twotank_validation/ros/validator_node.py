@@ -31,6 +31,11 @@ type, and from the moment input arrives that makes the coming windows unfit to j
 of stale stamps) until a window after it is judged (the validator keeps that state,
 :attr:`~twotank_validation.online.validator.OnlineValidator.input_fault`); otherwise it carries
 the last window's level (published once all models' reports of a window are out).
+
+A managed node (:mod:`twotank_validation.ros.lifecycle`, docs/ros.md "Managed nodes"): it
+takes input and judges only while active; inactive, ``/diagnostics`` says so. The alarm's
+debouncing and the watchdog's timeout change at run time (:data:`VALIDATOR_RUNTIME`); the
+other parameters are read-only.
 """
 
 from __future__ import annotations
@@ -52,7 +57,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
-from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
@@ -79,16 +83,20 @@ from twotank_validation.online.validator_settings import VALIDATOR_SETTINGS, Evi
 from twotank_validation.online.window import verdict_text
 from twotank_validation.replay import model_documents
 from twotank_validation.ros import messages
+from twotank_validation.ros.lifecycle import ManagedNode, run_managed
 from twotank_validation.ros.params import (
     UNIT_PARAMS,
     Param,
     ParameterError,
-    declare,
-    run_node,
     setting_params,
     verdict_qos,
 )
 from twotank_validation.settings import from_flat
+
+DRAIN_TIMEOUT_S = 600.0
+"""Longest wall time to wait for the worker to judge what was queued: at deactivate, and in
+``live``'s driver (at the end of a run, and every eighth of a period with a supervisor); with
+the diagnosis inline the worker may be a few diagnoses behind, each taking seconds."""
 
 VALIDATOR_PARAMS = (
     *setting_params(VALIDATOR_SETTINGS),  # the settings tree (online/validator_settings.py)
@@ -203,8 +211,29 @@ def monitor_config(values: dict[str, Any]) -> MonitorConfig:
         raise ParameterError(str(err)) from err
 
 
-class ValidatorNode(Node):
+VALIDATOR_RUNTIME = frozenset(
+    {
+        "alarm_windows",
+        "clear_windows",
+        "warn_beta",
+        "latch_alarm",
+        "debounce",
+        "alarm_evidence",
+        "stale_timeout_s",
+    }
+)
+"""The validator's parameters that change at run time: the alarm's debouncing (taken between
+two windows: the next window is judged with it) and the watchdog's timeout. Every other one is
+read-only (it shapes the windows, the models or the topics)."""
+
+
+class ValidatorNode(ManagedNode):
     """Online model validation with a fault-detection alarm.
+
+    A managed node (:mod:`twotank_validation.ros.lifecycle`): configure builds the validator,
+    the live diagnosis, the evidence recorder and the publishers; activate subscribes to the
+    map's topics, starts the worker thread and the watchdog; deactivate stops judging (the
+    messages already queued are judged and published first); cleanup closes the evidence bag.
 
     Memory stays flat however long it runs: besides the window buffer it keeps only the last
     ``keep_reports`` reports (:attr:`reports`); whoever needs every report registers a
@@ -221,10 +250,12 @@ class ValidatorNode(Node):
             diagnosis never delays a report.
         keep_reports: reports kept in :attr:`reports` (the most recent ones).
         **kwargs: passed to :class:`rclpy.node.Node` (context, parameter_overrides, ...).
-
-    Raises:
-        ParameterError: invalid parameters (the node does not start).
     """
+
+    PARAMS = VALIDATOR_PARAMS
+    RUNTIME = VALIDATOR_RUNTIME
+    ROLE = "validator"
+    OWN_STATUS = True
 
     def __init__(
         self,
@@ -236,8 +267,28 @@ class ValidatorNode(Node):
         inline_diagnosis: bool = False,
         **kwargs: Any,
     ) -> None:
+        self._given_models = None if models is None else list(models)
+        self._given_documents = dict(documents or {})
+        self._inline_diagnosis = inline_diagnosis
+        self.reports: deque[WindowReport] = deque(maxlen=keep_reports)  # the latest published
+        self.report_listeners: list[Callable[[WindowReport], None]] = []
+        # per window: from receiving the message that completed it to its reports published
+        self.report_latency_s: deque[float] = deque(maxlen=1000)
+        # the latest live diagnosis of each model (published on its topic when ready)
+        self.diagnoses: deque[LiveDiagnosis] = deque(maxlen=keep_reports)
+        self._latest_diagnosis: dict[str, LiveDiagnosis] = {}
+        self.evidence: EvidenceRecorder | None = None
+        self.diagnoser: LiveDiagnoser | None = None
+        self._executor: ThreadPoolExecutor | None = None
+        self._worker: threading.Thread | None = None
+        self._accepting = False  # subscription callbacks queue messages (active)
+        self._queue: queue.Queue[_Item] = queue.Queue()
+        self._lock = threading.Lock()
+        self.received: dict[str, int] = {}
         super().__init__(name, **kwargs)
-        values = declare(self, VALIDATOR_PARAMS)
+
+    def configure_node(self, values: dict[str, Any]) -> None:
+        """Build the validator, diagnosis, evidence recorder and publishers."""
         self.config = monitor_config(values)
         try:
             self.units = itf.RigUnits(
@@ -245,18 +296,17 @@ class ValidatorNode(Node):
                 float(values["temperature_offset_c"]),
                 float(values["temperature_span_c"]),
             )
-            docs = dict(documents or {})
-            if models is not None:
-                self.models = list(models)
+            docs = dict(self._given_documents)
+            if self._given_models is not None:
+                self.models = list(self._given_models)
             else:
                 loaded = [load_model_document(m) for m in values["models"]]
                 self.models = [model_from_dict(doc, source) for doc, source in loaded]
                 docs = {m.name: doc for m, (doc, _) in zip(self.models, loaded, strict=True)} | docs
-            self.diagnoser: LiveDiagnoser | None = None
-            self._executor: ThreadPoolExecutor | None = None
+            self.diagnoser = None
             if bool(values["diagnosis"]):
                 docs = model_documents(self.models, docs)
-                if not inline_diagnosis:
+                if not self._inline_diagnosis:
                     # one worker: answers come in the order their windows came
                     self._executor = ThreadPoolExecutor(1, thread_name_prefix="twotank_diagnosis")
                 self.diagnoser = LiveDiagnoser(
@@ -278,81 +328,126 @@ class ValidatorNode(Node):
             )
         except (TwotankError, ValueError) as err:
             raise ParameterError(f"cannot start the validator: {err}") from err
-        self.evidence = _evidence_recorder(values, self.config, self.interface, self.models)
         self.stale_timeout_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
         _, self._report_cls = messages.message_classes()
         self._topics = self.interface.topics()
         # what the watchdog watches: the map's topics with their types
         self._watched: dict[str, str] = {t: s.msgtype for t, s in self._topics.items()}
+        self._classes: dict[str, Any] = {}
+        for topic, sources in self._topics.items():
+            try:
+                self._classes[topic] = messages.message_class(sources.msgtype)
+            except ImportError as err:
+                raise ParameterError(f"cannot start the validator: {err}") from err
+        self.evidence = _evidence_recorder(values, self.config, self.interface, self.models)
 
-        self._queue: queue.Queue[_Item] = queue.Queue()
-        self._lock = threading.Lock()
         # the operating points as of the last report (read by the /diagnostics publisher)
         self._ops = self.core.operating_points()
         self._last_rx: dict[str, int | None] = dict.fromkeys(self._watched)
-        self.received: dict[str, int] = dict.fromkeys(self._watched, 0)
+        self.received = dict.fromkeys(self._watched, 0)
         # per model: level, text and the last report; replaced whole (never updated in place)
         # once every model's report of a window is out, so the watchdog sees one window
         self._status: dict[str, tuple[Alarm, str, WindowReport | None]] = {
             m.name: (Alarm.STALE, "waiting for data", None) for m in self.models
         }
-        self.reports: deque[WindowReport] = deque(maxlen=keep_reports)  # the latest published
-        self.report_listeners: list[Callable[[WindowReport], None]] = []
-        # per window: from receiving the message that completed it to its reports published
-        self.report_latency_s: deque[float] = deque(maxlen=1000)
         self._watch: tuple[Alarm, str] | None = None  # the watchdog's latest finding
-
         self._refused: dict[str, str] = {}  # map topics whose messages do not fit, and why
         self._checked: set[str] = set()
-        for topic, sources in self._topics.items():
-            try:
-                cls = messages.message_class(sources.msgtype)
-            except ImportError as err:
-                raise ParameterError(f"cannot start the validator: {err}") from err
-            self.create_subscription(cls, topic, partial(self._on_message, topic), 1000)
         # deadline (a few hops) and liveliness offered on the verdict topics (docs/ros.md, QoS)
         verdict = verdict_qos(self.config.hop * self.config.ts_s)
         alarm_qos = verdict_qos(self.config.hop * self.config.ts_s, latched=True)
+        pub = self.create_lifecycle_publisher
         self._pub_report = {
-            m.name: self.create_publisher(self._report_cls, f"validation/{m.name}/report", verdict)
+            m.name: self.configured(pub(self._report_cls, f"validation/{m.name}/report", verdict))
             for m in self.models
         }
         self._pub_margin = {
-            m.name: self.create_publisher(Float64, f"validation/{m.name}/margin", verdict)
+            m.name: self.configured(pub(Float64, f"validation/{m.name}/margin", verdict))
             for m in self.models
         }
         self._pub_invalid = {
-            m.name: self.create_publisher(Bool, f"validation/{m.name}/invalidated", alarm_qos)
+            m.name: self.configured(pub(Bool, f"validation/{m.name}/invalidated", alarm_qos))
             for m in self.models
         }
         self._diagnosis_cls = messages.diagnosis_class()
         self._pub_diagnosis = {
-            m.name: self.create_publisher(self._diagnosis_cls, f"validation/{m.name}/diagnosis", 10)
+            m.name: self.configured(pub(self._diagnosis_cls, f"validation/{m.name}/diagnosis", 10))
             for m in self.models
         }
-        # the latest live diagnosis of each model (published on its topic when ready)
-        self.diagnoses: deque[LiveDiagnosis] = deque(maxlen=keep_reports)
-        self._latest_diagnosis: dict[str, LiveDiagnosis] = {}
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # the first report message costs milliseconds (lazy imports): pay that now, not in
         # the first window's latency
         messages.report_message(_BLANK_REPORT, self._report_cls)
-        self.create_service(Trigger, "reset_alarm", self._on_reset)
-        self.create_service(Trigger, "reset_operating_point", self._on_reset_op)
+
+    def check_runtime(self, values: dict[str, Any]) -> Callable[[], None] | None:
+        """The new alarm settings (checked by the settings tree), taken between two windows."""
+        alarm = monitor_config(values).alarm
+        stale_ns = int(float(values["stale_timeout_s"]) * NS_PER_S)
+
+        def apply() -> None:
+            with self._lock:  # the worker judges under it: the change lands between windows
+                self.core.set_alarm(alarm)
+                self.config = self.core.config
+            self.stale_timeout_ns = stale_ns
+
+        return apply if self.is_configured else None
+
+    def activate_node(self) -> None:
+        """Subscribe, start the worker and the watchdog; the alarm state as it stands."""
+        while not self._queue.empty():  # what the watchdog or a clock jump left at deactivate
+            item = self._queue.get_nowait()
+            if isinstance(item, _Marker):
+                item.done.set()
+        with self._lock:
+            if any(self.received.values()):
+                # reactivated: the data stopped while inactive; align and window afresh
+                # (the alarm states are kept)
+                self.core.restart()
+        self._last_rx = dict.fromkeys(self._watched)
+        self._watch = None
+        self._accepting = True
+        for topic, cls in self._classes.items():
+            self.activated(
+                self.create_subscription(cls, topic, partial(self._on_message, topic), 1000)
+            )
+        self.activated(self.create_service(Trigger, "reset_alarm", self._on_reset))
+        self.activated(self.create_service(Trigger, "reset_operating_point", self._on_reset_op))
+        levels = self.core.alarm_levels()
         for m in self.models:
-            self._publish_invalidated(m.name, False)
-        self.create_timer(0.5, self._on_watchdog)
+            self._publish_invalidated(m.name, levels[m.name] is Alarm.ERROR)
+        self.activated(self.create_timer(0.5, self._on_watchdog))
         # a backward jump of the (simulated) clock restarts alignment and windowing
-        self._jump_handle = self.get_clock().create_jump_callback(
+        handle = self.get_clock().create_jump_callback(
             JumpThreshold(
                 min_forward=None, min_backward=Duration(nanoseconds=-1), on_clock_change=True
             ),
             post_callback=self._on_time_jump,
         )
+        self.activated(handle.unregister)
         self._worker = threading.Thread(
             target=self._work, name="twotank_validator_worker", daemon=True
         )
         self._worker.start()
+
+    def deactivate_node(self) -> None:
+        """Stop judging: no new messages taken; the queued ones judged and published first."""
+        self._accepting = False
+        worker, self._worker = self._worker, None
+        if worker is not None:
+            self._queue.put(_Control.EXIT)
+            worker.join(timeout=DRAIN_TIMEOUT_S)
+
+    def cleanup_node(self) -> None:
+        """Stop the live diagnosis and close the evidence bag (what came so far is in it)."""
+        executor, self._executor = self._executor, None
+        if executor is not None:
+            executor.shutdown(wait=True, cancel_futures=True)
+        evidence, self.evidence = self.evidence, None
+        if evidence is not None:
+            evidence.close()
+
+    def inactive_names(self) -> list[str]:
+        """One status per model, as when active."""
+        return [f"twotank_validation: model {m.name}" for m in self.models]
 
     # ---------------------------------------------------------------- callbacks (never block)
 
@@ -361,6 +456,8 @@ class ValidatorNode(Node):
 
     def _on_message(self, topic: str, msg: Any) -> None:
         """A message of one of the map's topics: its sources' values queued."""
+        if not self._accepting:
+            return  # deactivating: judging stops here
         now = self._now_ns()
         self._last_rx[topic] = now
         self.received[topic] += 1
@@ -468,7 +565,12 @@ class ValidatorNode(Node):
             self.report_latency_s.append(perf_counter() - received)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
-        """Block until the worker has processed every queued event (tests, composition)."""
+        """Block until the worker has processed every queued event (tests, composition).
+
+        Not active (no worker): nothing is judged, True at once.
+        """
+        if self._worker is None:
+            return True
         done = threading.Event()
         self._queue.put(_Marker(done))
         return done.wait(timeout_s)
@@ -572,7 +674,7 @@ class ValidatorNode(Node):
                     *self._evidence_values(m.name),
                 ]
             arr.status.append(st)
-        self._pub_diag.publish(arr)
+        self._pub_status.publish(arr)
 
     # ---------------------------------------------------------------- watchdog
 
@@ -603,20 +705,6 @@ class ValidatorNode(Node):
         if stopped:
             self._queue.put(_Control.STOPPED)
         self._publish_diagnostics()
-
-    def destroy_node(self) -> None:
-        """Stop the worker thread, then destroy the node."""
-        worker = getattr(self, "_worker", None)
-        if worker is not None:
-            self._queue.put(_Control.EXIT)
-            worker.join(timeout=5.0)
-        executor = getattr(self, "_executor", None)
-        if executor is not None:
-            executor.shutdown(wait=True, cancel_futures=True)
-        evidence = getattr(self, "evidence", None)
-        if evidence is not None:
-            evidence.close()  # the bag being written is closed: what came so far is in it
-        super().destroy_node()
 
 
 def _interface_map(values: dict[str, Any], units: itf.RigUnits) -> InterfaceMap:
@@ -670,7 +758,7 @@ def _evidence_recorder(
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run twotank_validation twotank_validator`` entry point."""
-    return run_node(ValidatorNode, args)
+    return run_managed(ValidatorNode, args)
 
 
 if __name__ == "__main__":
