@@ -39,6 +39,7 @@ from twotank_validation.online import WindowReport
 from twotank_validation.online import streams as itf
 from twotank_validation.online.channels import ChannelError, match_channels
 from twotank_validation.online.interface import InterfaceMap, input_texts, source_to_text
+from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.live import LiveResult, _RecordingValidator, spin_until, wait_worker
 from twotank_validation.ros.model_plant_node import (
     MODEL_PLANT_PARAMS,
@@ -204,11 +205,13 @@ def run_model_live(
             "diagnosis": False,
             **config.validator,
         }
-        val = _RecordingValidator(
-            record_samples=config.record_samples,
-            models=models,
-            context=ctx,
-            parameter_overrides=[sim, *(Parameter(k, value=v) for k, v in params.items())],
+        val = bring_up(  # configure, then activate (the managed nodes' transitions)
+            _RecordingValidator(
+                record_samples=config.record_samples,
+                models=models,
+                context=ctx,
+                parameter_overrides=[sim, *(Parameter(k, value=v) for k, v in params.items())],
+            )
         )
         nodes.append(val)
         driver = Node("twotank_model_clock", context=ctx)
