@@ -1,0 +1,306 @@
+"""The transient term of a window: estimated from neighbouring lines and removed (issue 32).
+
+Over any window of ``N`` samples an LTI member of the model set gives, for any input,
+``Y(n) = G(Omega_n) U(n) + T(Omega_n) + V(n)`` (Pintelon & Schoukens 2012, Sec. 2.6;
+Pintelon et al., MSSP 24(3), 2010): ``T`` the transient (the member's initial state minus its
+final state, seen through its dynamics), smooth in ``n``. The local polynomial method (ibid.)
+estimates ``T`` at a line from the lines around it; here only from lines the excitation does
+not drive (``n % n_periods != 0``; every line but ``n`` itself with one period), after the
+nominal's ``P23 U`` is removed there, so that the model set's own part at the line judged is
+left to Problem 3. Docs: docs/theory.md, "The transient term".
+
+What the routes see is a transformed datum (``Y - T_hat``) and response (the noise channel
+scaled per bin by ``sqrt(1 + leverage)``); the model error that the estimate picks up from
+lines where ``U != 0`` is bounded per bin (``rho``) and taken off that bin's minimum
+(:func:`lowered`): nothing in the solvers changes. No library offers the local polynomial
+estimate of a transient alone with a known model (python-control, scipy.signal and
+sysidentpy estimate FRFs), hence this module.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from twotank_validation.core.band import masked_beta
+from twotank_validation.core.datum import Datum, PeriodicityFinding
+from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.validate import BetaResult, validate_beta, validation_band
+
+
+class TransientMethod(enum.StrEnum):
+    """How a window's transient term is treated."""
+
+    NONE = "none"
+    """Not at all: the window must be periodic and settled (the periodicity gate)."""
+    LOCAL_POLYNOMIAL = "local_polynomial"
+    """Estimated from the neighbouring lines by a local polynomial and removed."""
+
+
+@dataclass(frozen=True)
+class LocalPolynomial:
+    """The linear estimate ``T_hat(n) = sum_j a[n, j] X(k_j)`` of every bin.
+
+    A line ``k`` outside ``0 .. N/2`` is read through the symmetry of a real signal's DFT,
+    ``X(k) = conj(X(N - k))`` (``X(-k) = conj(X(k))``), so that DC and Nyquist lie inside
+    the fit, not at its edge.
+
+    Attributes:
+        lines: (n_bins, m) int, the kept bin each line ``k_j`` reads (``m = 2 half_width``).
+        mirror: (n_bins, m) bool, the line is read conjugated (it lies below DC or above
+            Nyquist).
+        weights: (n_bins, m) float, ``a``: the first row of the least-squares fit's
+            pseudo-inverse (polynomial of order ``order`` in ``k - n``); zero at DC.
+        leverage: (n_bins,) float, ``sum_j a[n, j]^2``: the estimate's noise variance
+            relative to one line's (circular white noise; 0 at DC).
+    """
+
+    lines: np.ndarray
+    mirror: np.ndarray
+    weights: np.ndarray
+    leverage: np.ndarray
+
+    @property
+    def noise_scale(self) -> np.ndarray:
+        """(n_bins,) float, ``sqrt(1 + leverage)``: the noise of ``V(n) - V_hat(n)``."""
+        return np.sqrt(1.0 + self.leverage)
+
+    def apply(self, x: np.ndarray, *, magnitude: bool = False) -> np.ndarray:
+        """(n_bins, n_channels): ``sum_j a[n, j] X(k_j)`` at every bin.
+
+        Args:
+            x: (n_bins, n_channels), a quantity at the kept bins.
+            magnitude: ``sum_j |a[n, j]| |X(k_j)|`` instead (a bound's propagation).
+        """
+        at = x[self.lines]
+        if magnitude:
+            return np.einsum("kj,kjc->kc", np.abs(self.weights), np.abs(at))
+        at = np.where(self.mirror[..., None], np.conj(at), at)
+        return np.einsum("kj,kjc->kc", self.weights, at)
+
+
+def local_polynomial(
+    n_samples: int, n_periods: int, order: int, half_width: int
+) -> LocalPolynomial:
+    """The local polynomial estimate of a transient at every kept bin of a window.
+
+    Each bin ``n >= 1`` takes the ``half_width`` nearest usable lines below and above it;
+    usable: not DC (the bias is removed there), not ``n`` nor its mirror ``N - n`` (its own
+    noise) and, with two or more periods, not a harmonic of the period (whose ``G U`` is
+    the model set's to explain). The polynomial ``sum_r c_r ((k - n) / half_width)^r``,
+    ``r = 0 .. order``, is fitted by least squares and ``T_hat(n) = c_0``.
+
+    Args:
+        n_samples: the window's length ``N`` (``n_periods`` whole periods).
+        n_periods: whole periods in the window.
+        order: polynomial order ``R`` (>= 0).
+        half_width: lines on each side, ``2 half_width >= order + 2`` (one degree of freedom
+            left over).
+
+    Raises:
+        ValueError: too few lines for the order, or fewer usable lines than the fit needs.
+    """
+    m = 2 * half_width
+    n_bins = n_samples // 2 + 1
+    if order < 0 or m < order + 2:
+        raise ValueError(
+            f"transient_half_width = {half_width} gives {m} lines, too few for a polynomial of "
+            f"order {order}: use a half-width of at least {(order + 3) // 2}"
+        )
+    step = n_periods if n_periods >= 2 else 1
+    usable_lines = n_samples - n_samples // step if step > 1 else n_samples - 1
+    if usable_lines < m + 2:
+        raise ValueError(
+            f"the window has {usable_lines} lines the excitation does not drive, fewer than "
+            f"the {m + 2} a transient estimate of half-width {half_width} needs: use longer "
+            "windows or a smaller transient_half_width"
+        )
+    lines = np.zeros((n_bins, m), dtype=int)
+    mirror = np.zeros((n_bins, m), dtype=bool)
+    weights = np.zeros((n_bins, m))
+    reach = (half_width + 2) * step
+    for n in range(1, n_bins):
+        k = np.arange(n - reach, n + reach + 1)
+        kept = k % n_samples
+        ok = (kept != 0) & (kept != n) & (kept != n_samples - n)
+        if step > 1:
+            ok &= kept % step != 0
+        below, above = k[ok & (k < n)][-half_width:], k[ok & (k > n)][:half_width]
+        pick = np.concatenate([below, above])
+        kept = pick % n_samples
+        flip = kept > n_samples // 2
+        basis = np.vander((pick - n) / half_width, order + 1, increasing=True)
+        lines[n] = np.where(flip, n_samples - kept, kept)
+        mirror[n] = flip
+        weights[n] = np.linalg.pinv(basis)[0]
+    return LocalPolynomial(lines, mirror, weights, np.sum(weights**2, axis=1))
+
+
+def model_error_reach(resp: PlantResponse, u_bins: np.ndarray) -> np.ndarray:
+    """(n_bins, ny) float: how far a member's output may differ from the nominal's, per line.
+
+    ``|((G_Delta - G_0) U)_c| <= ||P21[c, :]|| ||P13 U|| / (1 - ||P11||)`` for every
+    ``||Delta|| <= 1`` (``G_Delta - G_0 = P21 Delta (I - P11 Delta)^-1 P13``); infinite
+    where ``||P11|| >= 1`` and ``P13 U != 0``; 0 where ``U = 0``.
+
+    Args:
+        resp: P at the datum's bins.
+        u_bins: (n_bins, nu) complex, the inputs' scaled DFT.
+    """
+    if resp.blocks.nv == 0:
+        return np.zeros((u_bins.shape[0], resp.ny))
+    drive = np.linalg.norm(np.einsum("kzu,ku->kz", resp.p13, u_bins), axis=1)
+    gain = np.linalg.norm(resp.p11, ord=2, axis=(1, 2)) if resp.blocks.nz else np.zeros(drive.size)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loop = np.where(gain < 1.0, drive / np.maximum(1.0 - gain, 1e-300), np.inf)
+    loop = np.where(drive == 0.0, 0.0, loop)
+    return np.asarray(np.linalg.norm(resp.p21, axis=2) * loop[:, None])
+
+
+@dataclass(frozen=True)
+class TransientRemoved:
+    """A datum with its transient term removed, and what the routes must know of it.
+
+    Attributes:
+        datum: the datum with ``y_bins`` replaced by ``Y - T_hat`` (DC untouched) and its
+            periodicity report cleared of the findings the transient term accounts for
+            (input not periodic, output drift, shrinking variation).
+        response: P with its noise columns scaled per bin by ``sqrt(1 + leverage)``.
+        transient: (n_bins, ny) complex, ``T_hat``.
+        rho: (n_bins,) float, per bin, the least ``||W(n)||`` that could produce the model
+            error the estimate picked up from its lines (``||P22s(n)^+|| ||eps(n)||``,
+            ``eps_c(n) = sum_j |a_nj| reach_c(line_j)``); inf where an output with such an
+            error has no noise, or where the noise enters a perturbation (``P12 != 0``).
+    """
+
+    datum: Datum
+    response: PlantResponse
+    transient: np.ndarray
+    rho: np.ndarray
+
+
+def scaled_noise(resp: PlantResponse, scale: np.ndarray) -> PlantResponse:
+    """``resp`` with its noise columns (``P12``, ``P22``) multiplied by ``scale`` per bin."""
+    p = resp.p.copy()
+    nv = resp.blocks.nv
+    p[:, :, nv : nv + resp.nw] *= scale[:, None, None]
+    return replace(resp, p=p)
+
+
+_ABSORBED = (
+    PeriodicityFinding.INPUT_NOT_PERIODIC,
+    PeriodicityFinding.OUTPUT_DRIFTS,
+    PeriodicityFinding.VARIATION_SHRINKS,
+)
+
+
+def remove_transient(
+    datum: Datum,
+    resp: PlantResponse,
+    lpm: LocalPolynomial,
+    scaled: PlantResponse | None = None,
+) -> TransientRemoved:
+    """Estimate the transient term of ``datum`` and remove it (docs/theory.md).
+
+    Args:
+        datum: the window's datum.
+        resp: P at the datum's bins (the nominal's ``P23`` is removed at the fit lines).
+        lpm: :func:`local_polynomial` for the datum's bins and periods.
+        scaled: ``scaled_noise(resp, lpm.noise_scale)`` if already made (a monitor keeps it).
+    """
+    residual = datum.y_bins - np.einsum("kyu,ku->ky", resp.p23, datum.u_bins)
+    t_hat = lpm.apply(residual)
+    t_hat[0] = 0.0
+    s_resp = scaled if scaled is not None else scaled_noise(resp, lpm.noise_scale)
+    reach = model_error_reach(resp, datum.u_bins)
+    eps = lpm.apply(reach, magnitude=True)
+    rho = _noise_needed(s_resp, eps)
+    per = datum.periodicity
+    kept = tuple(f for f in per.findings if f not in _ABSORBED)
+    cleared = replace(
+        per,
+        findings=kept,
+        input_periodic=True,
+        transient_suspected=False,
+        last_change=np.zeros_like(per.last_change),
+    )
+    return TransientRemoved(
+        datum=replace(datum, y_bins=datum.y_bins - t_hat, periodicity=cleared),
+        response=s_resp,
+        transient=t_hat,
+        rho=rho,
+    )
+
+
+def _noise_needed(resp: PlantResponse, eps: np.ndarray) -> np.ndarray:
+    """(n_bins,) float, ``||P22(n)^+|| ||eps(n)||`` (inf where the noise cannot reach it)."""
+    size = np.linalg.norm(eps, axis=1)
+    out = np.zeros(size.size)
+    live = size > 0.0
+    if not live.any():
+        return out
+    if resp.nw == 0 or np.any(resp.p12[live] != 0.0):
+        out[live] = np.inf
+        return out
+    p22 = resp.p22[live]
+    sv = np.linalg.svd(p22, compute_uv=False)
+    smallest = sv[:, -1] if p22.shape[2] >= p22.shape[1] else np.zeros(sv.shape[0])
+    full_rank = smallest > 1e-12 * np.maximum(sv[:, 0], 1e-300)
+    with np.errstate(divide="ignore"):
+        out[live] = np.where(full_rank, size[live] / np.where(full_rank, smallest, 1.0), np.inf)
+    return out
+
+
+def lowered(w_min: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """(n_bins,) float, ``max(0, w_min - rho)``: each bin's minimum less the model error's share.
+
+    ``||W||`` is a norm: an error ``e`` in ``Y`` moves a bin's minimum by at most the least
+    ``||W||`` producing ``e``, when the noise does not enter the perturbations (``P12 = 0``).
+    """
+    return np.maximum(0.0, np.asarray(w_min) - rho)
+
+
+def total_rho(rho: np.ndarray, weights: np.ndarray, mask: np.ndarray | None) -> float:
+    """``sqrt(sum_n b_n rho(n)^2)`` over the band: the gate's measure with the transient term."""
+    keep = np.ones(rho.size, bool) if mask is None else mask
+    if np.any(np.isinf(rho[keep])):
+        return math.inf
+    return float(np.sqrt(np.sum(weights[keep] * rho[keep] ** 2)))
+
+
+def validate_with_transient(
+    datum: Datum,
+    model: LFTModel,
+    lpm: LocalPolynomial,
+    *,
+    method: str = "auto",
+    response: PlantResponse | None = None,
+    scaled: PlantResponse | None = None,
+) -> tuple[BetaResult, float]:
+    """β of ``datum`` with its transient term removed, on any route (:func:`validate_beta`).
+
+    The route solves the transformed datum with the scaled response; each bin's minimum is
+    then lowered by ``rho`` (:func:`lowered`) and β totalled again over the band.
+
+    Returns:
+        The result (``w_min`` and ``beta`` lowered, ``beta_upper`` the transformed datum's
+        witness; ``input_leakage`` the total
+        ``rho`` over the band) and that total (:func:`total_rho`).
+    """
+    resp = response if response is not None else model.response(datum.theta, datum.ts_s)
+    removed = remove_transient(datum, resp, lpm, scaled)
+    res = validate_beta(removed.datum, model, method=method, response=removed.response)
+    mask = validation_band(datum, model)
+    low = lowered(res.w_min, removed.rho)
+    rho = total_rho(removed.rho, datum.bin_weights, mask)
+    beta = masked_beta(low, datum.bin_weights, mask)
+    return replace(
+        res,
+        w_min=low,
+        beta=beta,
+        beta_upper=max(res.beta_upper, beta),
+        input_leakage=rho,
+    ), rho
