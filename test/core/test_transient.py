@@ -122,7 +122,7 @@ def test_a_member_from_any_initial_state_is_never_invalidated(
 ) -> None:
     rng = np.random.default_rng(seed)
     u = _excitation(seed)
-    x_g = scale * rng.standard_normal(2)  # the steady response's states are about 1
+    x_g = scale * rng.standard_normal(2)  # the steady response's states: RMS 0.4-0.6
     x_w = scale * rng.standard_normal(1)
     # sensor noise inside the budget: RMS 0.5 of the weight (0.02), E beta_noise^2 = 0.25
     y = _member(u, delta, x_g, x_w) + 0.01 * rng.standard_normal(N)

@@ -12,9 +12,10 @@ left to Problem 3. Docs: docs/theory.md, "The transient term".
 What the routes see is a transformed datum (``Y - T_hat``) and response (the noise channel
 scaled per bin by ``sqrt(1 + leverage)``); the model error that the estimate picks up from
 lines where ``U != 0`` is bounded per bin (``rho``) and taken off that bin's minimum
-(:func:`lowered`): nothing in the solvers changes. No library offers the local polynomial
-estimate of a transient alone with a known model (python-control, scipy.signal and
-sysidentpy estimate FRFs), hence this module.
+(:func:`lowered`): nothing in the solvers changes. Written by hand: no maintained library
+implements the local polynomial method, and ``identify.lpm`` (a layer above the core)
+estimates the response and the transient together, where here the response is the model
+set's and only the transient is estimated, from the lines the excitation does not drive.
 """
 
 from __future__ import annotations
@@ -22,8 +23,10 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
+import scipy.sparse
 
 from twotank_validation.core.band import masked_beta
 from twotank_validation.core.datum import Datum, PeriodicityFinding
@@ -63,6 +66,27 @@ class LocalPolynomial:
     weights: np.ndarray
     leverage: np.ndarray
 
+    @cached_property
+    def _operators(self) -> tuple[scipy.sparse.csr_array, ...]:
+        """The estimate as sparse matrices: on ``X``, on ``conj(X)``, and in magnitude.
+
+        A window's estimate is then a few sparse products.
+        """
+        n_bins, m = self.lines.shape
+        rows = np.repeat(np.arange(n_bins), m)
+        cols = self.lines.ravel()
+        flip = self.mirror.ravel()
+        a = self.weights.ravel()
+
+        def sparse(values: np.ndarray) -> scipy.sparse.csr_array:
+            return scipy.sparse.csr_array((values, (rows, cols)), shape=(n_bins, n_bins))
+
+        return (
+            sparse(np.where(flip, 0.0, a)),
+            sparse(np.where(flip, a, 0.0)),
+            sparse(np.abs(a)),
+        )
+
     @property
     def noise_scale(self) -> np.ndarray:
         """(n_bins,) float, ``sqrt(1 + leverage)``: the noise of ``V(n) - V_hat(n)``."""
@@ -75,11 +99,10 @@ class LocalPolynomial:
             x: (n_bins, n_channels), a quantity at the kept bins.
             magnitude: ``sum_j |a[n, j]| |X(k_j)|`` instead (a bound's propagation).
         """
-        at = x[self.lines]
+        direct, mirrored, size = self._operators
         if magnitude:
-            return np.einsum("kj,kjc->kc", np.abs(self.weights), np.abs(at))
-        at = np.where(self.mirror[..., None], np.conj(at), at)
-        return np.einsum("kj,kjc->kc", self.weights, at)
+            return np.asarray(size @ np.abs(x))
+        return np.asarray(direct @ x + mirrored @ np.conj(x))
 
 
 def local_polynomial(
@@ -152,12 +175,17 @@ def model_error_reach(resp: PlantResponse, u_bins: np.ndarray) -> np.ndarray:
     """
     if resp.blocks.nv == 0:
         return np.zeros((u_bins.shape[0], resp.ny))
+    if "transient_reach" not in resp.memo:  # what depends on P alone, once per response
+        gain = np.linalg.norm(resp.p11, ord=2, axis=(1, 2)) if np.any(resp.p11) else None
+        with np.errstate(divide="ignore"):
+            amplify = None if gain is None else np.where(gain < 1.0, 1.0 / (1.0 - gain), np.inf)
+        resp.memo["transient_reach"] = (amplify, np.linalg.norm(resp.p21, axis=2))
+    amplify, rows = resp.memo["transient_reach"]
     drive = np.linalg.norm(np.einsum("kzu,ku->kz", resp.p13, u_bins), axis=1)
-    gain = np.linalg.norm(resp.p11, ord=2, axis=(1, 2)) if resp.blocks.nz else np.zeros(drive.size)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        loop = np.where(gain < 1.0, drive / np.maximum(1.0 - gain, 1e-300), np.inf)
-    loop = np.where(drive == 0.0, 0.0, loop)
-    return np.asarray(np.linalg.norm(resp.p21, axis=2) * loop[:, None])
+    if amplify is not None:
+        with np.errstate(invalid="ignore"):
+            drive = np.where(drive == 0.0, 0.0, drive * amplify)
+    return np.asarray(rows * drive[:, None])
 
 
 @dataclass(frozen=True)
@@ -245,12 +273,16 @@ def _noise_needed(resp: PlantResponse, eps: np.ndarray) -> np.ndarray:
     if resp.nw == 0 or np.any(resp.p12[live] != 0.0):
         out[live] = np.inf
         return out
-    p22 = resp.p22[live]
-    sv = np.linalg.svd(p22, compute_uv=False)
-    smallest = sv[:, -1] if p22.shape[2] >= p22.shape[1] else np.zeros(sv.shape[0])
-    full_rank = smallest > 1e-12 * np.maximum(sv[:, 0], 1e-300)
-    with np.errstate(divide="ignore"):
-        out[live] = np.where(full_rank, size[live] / np.where(full_rank, smallest, 1.0), np.inf)
+    if "transient_noise_gain" not in resp.memo:  # ||P22(n)^+||, once per response
+        sv = np.linalg.svd(resp.p22, compute_uv=False)
+        smallest = sv[:, -1] if resp.nw >= resp.ny else np.zeros(sv.shape[0])
+        full_rank = smallest > 1e-12 * np.maximum(sv[:, 0], 1e-300)
+        with np.errstate(divide="ignore"):
+            resp.memo["transient_noise_gain"] = np.where(
+                full_rank, 1.0 / np.where(full_rank, smallest, 1.0), np.inf
+            )
+    gain = resp.memo["transient_noise_gain"]
+    out[live] = size[live] * gain[live]
     return out
 
 
