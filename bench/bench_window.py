@@ -49,6 +49,7 @@ from twotank_validation.core.model import load_model
 from twotank_validation.core.transient import (
     local_polynomial,
     scaled_noise,
+    transient_estimate,
     validate_with_transient,
 )
 from twotank_validation.core.validate import validate
@@ -90,12 +91,13 @@ def main() -> None:
         return [validate(datum, m, response=r, method="fast") for m, r in pairs]
 
     lpm = local_polynomial(datum.n_samples, datum.n_periods, 2, 2)
-    scaled = [scaled_noise(r, lpm.noise_scale) for r in responses]
+    ests = [transient_estimate(lpm, m, datum.ts_s, datum.n_samples) for m in models]
+    scaled = [scaled_noise(r, e.noise_scale) for r, e in zip(responses, ests, strict=True)]
 
     def with_transient(method: str):
         return [
-            validate_with_transient(datum, m, lpm, method=method, response=r, scaled=s)[0]
-            for (m, r), s in zip(pairs, scaled, strict=True)
+            validate_with_transient(datum, m, e, method=method, response=r, scaled=s)[0]
+            for (m, r), e, s in zip(pairs, ests, scaled, strict=True)
         ]
 
     def fast_one_thread():

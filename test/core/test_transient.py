@@ -20,8 +20,10 @@ from twotank_validation.core import lti
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.transient import (
+    TransientEstimate,
     local_polynomial,
     remove_transient,
+    transient_estimate,
     validate_with_transient,
 )
 from twotank_validation.core.validate import validate_beta
@@ -45,6 +47,8 @@ TS, PERIOD, PERIODS = 0.25, 256, 2  # time constants 4 and 8 samples; windows of
 N = PERIOD * PERIODS
 MODEL = model_from_dict(SISO)
 LPM = local_polynomial(N, PERIODS, 2, 2)
+EST = transient_estimate(LPM, MODEL, TS, N)
+PLAIN = TransientEstimate.of(LPM)
 
 
 def _excitation(seed: int) -> np.ndarray:
@@ -70,22 +74,28 @@ def test_the_estimate_matches_the_exact_transient_of_a_plant_started_off_equilib
     datum = make_datum(u, y, ts_s=TS, period_samples=PERIOD)
     exact = datum.y_bins - make_datum(u, steady, ts_s=TS, period_samples=PERIOD).y_bins
     resp = MODEL.response(datum.theta, TS)
-    got = remove_transient(datum, resp, LPM).transient
-    err = np.abs(got - exact)[1:, 0]
+    plain = remove_transient(datum, resp, PLAIN).transient
+    err = np.abs(plain - exact)[1:, 0]
     size = np.abs(exact)[1:, 0]
     assert np.linalg.norm(err) / np.linalg.norm(size) < 0.02  # 0.0135 measured
     assert np.max(err[8:] / size[8:]) < 0.01  # away from DC the polynomial is exact-ish
+    # over the model's poles A(n) T(n) is a polynomial in exp(-j theta) of degree 1: the
+    # estimate is exact up to the curvature of that polynomial over the lines
+    got = remove_transient(datum, resp, EST).transient
+    pole_err = np.abs(got - exact)[1:, 0]
+    assert np.linalg.norm(pole_err) / np.linalg.norm(size) < 1e-3
+    assert np.linalg.norm(pole_err) < 0.1 * np.linalg.norm(err)
     # an order-0 fit (a local mean) misses the slope: the order matters
-    flat = remove_transient(datum, resp, local_polynomial(N, PERIODS, 0, 2)).transient
-    assert np.linalg.norm(np.abs(flat - exact)[1:]) > 3 * np.linalg.norm(err)
+    flat = remove_transient(datum, resp, TransientEstimate.of(local_polynomial(N, PERIODS, 0, 2)))
+    assert np.linalg.norm(np.abs(flat.transient - exact)[1:]) > 3 * np.linalg.norm(err)
     # settled data have no transient: the estimate is the round-off's
     settled = make_datum(u, steady, ts_s=TS, period_samples=PERIOD)
-    quiet = remove_transient(settled, resp, LPM).transient
+    quiet = remove_transient(settled, resp, EST).transient
     assert np.max(np.abs(quiet)) < 1e-6 * np.max(np.abs(exact))
 
 
 def test_the_noise_left_grows_by_the_leverage() -> None:
-    """E|V(n) - V_hat(n)|^2 = (1 + leverage(n)) E|V(n)|^2 for white noise (Monte-Carlo)."""
+    """E|V(n) - V_hat(n)|^2 = noise_scale(n)^2 E|V(n)|^2 for white noise (Monte-Carlo)."""
     rng = np.random.default_rng(1)
     u = _excitation(2)
     resp = MODEL.response(make_datum(u, u, ts_s=TS, period_samples=PERIOD).theta, TS)
@@ -94,10 +104,10 @@ def test_the_noise_left_grows_by_the_leverage() -> None:
     for _ in range(draws):
         noise = rng.standard_normal(N)
         datum = make_datum(u, noise, ts_s=TS, period_samples=PERIOD)  # no plant, no transient
-        rem = remove_transient(datum, resp, LPM).datum.y_bins[:, 0]
+        rem = remove_transient(datum, resp, EST).datum.y_bins[:, 0]
         left += np.abs(rem) ** 2
     ratio = left[1:-1] / draws / (1.0 / N)  # E|V(n)|^2 = sigma^2 / N (power convention)
-    expected = 1.0 + LPM.leverage[1:-1]
+    expected = EST.noise_scale[1:-1] ** 2
     # 400 draws: each bin's mean within about 4 standard errors (1/sqrt(400) relative)
     assert np.all(np.abs(ratio / expected - 1.0) < 0.22)
     assert abs(np.mean(ratio / expected) - 1.0) < 0.02
@@ -127,7 +137,7 @@ def test_a_member_from_any_initial_state_is_never_invalidated(
     # sensor noise inside the budget: RMS 0.5 of the weight (0.02), E beta_noise^2 = 0.25
     y = _member(u, delta, x_g, x_w) + 0.01 * rng.standard_normal(N)
     datum = make_datum(u, y, ts_s=TS, period_samples=PERIOD)
-    res, rho = validate_with_transient(datum, MODEL, LPM)
+    res, rho = validate_with_transient(datum, MODEL, EST)
     assert rho == 0.0  # a periodic input: no model error picked up from the lines
     assert res.beta < 1.0, (res.beta, validate_beta(datum, MODEL).beta)
 
@@ -137,7 +147,7 @@ def test_the_routes_agree_with_the_transient_term_on() -> None:
     u = _excitation(3)
     y = _member(u, 0.7, np.array([2.0, 1.0]), np.array([-1.0])) + 0.01 * rng.standard_normal(N)
     datum = make_datum(u, y, ts_s=TS, period_samples=PERIOD)
-    betas = {m: validate_with_transient(datum, MODEL, LPM, method=m)[0] for m in
+    betas = {m: validate_with_transient(datum, MODEL, EST, method=m)[0] for m in
              ("closed_form", "fast", "sdp")}  # fmt: skip
     ref = betas["closed_form"]
     assert ref.method == "closed_form"

@@ -34,29 +34,48 @@ def _spanning(reports: list) -> list:
     return [r for r in reports if r.start_ns <= ONSET_NS < r.end_ns]
 
 
-@pytest.mark.parametrize("fault", ["sensor_bias:height=0.05", "leak=0.06"])
-def test_a_fault_starting_inside_a_window_is_still_detected(fault: str) -> None:
-    """A sensor's step is not smooth in frequency and a leak is no initial condition: the
-    transient term absorbs neither, so the windows spanning the onset invalidate and ERROR
-    comes within 1.5 periods (the closed-loop gate alone: 3 periods and more)."""
+def test_a_bias_step_inside_a_window_is_not_absorbed_in_full() -> None:
+    """Open loop: a level sensor's step of 0.05 (twice its stated limit) at an instant inside
+    the window is no transient of any member; some window spanning it still invalidates
+    with the term (β 1.2 against 2.55 without: the loss of power, docs/theory.md §20)."""
     scenario = Scenario(
-        name="f", duration_s=7 * PERIOD * TS, seed=3, faults=(f"{fault}@{ONSET_S:g}",),
+        name="f", duration_s=6 * PERIOD * TS, seed=3,
+        faults=(f"sensor_bias:height=0.05@{ONSET_S:g}",),
+    )  # fmt: skip
+    spanning = _spanning(_reports(scenario, TRANSIENT))
+    assert all(r.judged for r in spanning)
+    assert max(r.beta for r in spanning) > 1.0
+    assert min(r.beta for r in spanning) < 1.0  # where the step lies near the window's edge
+
+
+@pytest.mark.parametrize("fault", ["sensor_bias:height=0.05", "leak=0.06"])
+def test_a_fault_in_closed_loop_is_still_detected(fault: str) -> None:
+    """Closed loop, faults at twice their stated limits starting inside a window: the term
+    judges every window through the loop's answer and raises nothing before the onset;
+    ERROR comes once the loop has settled (the operating-point check), as with the gate."""
+    onset_s = round(8.3 * PERIOD) * TS  # the loop's reference is commissioned by then
+    onset_ns = round(onset_s * 1e9)
+    scenario = Scenario(
+        name="f", duration_s=14 * PERIOD * TS, seed=3, faults=(f"{fault}@{onset_s:g}",),
         closed_loop=ClosedLoop(),
     )  # fmt: skip
     reports = _reports(scenario, TRANSIENT)
-    before = [r for r in reports if r.end_ns < ONSET_NS]
-    assert all(r.judged for r in before[4:])  # the loop's start-up is judged too
+    before = [r for r in reports if r.end_ns < onset_ns]
+    assert all(r.judged for r in reports[4:])  # the start-up and the answer are judged
     assert not any(r.invalidated for r in before)
-    assert any(r.judged and r.beta > 1.0 for r in _spanning(reports))
     first = next(r for r in reports if r.alarm is Alarm.ERROR)
-    assert first.end_ns - ONSET_NS <= 1.5 * PERIOD_NS
-    assert first.raised_by == "dynamics"
+    assert onset_ns < first.end_ns <= onset_ns + 5 * PERIOD_NS
 
 
-def test_a_setpoint_change_in_closed_loop_raises_nothing_with_the_transient_term() -> None:
+@pytest.mark.parametrize("change", ["height=0.52", "height=0.44,temperature=0.47"])
+def test_a_setpoint_change_in_closed_loop_raises_nothing_with_the_transient_term(
+    change: str,
+) -> None:
+    """Both setpoints at once is the move after which the plain polynomial (no model poles)
+    invalidated nominal windows (β 1.18): the slow poles' transient near DC."""
     scenario = Scenario(
         name="sp", duration_s=8 * PERIOD * TS, seed=5, closed_loop=ClosedLoop(),
-        setpoints=(f"height=0.52@{ONSET_S:g}",),
+        setpoints=(f"{change}@{ONSET_S:g}",),
     )  # fmt: skip
     reports = _reports(scenario, TRANSIENT)
     spanning = _spanning(reports)

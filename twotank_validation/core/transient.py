@@ -28,6 +28,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse
 
+from twotank_validation.core import lti
 from twotank_validation.core.band import masked_beta
 from twotank_validation.core.datum import Datum, PeriodicityFinding
 from twotank_validation.core.model import LFTModel, PlantResponse
@@ -162,6 +163,82 @@ def local_polynomial(
     return LocalPolynomial(lines, mirror, weights, np.sum(weights**2, axis=1))
 
 
+def model_poles(model: LFTModel, ts_s: float) -> np.ndarray:
+    """(n,) complex, the discrete poles of the model set's parts at ``ts_s``.
+
+    The nominal's (or the generalized plant's) and every perturbation's and noise weight's:
+    a member's transient is a rational function of ``exp(j Omega)`` over these (and its
+    ``Delta``'s) poles (docs/theory.md §20). Output delays are not poles.
+    """
+    parts = [model.nominal_discrete(ts_s)] if model.nominal is not None else []
+    if model.generalized is not None:
+        parts.append(lti.discretise(model.generalized, ts_s, model.intersample))
+    parts += [lti.discretise(p.weight, ts_s, model.intersample) for p in model.perturbations]
+    parts += [lti.discretise(c.weight, ts_s, model.intersample) for c in model.noise]
+    eig = [np.linalg.eigvals(p.a) for p in parts if p.a.size]
+    return np.concatenate(eig) if eig else np.zeros(0, complex)
+
+
+def denominator(poles: np.ndarray, n_samples: int) -> np.ndarray:
+    """(N//2 + 1,) complex, ``A(n) = prod_i (1 - lambda_i exp(-j 2 pi n / N))``.
+
+    The transient of a system with these poles is ``I(n) / A(n)``, ``I`` a trigonometric
+    polynomial of lower degree: ``A T`` has no pole near the unit circle, and a local
+    polynomial follows it where it could not follow ``T`` near a slow pole. Normalised to a
+    largest magnitude of 1 (the estimate does not depend on the scale of ``A``).
+    """
+    theta = 2.0 * np.pi * np.arange(n_samples // 2 + 1) / n_samples
+    out = np.ones(theta.size, complex)
+    for lam in poles:
+        out *= 1.0 - lam * np.exp(-1j * theta)
+        out /= np.max(np.abs(out))
+    return out
+
+
+@dataclass(frozen=True)
+class TransientEstimate:
+    """The local polynomial weighted by a model's denominator, with what it costs.
+
+    ``T_hat(n) = (1 / A(n)) sum_j a_nj A(k_j) R(k_j)`` (:class:`LocalPolynomial` on ``A R``).
+
+    Attributes:
+        lpm: the local polynomial.
+        den: (n_bins,) complex, ``A(n)`` (:func:`denominator`; ones: plain polynomial).
+        noise_scale: (n_bins,) float, ``sqrt(1 + sum_j a_nj^2 |A(k_j)|^2 / |A(n)|^2)``.
+    """
+
+    lpm: LocalPolynomial
+    den: np.ndarray
+    noise_scale: np.ndarray
+
+    @classmethod
+    def of(cls, lpm: LocalPolynomial, den: np.ndarray | None = None) -> TransientEstimate:
+        """The estimate with denominator ``den`` (None: none, the plain polynomial)."""
+        a = np.ones(lpm.lines.shape[0], complex) if den is None else np.asarray(den)
+        mag = np.abs(a)
+        ratio = mag[lpm.lines] / np.where(mag > 0.0, mag, 1.0)[:, None]
+        leverage = np.sum((lpm.weights * ratio) ** 2, axis=1)
+        return cls(lpm, a, np.sqrt(1.0 + leverage))
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """(n_bins, n_channels), the estimate from ``x`` at every bin (0 at DC)."""
+        out = self.lpm.apply(self.den[:, None] * x) / self.den[:, None]
+        out[0] = 0.0
+        return np.asarray(out)
+
+    def bound(self, size: np.ndarray) -> np.ndarray:
+        """(n_bins, n_channels), ``sum_j |a_nj| |A(k_j)| size(k_j) / |A(n)|``."""
+        mag = np.abs(self.den)[:, None]
+        return np.asarray(self.lpm.apply(mag * size, magnitude=True) / mag)
+
+
+def transient_estimate(
+    lpm: LocalPolynomial, model: LFTModel, ts_s: float, n_samples: int
+) -> TransientEstimate:
+    """The estimate for ``model``'s windows: the local polynomial over ``model``'s poles."""
+    return TransientEstimate.of(lpm, denominator(model_poles(model, ts_s), n_samples))
+
+
 def model_error_reach(resp: PlantResponse, u_bins: np.ndarray) -> np.ndarray:
     """(n_bins, ny) float: how far a member's output may differ from the nominal's, per line.
 
@@ -228,7 +305,7 @@ _ABSORBED = (
 def remove_transient(
     datum: Datum,
     resp: PlantResponse,
-    lpm: LocalPolynomial,
+    est: TransientEstimate,
     scaled: PlantResponse | None = None,
 ) -> TransientRemoved:
     """Estimate the transient term of ``datum`` and remove it (docs/theory.md).
@@ -236,15 +313,15 @@ def remove_transient(
     Args:
         datum: the window's datum.
         resp: P at the datum's bins (the nominal's ``P23`` is removed at the fit lines).
-        lpm: :func:`local_polynomial` for the datum's bins and periods.
-        scaled: ``scaled_noise(resp, lpm.noise_scale)`` if already made (a monitor keeps it).
+        est: the estimate (:func:`transient_estimate`, or :meth:`TransientEstimate.of` a
+            :func:`local_polynomial` for the datum's bins and periods).
+        scaled: ``scaled_noise(resp, est.noise_scale)`` if already made (a monitor keeps it).
     """
     residual = datum.y_bins - np.einsum("kyu,ku->ky", resp.p23, datum.u_bins)
-    t_hat = lpm.apply(residual)
-    t_hat[0] = 0.0
-    s_resp = scaled if scaled is not None else scaled_noise(resp, lpm.noise_scale)
+    t_hat = est.apply(residual)
+    s_resp = scaled if scaled is not None else scaled_noise(resp, est.noise_scale)
     reach = model_error_reach(resp, datum.u_bins)
-    eps = lpm.apply(reach, magnitude=True)
+    eps = est.bound(reach)
     rho = _noise_needed(s_resp, eps)
     per = datum.periodicity
     kept = tuple(f for f in per.findings if f not in _ABSORBED)
@@ -306,7 +383,7 @@ def total_rho(rho: np.ndarray, weights: np.ndarray, mask: np.ndarray | None) -> 
 def validate_with_transient(
     datum: Datum,
     model: LFTModel,
-    lpm: LocalPolynomial,
+    est: TransientEstimate,
     *,
     method: str = "auto",
     response: PlantResponse | None = None,
@@ -323,7 +400,7 @@ def validate_with_transient(
         ``rho`` over the band) and that total (:func:`total_rho`).
     """
     resp = response if response is not None else model.response(datum.theta, datum.ts_s)
-    removed = remove_transient(datum, resp, lpm, scaled)
+    removed = remove_transient(datum, resp, est, scaled)
     res = validate_beta(removed.datum, model, method=method, response=removed.response)
     mask = validation_band(datum, model)
     low = lowered(res.w_min, removed.rho)

@@ -31,9 +31,11 @@ from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
 from twotank_validation.core.transient import (
     LocalPolynomial,
+    TransientEstimate,
     TransientMethod,
     local_polynomial,
     scaled_noise,
+    transient_estimate,
     validate_with_transient,
 )
 from twotank_validation.core.validate import (
@@ -560,6 +562,7 @@ class WindowMonitor:
                 fast.warm_up(resp)
         # the transient term's estimate and the noise channels it scales: per window settings
         self._lpm: LocalPolynomial | None = None
+        self._est: dict[str, TransientEstimate] = {}
         self._scaled: dict[str, PlantResponse] = {}
         if config.transient != TransientMethod.NONE:
             self._lpm = local_polynomial(
@@ -568,8 +571,12 @@ class WindowMonitor:
                 config.transient_order,
                 config.transient_half_width,
             )
+            self._est = {
+                m.name: transient_estimate(self._lpm, m, config.ts_s, config.window_samples)
+                for m in self.models
+            }
             self._scaled = {
-                name: scaled_noise(resp, self._lpm.noise_scale)
+                name: scaled_noise(resp, self._est[name].noise_scale)
                 for name, resp in self._responses.items()
             }
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
@@ -838,7 +845,7 @@ class WindowMonitor:
                 res, rho = validate_with_transient(
                     datum,
                     model,
-                    self._lpm,
+                    self._est[model.name],
                     method=cfg.method,
                     response=self._responses[model.name],
                     scaled=self._scaled[model.name],
