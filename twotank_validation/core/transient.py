@@ -7,7 +7,9 @@ final state, seen through its dynamics), smooth in ``n``. The local polynomial m
 estimates ``T`` at a line from the lines around it; here only from lines the excitation does
 not drive (``n % n_periods != 0``; every line but ``n`` itself with one period), after the
 nominal's ``P23 U`` is removed there, so that the model set's own part at the line judged is
-left to Problem 3. Docs: docs/theory.md, "The transient term".
+left to Problem 3. The polynomial is fitted to ``A T``, ``A`` the model's denominator (its
+parts' poles): a slow pole's transient varies near DC faster than a polynomial follows,
+``A T`` does not. Docs: docs/theory.md §20.
 
 What the routes see is a transformed datum (``Y - T_hat``) and response (the noise channel
 scaled per bin by ``sqrt(1 + leverage)``); the model error that the estimate picks up from
