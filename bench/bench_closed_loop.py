@@ -4,7 +4,8 @@ Each run is the default scenario (Model B, the default alarm: a window every qua
 the sequential debounce, the operating-point check), one fault from ``8 P + phase P``, open
 loop (the excitation's commands to the valves) or closed loop (the PI loops of
 ``twotank_validation.sim.control``, the excitation added to their output, the validator's
-periodicity gate at ``CLOSED_LOOP_INPUT_PERIODIC_RTOL``). The faults: each kind with a
+periodicity gate at ``CLOSED_LOOP_INPUT_PERIODIC_RTOL``), and closed loop with the transient
+term (``transient: local_polynomial``, ``settle_periods: 0``; docs/theory.md §20). The faults: each kind with a
 stated limit (``tools.rig_faults``) at the limit and at twice it, and the stuck and the
 saturating hot valve. Delay: onset to the end of the first window whose alarm is ERROR,
 within 6 periods; "-" when none; a false alarm before the onset is counted apart. Prints one
@@ -54,6 +55,9 @@ VARIANTS = {
     "open loop": Variant(False, MonitorConfig),
     "closed loop, gate": Variant(
         True, lambda: MonitorConfig(input_periodic_rtol=CLOSED_LOOP_INPUT_PERIODIC_RTOL)
+    ),
+    "closed loop, transient term": Variant(
+        True, lambda: MonitorConfig(transient="local_polynomial", settle_periods=0)
     ),
 }
 

@@ -12,6 +12,9 @@ evaluated once beforehand, as the live validator does) of
   and the batched numpy code alone (``compiled=False``, the solver without ``validate``),
 * the per-bin cvxpy SDP path (``method="sdp"``, one Clarabel SDP per bin: the reference),
 
+the closed form and the fast path with the transient term on (``transient:
+local_polynomial``: the estimate, the datum and the lowered bins, the operator and the scaled
+responses made once beforehand as the live validator makes them; docs/theory.md §20), and
 their ratios, the goal checks (fast path at most 5 ms per window, at least 10,000 times
 faster than the SDP path), the bins the fast path handed back to the per-bin SDP, and how
 closely beta and the per-bin bounds agree between the three.
@@ -43,6 +46,12 @@ from twotank_validation.core import fast
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.fast import kernel as fastkernel
 from twotank_validation.core.model import load_model
+from twotank_validation.core.transient import (
+    local_polynomial,
+    scaled_noise,
+    transient_estimate,
+    validate_with_transient,
+)
 from twotank_validation.core.validate import validate
 
 GOAL_FAST_S = 5e-3
@@ -81,6 +90,16 @@ def main() -> None:
     def fast_path():
         return [validate(datum, m, response=r, method="fast") for m, r in pairs]
 
+    lpm = local_polynomial(datum.n_samples, datum.n_periods, 2, 2)
+    ests = [transient_estimate(lpm, m, datum.ts_s, datum.n_samples) for m in models]
+    scaled = [scaled_noise(r, e.noise_scale) for r, e in zip(responses, ests, strict=True)]
+
+    def with_transient(method: str):
+        return [
+            validate_with_transient(datum, m, e, method=method, response=r, scaled=s)[0]
+            for (m, r), e, s in zip(pairs, ests, scaled, strict=True)
+        ]
+
     def fast_one_thread():
         return [fast.solve_fast(r, datum.u_bins, datum.y_bins, threads=1) for _, r in pairs]
 
@@ -114,6 +133,8 @@ def main() -> None:
         "fast": fast_path,
         "one": fast_one_thread,
         "numpy": fast_numpy_only,
+        "closed_t": lambda: with_transient("auto"),
+        "fast_t": lambda: with_transient("fast"),
     }
     runs: dict[str, list[float]] = {k: [] for k in timed_fns}
     outs: dict[str, object] = {}
@@ -172,6 +193,17 @@ def main() -> None:
         f"  fast path, interleaved runs before the SDP: median {t_fast_before * 1e3:.3f} ms "
         f"({len(runs['fast'])} runs)"
     )
+    t_cf_t, t_fast_t = statistics.median(runs["closed_t"]), statistics.median(runs["fast_t"])
+    print(
+        f"transient term on (order 2, half-width 2), interleaved runs: closed form median "
+        f"{t_cf_t * 1e3:.3f} ms ({t_cf_t / t_cf:.2f}x off), fast path median "
+        f"{t_fast_t * 1e3:.3f} ms ({t_fast_t / t_fast_before:.2f}x off); goal <= 1.5x: "
+        f"{'met' if max(t_cf_t / t_cf, t_fast_t / t_fast_before) <= 1.5 else 'NOT met'}"
+    )
+    for on, off in zip(outs["closed_t"], res_cf, strict=True):  # type: ignore[call-overload]
+        print(f"  model {off.model_name}: beta {on.beta:.6f} with the term, {off.beta:.6f} without")
+    for on in outs["fast_t"]:  # type: ignore[attr-defined]
+        print(f"  fast path with the term: {on.method}, beta {on.beta:.6f}")
     print(f"  compiled kernel in one thread (solver alone): median {t_one * 1e3:.3f} ms")
     print(f"  batched numpy code alone (solver, compiled=False): median {t_numpy * 1e3:.3f} ms")
     all_runs = ", ".join(f"{t:.2f}" for t in runs_sdp)

@@ -29,6 +29,15 @@ from twotank_validation.core.datum import (
 from twotank_validation.core.measured import input_noise_effect
 from twotank_validation.core.model import LFTModel, PlantResponse
 from twotank_validation.core.oppoint import OperatingPoint, combined_beta
+from twotank_validation.core.transient import (
+    LocalPolynomial,
+    TransientEstimate,
+    TransientMethod,
+    local_polynomial,
+    scaled_noise,
+    transient_estimate,
+    validate_with_transient,
+)
 from twotank_validation.core.validate import (
     bin_response,
     check_compatible,
@@ -101,6 +110,13 @@ class MonitorConfig:
             judges overlapping windows more often and a fault is seen sooner. The alarm's
             window counts are scaled to the hop so that they weigh the same span of data
             (:func:`evidence_alarm`).
+        transient: the transient term of a window (:class:`~twotank_validation.core.transient.
+            TransientMethod`): ``local_polynomial`` removes it (estimated from
+            ``transient_half_width`` lines on each side of each bin by a polynomial of order
+            ``transient_order``), and the input periodicity gate becomes the leakage left
+            (``input_leakage`` < 1); ``none``: the input must repeat (``input_periodic_rtol``).
+        transient_order: the local polynomial's order.
+        transient_half_width: lines on each side of a bin.
         realisation_periods: periods of each realisation of a multi-realisation excitation
             (a new random-phase draw every ``realisation_periods`` periods, counted from the
             monitor's first sample); a window and its settling periods must lie within one
@@ -200,8 +216,36 @@ class MonitorConfig:
         "recording's excitation design where it has one); 0: one excitation throughout",
     )
 
+    transient: TransientMethod = setting(
+        TransientMethod.NONE,
+        "the transient term of a window: none (the input must repeat and the plant settle) "
+        "or local_polynomial (estimated from the lines around each bin and removed; the "
+        "input periodicity gate then measures the leakage left, docs/theory.md)",
+        choices=tuple(c.value for c in TransientMethod),
+        option="--transient",
+        cli_help="the transient term of a window: none, or local_polynomial (windows "
+        "spanning a change are judged)",
+    )
+    transient_order: int = setting(
+        2, "order of the transient term's local polynomial", low=0, high=6
+    )
+    transient_half_width: int = setting(
+        2,
+        "lines on each side of a bin the transient term is estimated from",
+        unit="lines",
+        low=1,
+        high=32,
+    )
+
     def __post_init__(self) -> None:
         check_settings(self)
+        if self.transient != TransientMethod.NONE:
+            local_polynomial(  # a fit the window cannot hold fails here, naming the fix
+                self.window_samples,
+                self.periods_per_window,
+                self.transient_order,
+                self.transient_half_width,
+            )
         self.band_of()  # a band that does not parse fails here, naming the forms
         span = self.periods_per_window + self.settle_periods
         if self.realisation_periods and self.realisation_periods < span:
@@ -516,6 +560,25 @@ class WindowMonitor:
             pulse_moment(m, config.ts_s)
             if takes_fast_path(resp, config.method):
                 fast.warm_up(resp)
+        # the transient term's estimate and the noise channels it scales: per window settings
+        self._lpm: LocalPolynomial | None = None
+        self._est: dict[str, TransientEstimate] = {}
+        self._scaled: dict[str, PlantResponse] = {}
+        if config.transient != TransientMethod.NONE:
+            self._lpm = local_polynomial(
+                config.window_samples,
+                config.periods_per_window,
+                config.transient_order,
+                config.transient_half_width,
+            )
+            self._est = {
+                m.name: transient_estimate(self._lpm, m, config.ts_s, config.window_samples)
+                for m in self.models
+            }
+            self._scaled = {
+                name: scaled_noise(resp, self._est[name].noise_scale)
+                for name, resp in self._responses.items()
+            }
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
         self.operating_points: dict[str, OperatingPointTracker] = {
             m.name: OperatingPointTracker(
@@ -704,6 +767,8 @@ class WindowMonitor:
         meas = self._measured
         relative = np.where(meas, 0.0, change / np.maximum(rms, 1e-12))
         measured = float(np.max(relative)) if relative.size else 0.0
+        if self._lpm is not None:  # the leakage left after the transient term is the gate
+            relative = np.zeros_like(relative)
         noise = np.zeros(self.n_inputs)
         if meas.any() and span >= 2 * L:
             whole = u[span % L :]
@@ -777,9 +842,36 @@ class WindowMonitor:
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()
-            res = validate_beta(
-                datum, model, method=cfg.method, response=self._responses[model.name]
-            )
+            if self._lpm is None:
+                res = validate_beta(
+                    datum, model, method=cfg.method, response=self._responses[model.name]
+                )
+            else:
+                res, rho = validate_with_transient(
+                    datum,
+                    model,
+                    self._est[model.name],
+                    method=cfg.method,
+                    response=self._responses[model.name],
+                    scaled=self._scaled[model.name],
+                )
+                if not rho < 1.0:
+                    unjudged = self._unjudged(
+                        model.name,
+                        start_ns,
+                        end_ns,
+                        transient_gate_text(rho),
+                        WindowQuality(WindowState.INPUT_NOT_PERIODIC),
+                    )
+                    reports.append(
+                        replace(
+                            unjudged,
+                            input_change=input_change,
+                            input_noise=input_noise,
+                            input_leakage=rho,
+                        )
+                    )
+                    continue
             op = self.operating_points[model.name].observe(
                 OperatingPoint(datum.u_bias, datum.y_bias),
                 steady=not datum.periodicity.transient_suspected,
@@ -900,6 +992,15 @@ def _not_periodic_text(moved: np.ndarray, change: np.ndarray, noise: np.ndarray)
         f"input not periodic: measured input {j} varies from period to period by "
         f"{noise[j]:.3g} of its RMS, more than noise may ({MEASURED_INPUT_RTOL:g}): the "
         "excitation changed (waiting for it to repeat)"
+    )
+
+
+def transient_gate_text(rho: float) -> str:
+    """Why a window with the transient term on is not judged: the leakage left, ``rho``."""
+    return (
+        f"input not periodic: the model error the transient term picks up from the lines "
+        f"around each bin may cost {rho:.3g} of the budget of w (>= 1, docs/theory.md): "
+        "the window cannot test the model"
     )
 
 

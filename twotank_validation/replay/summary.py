@@ -170,7 +170,9 @@ _FIXES: dict[tuple[WindowState, SampleFlag | None], str] = {
     ),
     (WindowState.INPUT_NOT_PERIODIC, None): (
         "the commands do not repeat every --period samples: pass the excitation period "
-        "(--period), or --closed-loop if a controller computed them"
+        "(--period), or --closed-loop if a controller computed them; with --transient, the "
+        "leakage the transient term leaves reached the budget (input_leakage >= 1): use two "
+        "or more periods per window"
     ),
     (WindowState.TOO_LITTLE_EXCITATION, None): (
         "the inputs hardly move: check the command topic (--topic flow_cmd=...) and that the "
