@@ -377,20 +377,23 @@ def test_the_supervisor_reads_what_the_validator_publishes() -> None:
         ab = Parameter("models", value=["B"])
         val = bring_up(ValidatorNode(context=ctx, parameter_overrides=[ab]))
         sup = bring_up(SupervisorNode(context=ctx, parameter_overrides=[ab]))
-        subs = {
-            (t, tuple(ty))
-            for t, ty in val.get_subscriber_names_and_types_by_node(sup.get_name(), "/")
-            if t.startswith("/validation/")
-        }
+        expected = {"/validation/B/invalidated", "/validation/B/report", "/validation/B/diagnosis"}
+        subs: set[tuple[str, tuple[str, ...]]] = set()
+        deadline = time.monotonic() + 10.0  # the graph cache fills asynchronously (under load)
+        while time.monotonic() < deadline:
+            subs = {
+                (t, tuple(ty))
+                for t, ty in val.get_subscriber_names_and_types_by_node(sup.get_name(), "/")
+                if t.startswith("/validation/")
+            }
+            if {t for t, _ in subs} >= expected:
+                break
+            time.sleep(0.05)
         pubs = {
             (t, tuple(ty))
             for t, ty in val.get_publisher_names_and_types_by_node(val.get_name(), "/")
         }
-        assert {t for t, _ in subs} == {
-            "/validation/B/invalidated",
-            "/validation/B/report",
-            "/validation/B/diagnosis",
-        }
+        assert {t for t, _ in subs} == expected
         assert subs <= pubs, subs - pubs
         val.destroy_node()
         sup.destroy_node()
