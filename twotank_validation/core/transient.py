@@ -44,6 +44,10 @@ class TransientMethod(enum.StrEnum):
     """Not at all: the window must be periodic and settled (the periodicity gate)."""
     LOCAL_POLYNOMIAL = "local_polynomial"
     """Estimated from the neighbouring lines by a local polynomial and removed."""
+    AUTO = "auto"
+    """Per window: as ``NONE`` where the periodicity gate passes (the input repeats and the
+    plant has settled), as ``LOCAL_POLYNOMIAL`` where the gate would leave it unjudged (docs/
+    theory.md §20)."""
 
 
 @dataclass(frozen=True)
