@@ -918,6 +918,7 @@ class WindowMonitor:
                 beta=total,
                 weight=self._weight,
                 unchecked=op.unchecked,
+                hold=bool(term),  # auto: a window the gate refused, judged with the term
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
