@@ -13,6 +13,8 @@ import pytest
 
 from tools.events import record_events
 from twotank_validation import experiment
+from twotank_validation.cli import build_parser
+from twotank_validation.cli_options import read_settings
 from twotank_validation.core.model import load_model
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
 from twotank_validation.online.window import WindowReport, monitor_record
@@ -116,3 +118,25 @@ def test_a_window_judged_with_the_term_does_not_clear_an_alarm() -> None:
     assert all(r.alarm is Alarm.ERROR for r in held)
     # the windows that held it: judged with the term and valid
     assert any(r.judged and not r.invalidated and "transient term" in r.data_quality for r in held)
+
+
+@pytest.mark.parametrize(
+    ("options", "transient"),
+    [
+        ([], "none"),
+        (["--closed-loop"], "auto"),
+        (["--closed-loop", "--transient", "none"], "none"),
+        (["--closed-loop", "--transient", "local_polynomial"], "local_polynomial"),
+        (["--transient", "auto"], "auto"),
+    ],
+)
+def test_closed_loop_takes_auto_unless_told(options: list[str], transient: str) -> None:
+    """``--closed-loop`` opens the gate and, unless ``--transient`` is given, judges the
+    windows it refuses with the term (``CLOSED_LOOP_TRANSIENT``)."""
+    args = build_parser().parse_args(["validate", "bag", *options])
+    config = read_settings(args).monitor
+    assert config.transient == transient
+    closed = "--closed-loop" in options
+    assert config.input_periodic_rtol == (
+        CLOSED_LOOP_INPUT_PERIODIC_RTOL if closed else MonitorConfig().input_periodic_rtol
+    )
