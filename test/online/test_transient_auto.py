@@ -56,6 +56,7 @@ def test_auto_keeps_the_paper_experiments_invalidation_and_judges_its_start_up()
             assert "settling" in g.data_quality
             assert a.beta == term[a.model, a.end_ns].beta
             assert "judged with the transient term (settling" in a.data_quality
+            assert np.isfinite(a.input_change)  # what the gate measured, reported
     steady_a = [a.beta for a in auto[2:] if a.model == "A"]
     assert steady_a == pytest.approx([1.292, 1.292], abs=5e-4)
     assert max(r.beta for r in term.values() if r.model == "A") < 1.0  # the term's lost power

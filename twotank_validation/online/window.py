@@ -748,8 +748,9 @@ class WindowMonitor:
 
         ``auto``: the window is judged without the term where the gate passes; where it
         would leave the window unjudged because the input does not repeat or the plant is
-        settling (nothing the model enters), the gate is asked again as with the term, and
-        the last item says what the first gate found (None: the term is not used).
+        settling (findings of the samples and the clock, never of a model: every model on
+        the window takes the same test), the gate is asked again as with the term, and the
+        last item says what the first gate found (None: the term is not used).
         """
         method = self.config.transient
         if method == TransientMethod.NONE:
@@ -762,7 +763,7 @@ class WindowMonitor:
         with_term = self._quality(rec, flags, term=True, settle=False)
         if with_term[1].state is not WindowState.OK:
             return (*with_term, None)
-        return (*with_term[:2], first[2], first[3], first[0])
+        return (*with_term, first[0])
 
     def _quality(
         self, rec: Recovery, flags: list[str | None], *, term: bool = False, settle: bool = True
