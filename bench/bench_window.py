@@ -200,6 +200,13 @@ def main() -> None:
         f"{t_fast_t * 1e3:.3f} ms ({t_fast_t / t_fast_before:.2f}x off); goal <= 1.5x: "
         f"{'met' if max(t_cf_t / t_cf, t_fast_t / t_fast_before) <= 1.5 else 'NOT met'}"
     )
+    lows = {k: min(v) for k, v in runs.items()}  # the quietest run: the least load in it
+    print(
+        f"  fastest runs: closed form {lows['closed_t'] * 1e3:.3f} ms with the term against "
+        f"{lows['closed'] * 1e3:.3f} ms ({lows['closed_t'] / lows['closed']:.2f}x), fast path "
+        f"{lows['fast_t'] * 1e3:.3f} ms against {lows['fast'] * 1e3:.3f} ms "
+        f"({lows['fast_t'] / lows['fast']:.2f}x)"
+    )
     for on, off in zip(outs["closed_t"], res_cf, strict=True):  # type: ignore[call-overload]
         print(f"  model {off.model_name}: beta {on.beta:.6f} with the term, {off.beta:.6f} without")
     for on in outs["fast_t"]:  # type: ignore[attr-defined]

@@ -62,7 +62,7 @@ import statistics
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -136,6 +136,13 @@ ALARMS = {
 }
 """The alarms ``--limits`` can state limits for: the period/count alarm (``CONFIG``) and the
 default alarm (``MonitorConfig()``: a window every quarter period, the sequential debounce)."""
+
+
+def criterion_of(alarm: str, transient: str = "none") -> Criterion:
+    """``ALARMS[alarm]`` with the window's transient term set (``--transient``)."""
+    criterion = ALARMS[alarm]
+    return replace(criterion, config=replace(criterion.config, transient=transient))
+
 
 MODELS = ("A", "B")
 ONSET_PERIOD = 4  # onsets fall in period 4 (0-based), after the judged windows ending 3P, 4P
@@ -709,12 +716,13 @@ class LimitJob:
     types: tuple[LimitType, ...]
     phases: tuple[float, ...]
     alarm: str = "period"
+    transient: str = "none"
 
 
 def limit_seed(job: LimitJob) -> tuple[dict[tuple[str, float], float], float]:
     """Per (type, phase): the smallest size found detected in time (bisection)."""
     t0 = time.perf_counter()
-    criterion = ALARMS[job.alarm]
+    criterion = criterion_of(job.alarm, job.transient)
     config = criterion.config
     models = [load_model(m) for m in MODELS]
     scenario = Scenario(name=f"limits-{job.seed}", duration_s=1.0, seed=job.seed)
@@ -771,11 +779,12 @@ class VerifyJob:
     cases: tuple[tuple[LimitType, float, float], ...]  # (type, size, phase)
     windows_after: int
     alarm: str = "period"
+    transient: str = "none"
 
 
 def verify_seed(job: VerifyJob) -> list[tuple[str, float, float, int, bool, bool, bool]]:
     """(label, size, phase, seed, ERROR in time, ERROR at all, all judged) per case."""
-    criterion = ALARMS[job.alarm]
+    criterion = criterion_of(job.alarm, job.transient)
     config = criterion.config
     models = [load_model(m) for m in MODELS]
     scenario = Scenario(name=f"verify-{job.seed}", duration_s=1.0, seed=job.seed)
@@ -814,10 +823,17 @@ def verify_seed(job: VerifyJob) -> list[tuple[str, float, float, int, bool, bool
 
 
 def run_limits(
-    types, phases, seeds, n_procs: int, windows_after: int, *, alarm: str = "period"
+    types,
+    phases,
+    seeds,
+    n_procs: int,
+    windows_after: int,
+    *,
+    alarm: str = "period",
+    transient: str = "none",
 ) -> list[str]:
-    criterion = ALARMS[alarm]
-    jobs = [LimitJob(s, types, phases, alarm) for s in seeds]
+    criterion = criterion_of(alarm, transient)
+    jobs = [LimitJob(s, types, phases, alarm, transient) for s in seeds]
     found = _map(limit_seed, jobs, n_procs)
     for job, (_, dt) in zip(jobs, found, strict=True):
         print(f"seed {job.seed}: bisection {dt:.1f} s")
@@ -869,7 +885,9 @@ def run_limits(
             cases.append((lt, size / 4, p))
     windows_after = max(windows_after, criterion.windows_after)
     results = _map(
-        verify_seed, [VerifyJob(s, tuple(cases), windows_after, alarm) for s in seeds], n_procs
+        verify_seed,
+        [VerifyJob(s, tuple(cases), windows_after, alarm, transient) for s in seeds],
+        n_procs,
     )
     flat = [r for rs in results for r in rs]
     print()
@@ -931,6 +949,12 @@ def main() -> None:
         "count rule, ERROR within 3 windows; default: the node's default alarm, ERROR within "
         "2 periods of the onset)",
     )
+    parser.add_argument(
+        "--transient",
+        choices=("none", "local_polynomial", "auto"),
+        default="none",
+        help="--limits: the window's transient term (MonitorConfig.transient; docs/theory.md)",
+    )
     parser.add_argument("--markdown", default=None, help="also write the Markdown to this file")
     args = parser.parse_args()
 
@@ -961,6 +985,7 @@ def main() -> None:
         f"(phases {', '.join(map(str, phases))} of the period {period_s:g} s after 4 P; "
         f"window 1 ends at {(ONSET_PERIOD + 1) * period_s:g} s); "
         f"{args.windows_after} windows followed after the onset"
+        + (f"; transient term: {args.transient}" if args.limits else "")
     )
     if not args.no_check:
         t = time.perf_counter()
@@ -974,7 +999,15 @@ def main() -> None:
     n_procs = max(1, args.jobs)
     out: list[str] = []
     if args.limits:
-        lines = run_limits(types, phases, seeds, n_procs, args.windows_after, alarm=args.alarm)
+        lines = run_limits(
+            types,
+            phases,
+            seeds,
+            n_procs,
+            args.windows_after,
+            alarm=args.alarm,
+            transient=args.transient,
+        )
         out.extend(f"- {line}" for line in lines)
     else:
         jobs = [

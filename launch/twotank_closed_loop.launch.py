@@ -12,7 +12,8 @@ the managed nodes), `models` (the validator's, comma-separated),
 `excitation_entry` (`output` or `setpoint`); an argument left empty leaves the parameter to
 the params file or the node's default. The validator's input periodicity gate is opened
 (`input_periodic_rtol`, the closed-loop value of twotank_validation.sim.control): closed-loop
-commands are not periodic. Not run by the test suite (no launch wheels on PyPI;
+commands are not periodic; the windows it leaves unjudged are judged with the transient term
+(`transient`, its closed-loop value there). Not run by the test suite (no launch wheels on PyPI;
 test/test_launch_files.py runs its logic with stand-ins); `twotank-validation live
 --closed-loop` composes the same nodes in-process.
 """
@@ -31,7 +32,7 @@ from twotank_validation.ros.launching import (
 from twotank_validation.ros.plant_node import PLANT_PARAMS
 from twotank_validation.ros.supervisor_node import SUPERVISOR_PARAMS
 from twotank_validation.ros.validator_node import VALIDATOR_PARAMS
-from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
+from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL, CLOSED_LOOP_TRANSIENT
 
 PLANT_ARGS = {"faults": "faults", "real_time_factor": "real_time_factor"}
 CONTROLLER_ARGS = {"excitation_entry": "excitation_entry"}
@@ -69,7 +70,10 @@ def _nodes(context, *args, **kwargs):
                 "twotank_validator",
                 VALIDATOR_PARAMS,
                 VALIDATOR_ARGS,
-                fixed={"input_periodic_rtol": CLOSED_LOOP_INPUT_PERIODIC_RTOL},
+                fixed={
+                    "input_periodic_rtol": CLOSED_LOOP_INPUT_PERIODIC_RTOL,
+                    "transient": CLOSED_LOOP_TRANSIENT,
+                },
             ),
         ),
         LifecycleNode(

@@ -231,7 +231,12 @@ def test_defaults_pass_only_what_the_file_fixes(stub_launch, path: Path) -> None
         assert len(node.parameters) == 1  # no params file by default
         assert overrides["use_sim_time"] is sim
         # left empty, a parameter argument is not passed: the node's default (the tree) rules
-        assert set(overrides) <= {"use_sim_time", "publish_clock", "input_periodic_rtol"}
+        assert set(overrides) <= {
+            "use_sim_time",
+            "publish_clock",
+            "input_periodic_rtol",
+            "transient",
+        }
 
 
 def _text(default) -> str:

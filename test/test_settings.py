@@ -71,8 +71,9 @@ NOT_SETTINGS_OPTIONS = {
     "--pascal-per-unit": "interface: unit conversion (RigUnits' default)",
     "--temperature-offset-c": "interface: unit conversion (RigUnits' default)",
     "--temperature-span-c": "interface: unit conversion (RigUnits' default)",
-    "--closed-loop": "validate: sets input_periodic_rtol to the closed-loop gate; live: the "
-    "controller runs (not a validator setting)",
+    "--closed-loop": "validate: sets input_periodic_rtol to the closed-loop gate and, unless "
+    "--transient is given, transient to auto; live: the controller runs (not a validator "
+    "setting)",
     "--workers": "fleet: Dask processes",
     "--serial": "fleet: no Dask",
     "--scheduler": "fleet: a Dask scheduler",

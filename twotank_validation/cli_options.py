@@ -76,11 +76,19 @@ def _interface_map(args: argparse.Namespace, *, fleet: bool = False) -> Interfac
 
 def _monitor(args: argparse.Namespace) -> MonitorConfig:
     """The window and alarm settings of the options (``--ts``/``--period`` or the defaults)."""
-    from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL  # noqa: PLC0415
+    from twotank_validation.sim.control import (  # noqa: PLC0415
+        CLOSED_LOOP_INPUT_PERIODIC_RTOL,
+        CLOSED_LOOP_TRANSIENT,
+    )
 
     # the input periodicity gate: closed-loop data's with --closed-loop (theory.md §10)
-    rtol = CLOSED_LOOP_INPUT_PERIODIC_RTOL if getattr(args, "closed_loop", False) else None
+    closed = getattr(args, "closed_loop", False)
+    rtol = CLOSED_LOOP_INPUT_PERIODIC_RTOL if closed else None
     values = {s.name: getattr(args, option_dest(s.meta.option)) for s in _option_settings()}
+    dests = given_options(args)
+    given = {s.name for s in _option_settings() if option_dest(s.meta.option) in dests}
+    if closed and "transient" not in given:  # theory.md §20
+        values["transient"] = CLOSED_LOOP_TRANSIENT
     values |= {"ts_s": args.ts or TS_S, "period_samples": args.period or PERIOD_SAMPLES}
     try:
         return from_flat(
@@ -191,6 +199,31 @@ def option_dest(option: str) -> str:
     return option.removeprefix("--").replace("-", "_")
 
 
+GIVEN_SETTINGS = "given_settings"
+"""The attribute of the parsed options holding the destinations of the setting options given
+on the command line."""
+
+
+def given_options(args: argparse.Namespace) -> frozenset[str]:
+    """The destinations of the setting options given on the command line."""
+    return frozenset(getattr(args, GIVEN_SETTINGS, frozenset()))
+
+
+class _SettingOption(argparse.Action):
+    """Stores a setting's value and notes it as given (a default may depend on other options)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        setattr(namespace, self.dest, values)
+        given: frozenset[str] = getattr(namespace, GIVEN_SETTINGS, frozenset())
+        setattr(namespace, GIVEN_SETTINGS, given | {self.dest})
+
+
 def _add_setting_options(parser: argparse.ArgumentParser) -> None:
     """The window and alarm options, generated from the settings tree.
 
@@ -199,7 +232,7 @@ def _add_setting_options(parser: argparse.ArgumentParser) -> None:
     """
     defaults = {s.name: s.param_default for s in VALIDATOR_SETTINGS}
     for s in _option_settings():
-        kwargs: dict[str, Any] = {"default": s.param_default}
+        kwargs: dict[str, Any] = {"default": s.param_default, "action": _SettingOption}
         if s.meta.choices:
             kwargs["choices"] = s.meta.choices
         else:
@@ -257,8 +290,9 @@ def add_recording_options(val: argparse.ArgumentParser) -> None:
         "--closed-loop",
         action="store_true",
         help="the recording is of a plant under feedback control: its valve commands are not "
-        "periodic, so the input periodicity gate is opened to 0.25 of their RMS (windows in "
-        "which the loop moves the valves are left unjudged)",
+        "periodic, so the input periodicity gate is opened to 0.25 of their RMS, and the "
+        "windows in which the loop moves the valves are judged with the transient term "
+        "(--transient auto unless --transient is given)",
     )
     val.add_argument(
         "--pascal-per-unit", type=float, default=units.pascal_per_unit, help="Pa per level unit"

@@ -44,6 +44,10 @@ class TransientMethod(enum.StrEnum):
     """Not at all: the window must be periodic and settled (the periodicity gate)."""
     LOCAL_POLYNOMIAL = "local_polynomial"
     """Estimated from the neighbouring lines by a local polynomial and removed."""
+    AUTO = "auto"
+    """Per window: as ``NONE`` where the periodicity gate passes (the input repeats and the
+    plant has settled), as ``LOCAL_POLYNOMIAL`` where the gate would leave it unjudged (docs/
+    theory.md §20)."""
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,13 @@ class LocalPolynomial:
             sparse(np.where(flip, a, 0.0)),
             sparse(np.abs(a)),
         )
+
+    @cached_property
+    def fit_lines(self) -> np.ndarray:
+        """(n_bins,) bool, the bins some bin's fit reads (DC's row reads none)."""
+        out = np.zeros(self.lines.shape[0], dtype=bool)
+        out[self.lines[1:].ravel()] = True
+        return out
 
     @property
     def noise_scale(self) -> np.ndarray:
@@ -222,11 +233,26 @@ class TransientEstimate:
         leverage = np.sum((lpm.weights * ratio) ** 2, axis=1)
         return cls(lpm, a, np.sqrt(1.0 + leverage))
 
+    @cached_property
+    def _operators(self) -> tuple[scipy.sparse.csr_array, scipy.sparse.csr_array]:
+        """The estimate as two complex sparse matrices, on ``X`` and on ``conj(X)``.
+
+        ``diag(1/A) S diag(A)`` and ``diag(1/A) S' diag(conj A)`` (``S``, ``S'`` the local
+        polynomial's direct and mirrored parts), so that a window's estimate is two sparse
+        products; the row of DC is empty (its estimate is 0).
+        """
+        direct, mirrored, _ = self.lpm._operators
+        den = np.where(np.abs(self.den) > 0.0, self.den, 1.0)
+        inv = scipy.sparse.diags_array(np.r_[0.0, 1.0 / den[1:]])
+        return (
+            scipy.sparse.csr_array(inv @ direct @ scipy.sparse.diags_array(self.den)),
+            scipy.sparse.csr_array(inv @ mirrored @ scipy.sparse.diags_array(np.conj(self.den))),
+        )
+
     def apply(self, x: np.ndarray) -> np.ndarray:
         """(n_bins, n_channels), the estimate from ``x`` at every bin (0 at DC)."""
-        out = self.lpm.apply(self.den[:, None] * x) / self.den[:, None]
-        out[0] = 0.0
-        return np.asarray(out)
+        on_x, on_conj = self._operators
+        return np.asarray(on_x @ x + on_conj @ np.conj(x))
 
     def bound(self, size: np.ndarray) -> np.ndarray:
         """(n_bins, n_channels), ``sum_j |a_nj| |A(k_j)| size(k_j) / |A(n)|``."""
@@ -322,9 +348,10 @@ def remove_transient(
     residual = datum.y_bins - np.einsum("kyu,ku->ky", resp.p23, datum.u_bins)
     t_hat = est.apply(residual)
     s_resp = scaled if scaled is not None else scaled_noise(resp, est.noise_scale)
-    reach = model_error_reach(resp, datum.u_bins)
-    eps = est.bound(reach)
-    rho = _noise_needed(s_resp, eps)
+    if np.any(datum.u_bins[est.lpm.fit_lines] != 0.0):
+        rho = _noise_needed(s_resp, est.bound(model_error_reach(resp, datum.u_bins)))
+    else:  # no input at the fit lines (a periodic input): no model error picked up, rho = 0
+        rho = np.zeros(datum.u_bins.shape[0])
     per = datum.periodicity
     kept = tuple(f for f in per.findings if f not in _ABSORBED)
     cleared = replace(

@@ -120,6 +120,7 @@ def update_alarm(
     beta: float,
     weight: float = 1.0,
     unchecked: bool = False,
+    hold: bool = False,
 ) -> AlarmState:
     """Next alarm state after one window.
 
@@ -142,9 +143,15 @@ def update_alarm(
         unchecked: part of the verdict could not be judged since the model was invalidated
             (the operating point: its reference suspended): the window is valid in what was
             judged, so it counts towards clearing ERROR, but the level stays at least WARN.
+        hold: the window was judged by the weaker of two tests (the transient term where
+            the periodicity gate failed, ``transient: auto``): invalidating, it counts as any;
+            valid while ERROR stands, it is no evidence of a recovery and leaves the state
+            as it is (docs/theory.md §20).
     """
     if not judged:
         return replace(state, level=Alarm.STALE)
+    if hold and state.in_error and not invalidated:
+        return replace(state, level=Alarm.ERROR)
     if invalidated:
         invalid_run, valid_run = state.invalid_run + 1, 0
     else:

@@ -114,7 +114,9 @@ class MonitorConfig:
             TransientMethod`): ``local_polynomial`` removes it (estimated from
             ``transient_half_width`` lines on each side of each bin by a polynomial of order
             ``transient_order``), and the input periodicity gate becomes the leakage left
-            (``input_leakage`` < 1); ``none``: the input must repeat (``input_periodic_rtol``).
+            (``input_leakage`` < 1); ``none``: the input must repeat (``input_periodic_rtol``);
+            ``auto``: a window the gate passes is judged as with ``none`` (full power), one it
+            would leave unjudged (input not periodic, settling) with the term.
         transient_order: the local polynomial's order.
         transient_half_width: lines on each side of a bin.
         realisation_periods: periods of each realisation of a multi-realisation excitation
@@ -220,11 +222,13 @@ class MonitorConfig:
         TransientMethod.NONE,
         "the transient term of a window: none (the input must repeat and the plant settle) "
         "or local_polynomial (estimated from the lines around each bin and removed; the "
-        "input periodicity gate then measures the leakage left, docs/theory.md)",
+        "input periodicity gate then measures the leakage left, docs/theory.md), or auto "
+        "(none where the gate passes, local_polynomial where it would leave the window "
+        "unjudged)",
         choices=tuple(c.value for c in TransientMethod),
         option="--transient",
-        cli_help="the transient term of a window: none, or local_polynomial (windows "
-        "spanning a change are judged)",
+        cli_help="the transient term of a window: none, local_polynomial (windows "
+        "spanning a change are judged), or auto (the term only where the gate fails)",
     )
     transient_order: int = setting(
         2, "order of the transient term's local polynomial", low=0, high=6
@@ -737,13 +741,38 @@ class WindowMonitor:
                 )
         return None
 
-    def _quality(
+    def _gate(
         self, rec: Recovery, flags: list[str | None]
+    ) -> tuple[str, WindowQuality, float, float, str | None]:
+        """:meth:`_quality` with the transient term's setting; last: why the term judges.
+
+        ``auto``: the window is judged without the term where the gate passes; where it
+        would leave the window unjudged because the input does not repeat or the plant is
+        settling (findings of the samples and the clock, never of a model: every model on
+        the window takes the same test), the gate is asked again as with the term, and the
+        last item says what the first gate found (None: the term is not used).
+        """
+        method = self.config.transient
+        if method == TransientMethod.NONE:
+            return (*self._quality(rec, flags), None)
+        if method == TransientMethod.LOCAL_POLYNOMIAL:
+            return (*self._quality(rec, flags, term=True), "")
+        first = self._quality(rec, flags)
+        if first[1].state not in (WindowState.SETTLING, WindowState.INPUT_NOT_PERIODIC):
+            return (*first, None)
+        with_term = self._quality(rec, flags, term=True, settle=False)
+        if with_term[1].state is not WindowState.OK:
+            return (*with_term, None)
+        return (*with_term, first[0])
+
+    def _quality(
+        self, rec: Recovery, flags: list[str | None], *, term: bool = False, settle: bool = True
     ) -> tuple[str, WindowQuality, float, float]:
         """Whether the span can be judged: text, typed state and what the input gate measured.
 
         The state is ``OK`` or why not; the measures are ``WindowReport.input_change`` and
-        ``WindowReport.input_noise``.
+        ``WindowReport.input_noise``. ``term``: the window is judged with the transient term
+        (a commanded input need not repeat); ``settle``: the settling periods are asked for.
         """
         cfg = self.config
         L = cfg.period_samples
@@ -760,14 +789,14 @@ class WindowMonitor:
                 return head + first, unusable, math.nan, math.nan
             return f"{head}: {rec.reason}{first}", unusable, math.nan, math.nan
         u = rec.u
-        if (settling := self._settling()) is not None:
+        if settle and (settling := self._settling()) is not None:
             return settling, WindowQuality(WindowState.SETTLING), math.nan, math.nan
         rms = np.sqrt(column_mean(centred(u, column_mean(u)) ** 2))
         change = column_max_abs(u[L:] - u[:-L]) if span > L else np.zeros(self.n_inputs)
         meas = self._measured
         relative = np.where(meas, 0.0, change / np.maximum(rms, 1e-12))
         measured = float(np.max(relative)) if relative.size else 0.0
-        if self._lpm is not None:  # the leakage left after the transient term is the gate
+        if term:  # the leakage left after the transient term is the gate
             relative = np.zeros_like(relative)
         noise = np.zeros(self.n_inputs)
         if meas.any() and span >= 2 * L:
@@ -802,12 +831,14 @@ class WindowMonitor:
         u_span, y_span, stamps, flags = self._ordered(min(self._count, cfg.span_samples))
         start_ns, end_ns = int(stamps[-n]), int(stamps[-1])
         rec = self._recovered(u_span, y_span, flags)
-        quality, reason, input_change, input_noise = self._quality(rec, flags)
+        quality, reason, input_change, input_noise, term = self._gate(rec, flags)
         u, y = rec.u[-n:], rec.y[-n:]
         judged_quality, judged_reason = "ok", QUALITY_OK
+        if term:  # auto: the gate's finding, said on the judged window
+            judged_quality = f"ok; judged with the transient term ({term})"
         if rec.recovered.any():
-            judged_quality = (
-                f"ok; recovered {int(rec.recovered.sum())} sample(s) from the other periods "
+            judged_quality = judged_quality + (
+                f"; recovered {int(rec.recovered.sum())} sample(s) from the other periods "
                 f"({rec.summary(self._signal_names)})"
             )
             judged_reason = WindowQuality(WindowState.RECOVERED)
@@ -842,7 +873,7 @@ class WindowMonitor:
                 continue
             check_compatible(datum, model)
             t0 = time.perf_counter()
-            if self._lpm is None:
+            if term is None:
                 res = validate_beta(
                     datum, model, method=cfg.method, response=self._responses[model.name]
                 )
@@ -888,6 +919,7 @@ class WindowMonitor:
                 beta=total,
                 weight=self._weight,
                 unchecked=op.unchecked,
+                hold=bool(term),  # auto: a window the gate refused, judged with the term
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness

@@ -7,7 +7,9 @@ validator gets everything. In closed loop (``LiveConfig.closed_loop``) the contr
 takes the excitation node's place: its command at each instant comes from the measurement of
 the sample before (which the driver waits for), with the excitation added; the validator is
 fed its ``flow_cmd`` and the measurements as in open loop, with the input periodicity gate
-opened (:data:`~twotank_validation.sim.control.CLOSED_LOOP_INPUT_PERIODIC_RTOL`); with
+opened (:data:`~twotank_validation.sim.control.CLOSED_LOOP_INPUT_PERIODIC_RTOL`) and the
+windows it leaves unjudged judged with the transient term
+(:data:`~twotank_validation.sim.control.CLOSED_LOOP_TRANSIENT`); with
 ``LiveConfig.supervisor`` the supervisor node switches the controller to its safe mode on the
 alarm. All the
 nodes run with ``use_sim_time`` and talk over their ordinary topics (loopback DDS), so this
@@ -52,7 +54,7 @@ from twotank_validation.ros.lifecycle import bring_up
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.supervisor_node import SupervisorNode
 from twotank_validation.ros.validator_node import DRAIN_TIMEOUT_S, ValidatorNode
-from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
+from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL, CLOSED_LOOP_TRANSIENT
 
 
 @dataclass(frozen=True)
@@ -263,6 +265,7 @@ def run_live(
                 )
             )
             validator_extra["input_periodic_rtol"] = CLOSED_LOOP_INPUT_PERIODIC_RTOL
+            validator_extra["transient"] = CLOSED_LOOP_TRANSIENT
         else:
             exc = ExcitationNode(
                 context=ctx,

@@ -72,6 +72,7 @@ from twotank_validation.errors import ModelError
 
 __all__ = [
     "CLOSED_LOOP_INPUT_PERIODIC_RTOL",
+    "CLOSED_LOOP_TRANSIENT",
     "EXCITATION_ENTRIES",
     "ControllerConfig",
     "ControllerError",
@@ -410,3 +411,11 @@ class PIController:
         else:
             errors = self._errors(self._last_measured, self._last_excitation)
             self._set_integrators(hot, cold, errors, measured=True)
+
+
+CLOSED_LOOP_TRANSIENT: Final = "auto"
+"""The validator's ``transient`` for closed-loop data unless given: the windows the opened gate
+passes are judged without the transient term, those it leaves unjudged (the loop moving
+after a setpoint change or answering a fault) with it (docs/theory.md §20: in closed loop
+it detects every rig fault as soon as or sooner than the gate, the stuck valve too, with no
+false transition in 48 nominal hours with setpoint changes)."""

@@ -115,6 +115,10 @@ class _Kernel:
             zx=np.ascontiguousarray(forms.pz[:, :, k]) if fixed else None,
         )
 
+    def pivot_rows(self, active: np.ndarray) -> np.ndarray | None:
+        """The rows of ``H_tt`` whose pivots tell its conditioning: all (None)."""
+        return None
+
     def take(self, sel: np.ndarray) -> _Kernel:
         return _Kernel(
             a=_cols(self.a, sel),
@@ -164,6 +168,21 @@ class _VKernel:
     def size(self) -> int:
         """K = nv + 1."""
         return int(self.gram.shape[0]) + 1
+
+    def pivot_rows(self, active: np.ndarray) -> np.ndarray:
+        """(k, g) bool, the rows of ``H_tt`` whose pivots tell its conditioning.
+
+        Those of the active blocks: a forced block's rows are identity rows, decoupled from
+        the rest, whose pivot 1 says nothing of ``H_tt`` (beside a multiplier of 1e12, the
+        pivot ratio would read as a singular ``H_tt``).
+
+        Args:
+            active: (m, g) bool, blocks not forced.
+        """
+        rows = np.zeros(self.b.shape, dtype=bool)
+        for i, vs in enumerate(self.blocks.v_slices):
+            rows[vs] = active[i]
+        return rows
 
     def take(self, sel: np.ndarray) -> _VKernel:
         return _VKernel(
@@ -347,14 +366,14 @@ def _dual_ascent(
         all_done = bool(np.all(done))
         if all_done and live.size == g:  # the whole batch at once: no indexing
             d_out, xh_out, phi_out = bt.d, bt.pt.xh, bt.pt.phi
-            ok_out, cond_out = ~runaway, _pivot_ratio(bt.pt)
+            ok_out, cond_out = ~runaway, _pivot_ratio(bt.pt, bt.kern.pivot_rows(bt.active))
             break
         if np.any(done):
             fin = live[done]
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, done), _cols(bt.pt.xh, done)
             phi_out[fin] = bt.pt.phi[done]
             ok_out[fin] = ~runaway[done]
-            cond_out[fin] = _cols(_pivot_ratio(bt.pt), done)
+            cond_out[fin] = _cols(_pivot_ratio(bt.pt, bt.kern.pivot_rows(bt.active)), done)
         if all_done or it == max_iter:
             break
         if 4 * np.sum(done) >= done.size:  # drop settled bins once it pays
@@ -376,7 +395,7 @@ def _dual_ascent(
             d_out[:, fin], xh_out[:, fin] = _cols(bt.d, stalled), _cols(bt.pt.xh, stalled)
             phi_out[fin] = bt.pt.phi[stalled]
             ok_out[fin] = bt.pt.ok[stalled]
-            cond_out[fin] = _cols(_pivot_ratio(bt.pt), stalled)
+            cond_out[fin] = _cols(_pivot_ratio(bt.pt, bt.kern.pivot_rows(bt.active)), stalled)
             keep = np.flatnonzero(~stalled)
             if keep.size == 0:
                 break
@@ -384,10 +403,19 @@ def _dual_ascent(
     return _DualResult(d_out, xh_out, phi_out, ok_out, iterations, cond_out)
 
 
-def _pivot_ratio(pt: _Point) -> np.ndarray:
-    """(g,) float, smallest over largest squared Cholesky pivot of ``H_tt`` (conditioning)."""
+def _pivot_ratio(pt: _Point, rows: np.ndarray | None = None) -> np.ndarray:
+    """(g,) float, smallest over largest squared Cholesky pivot of ``H_tt`` (conditioning).
+
+    ``rows``: (k, g) bool, the pivots counted (None: all; see ``_VKernel.pivot_rows``).
+    """
     piv = pt.diag * pt.diag
-    out: np.ndarray = np.min(piv, axis=0) / np.maximum(np.max(piv, axis=0), TINY)
+    if rows is None:
+        small, large = np.min(piv, axis=0), np.max(piv, axis=0)
+    else:
+        rows = rows | ~np.any(rows, axis=0)  # no active block: every row (identity)
+        small = np.min(np.where(rows, piv, np.inf), axis=0)
+        large = np.max(np.where(rows, piv, 0.0), axis=0)
+    out: np.ndarray = small / np.maximum(large, TINY)
     return out
 
 

@@ -884,12 +884,18 @@ def solve_bins(
             if not done_ok:
                 ok_a, its, cond = False, iterations, 0.0
                 break
+            # the pivot ratio over the active blocks' rows: a forced block's rows are
+            # identity rows, decoupled, whose pivot 1 says nothing of H_tt's conditioning
+            # (beside a multiplier of 1e12 it would read as a singular H_tt)
             lo = math.inf
             hi = 0.0
-            for pp in range(k):
-                q = diag[pp] * diag[pp]
-                lo = min(lo, q)
-                hi = max(hi, q)
+            for blk in range(m):
+                if not active[blk]:
+                    continue
+                for pp in range(vst[blk], vsp[blk]):
+                    q = diag[pp] * diag[pp]
+                    lo = min(lo, q)
+                    hi = max(hi, q)
             ok_a, its, cond = True, iterations, lo / max(hi, TINY)
 
         ok = ok_a
