@@ -5,7 +5,8 @@ the sequential debounce, the operating-point check), one fault from ``8 P + phas
 loop (the excitation's commands to the valves) or closed loop (the PI loops of
 ``twotank_validation.sim.control``, the excitation added to their output, the validator's
 periodicity gate at ``CLOSED_LOOP_INPUT_PERIODIC_RTOL``), and closed loop with the transient
-term (``transient: local_polynomial``, ``settle_periods: 0``; docs/theory.md §20). The faults: each kind with a
+term (``transient: local_polynomial``, ``settle_periods: 0``; docs/theory.md §20), and the same
+with the controller known (the closed-loop formulation, docs/theory.md §21). The faults: each kind with a
 stated limit (``tools.rig_faults``) at the limit and at twice it, and the stuck and the
 saturating hot valve. Delay: onset to the end of the first window whose alarm is ERROR,
 within 6 periods; "-" when none; a false alarm before the onset is counted apart. Prints one
@@ -49,6 +50,7 @@ class Variant:
 
     closed: bool
     config: Callable[[], MonitorConfig]
+    controller_known: bool = False
 
 
 VARIANTS = {
@@ -58,6 +60,9 @@ VARIANTS = {
     ),
     "closed loop, transient term": Variant(
         True, lambda: MonitorConfig(transient="local_polynomial", settle_periods=0)
+    ),
+    "closed loop, controller known": Variant(
+        True, lambda: MonitorConfig(transient="local_polynomial", settle_periods=0), True
     ),
 }
 
@@ -74,7 +79,8 @@ def delay_s(spec: str, phase: float, seed: int, variant: str) -> float | None:
         closed_loop=ClosedLoop() if chosen.closed else None,
     )
     stamps, u, y = simulate_scenario(scenario)
-    reports = OnlineValidator(chosen.config(), [load_model("B")]).feed_many(
+    known = scenario.controller_config().linear() if chosen.controller_known else None
+    reports = OnlineValidator(chosen.config(), [load_model("B")], controller=known).feed_many(
         *record_events(stamps, u, y)
     )
     for r in reports:
@@ -95,10 +101,15 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--jobs", type=int, default=1, help="processes (default 1)")
     parser.add_argument("--only", default="", help="faults whose spec contains this text")
+    parser.add_argument(
+        "--variants",
+        default="",
+        help="variants whose name contains one of these comma-separated texts",
+    )
     args = parser.parse_args()
     start = time.monotonic()
     faults = [f for f in FAULTS if args.only in f]
-    names = list(VARIANTS)
+    names = [v for v in VARIANTS if any(part in v for part in args.variants.split(","))]
     head = " | ".join(f"{v}: detected | median delay s (P)" for v in names)
     print(f"| fault | {head} |")
     print("|---|" + "---|---|" * len(names))

@@ -17,6 +17,7 @@ import numpy as np
 
 from twotank_validation.core import fast
 from twotank_validation.core.band import Band, excited_lines, parse_band
+from twotank_validation.core.closed_loop import Controller, closed_loop_judge
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
 from twotank_validation.core.datum import (
     MEASURED_INPUT_RTOL,
@@ -493,6 +494,7 @@ class WindowMonitor:
         models: Sequence[LFTModel],
         channels: Channels | None = None,
         measured_inputs: Collection[str] = (),
+        controller: Controller | None = None,
     ) -> None:
         if not models:
             raise ModelError("the monitor needs at least one model")
@@ -579,6 +581,8 @@ class WindowMonitor:
                 name: scaled_noise(resp, self._est[name].noise_scale)
                 for name, resp in self._responses.items()
             }
+        # the loop's controller known: the closed-loop formulation (docs/theory.md §21)
+        self._closed = closed_loop_judge(controller, self._lpm)
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
         self.operating_points: dict[str, OperatingPointTracker] = {
             m.name: OperatingPointTracker(
@@ -847,7 +851,8 @@ class WindowMonitor:
                     datum, model, method=cfg.method, response=self._responses[model.name]
                 )
             else:
-                res, rho = validate_with_transient(
+                judge = validate_with_transient if self._closed is None else self._closed
+                res, rho = judge(
                     datum,
                     model,
                     self._est[model.name],

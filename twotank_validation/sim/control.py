@@ -67,6 +67,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from twotank_validation.core.closed_loop import PIPair
 from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
 from twotank_validation.errors import ModelError
 
@@ -203,6 +204,18 @@ class ControllerConfig:
                 f"tt_temperature_s={self.tt_temperature_s!r} must be >= ts_s={self.ts_s!r} "
                 "(shorter ones overcorrect the integrator in one step)"
             )
+
+    def linear(self) -> PIPair:
+        """The two loops' law in its linear region (no limit active).
+
+        For the validator's closed-loop formulation (docs/theory.md §21).
+        """
+        return PIPair(
+            ts_s=self.ts_s,
+            kp=(self.kp_level, self.kp_temperature),
+            ti_s=(self.ti_level_s, self.ti_temperature_s),
+            filter_s=self.filter_s,
+        )
 
 
 def _positive(name: str, value: object, *, finite: bool) -> None:
