@@ -171,6 +171,14 @@ def window_cost(repeats: int) -> None:
         )
         print(f"  method {meth}: {row}")
     print(f"  controller known, first window at an operating point: {first * 1e3:.0f} ms")
+    lines = [1, 2, 3, 4, 5, 10]
+    b = next(p for p in prepared if p[0].name == "B")
+    loop = judge.loop(datum, b[0], b[1])
+    print(
+        f"noise scale s at lines {lines}, Model B: direct "
+        f"{', '.join(f'{v:.3g}' for v in b[2].noise_scale[lines])}; closed loop "
+        f"{', '.join(f'{v:.3g}' for v in loop.estimate.noise_scale[lines])}"
+    )
 
 
 def main() -> None:
