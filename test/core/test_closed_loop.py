@@ -21,20 +21,23 @@ from twotank_validation.core.closed_loop import (
     ClosedLoopJudge,
     FixedController,
     LoopAtBins,
+    PIPair,
     close_loop,
+    closed_loop_judge,
     closed_loop_poles,
     delayed_measurement,
     feedback_response,
     validate_closed_loop,
 )
 from twotank_validation.core.datum import make_datum
-from twotank_validation.core.model import model_from_dict
+from twotank_validation.core.model import load_model, model_from_dict
 from twotank_validation.core.transient import (
     local_polynomial,
     transient_estimate,
     validate_with_transient,
 )
 from twotank_validation.core.validate import validate_beta
+from twotank_validation.errors import ModelError
 
 SISO = {
     "name": "siso",
@@ -190,5 +193,31 @@ def test_a_controller_that_is_not_the_models_shape_is_refused() -> None:
     datum = make_datum(_excitation(0)[:, None], _excitation(1)[:, None], ts_s=TS,
                        period_samples=PERIOD)  # fmt: skip
     two = FixedController(lti.StateSpace([], [], [], np.zeros((2, 4)), dt_s=TS))
-    with pytest.raises(Exception, match="needs 2"):
+    with pytest.raises(ModelError, match="needs 2"):
         LoopAtBins.of(two.system, MODEL, MODEL.response(datum.theta, TS), LPM, datum)
+
+
+def test_bad_settings_fail_up_front_with_the_fix() -> None:
+    pi = FixedController(PI)
+    with pytest.raises(ModelError, match="set transient to local_polynomial"):
+        closed_loop_judge(pi, None, [MODEL], 2)
+    with pytest.raises(ModelError, match="set periods_per_window >= 2"):
+        closed_loop_judge(pi, LPM, [MODEL], 1)
+    pair = PIPair(ts_s=TS, kp=(1.0, 1.0), ti_s=(10.0, 10.0), filter_s=0.0)
+    with pytest.raises(ModelError, match="give a controller of its channels"):
+        closed_loop_judge(pair, LPM, [MODEL], 2)
+    assert closed_loop_judge(pi, LPM, [MODEL], 2) is not None
+
+
+def test_a_window_the_controller_cannot_be_linearised_at_is_judged_directly() -> None:
+    """The rig's PI pair at shut valves (no total flow, no hot fraction): the direct form."""
+    rng = np.random.default_rng(2)
+    u = np.column_stack([_excitation(2), _excitation(3)])  # mean 0: no flow
+    y = 0.01 * rng.standard_normal((N, 2))
+    datum = make_datum(u, y, ts_s=TS, period_samples=PERIOD)
+    two = load_model("B")
+    est = transient_estimate(LPM, two, TS, N)
+    pair = PIPair(ts_s=TS, kp=(0.9, 0.7), ti_s=(122.5, 53.8), filter_s=2.0)
+    res, rho = ClosedLoopJudge(pair, LPM)(datum, two, est)
+    ref, ref_rho = validate_with_transient(datum, two, est)
+    assert (res.beta, rho) == (ref.beta, ref_rho)

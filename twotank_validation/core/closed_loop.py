@@ -24,6 +24,7 @@ over an LFT's four blocks, and no maintained library fits a controller's transie
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Final
 
@@ -77,6 +78,11 @@ class PIPair:
     ti_s: tuple[float, float]
     filter_s: float
     delay_samples: int = 1
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(outputs, inputs) of :meth:`system_at`: 2 valve commands, 2 setpoints + 2 outputs."""
+        return (2, 4)
 
     def system_at(self, commands: np.ndarray) -> StateSpace:
         """The controller linearised at ``commands`` ((2,) mean [hot, cold]).
@@ -138,6 +144,11 @@ class FixedController:
     """A linear controller given as one discrete system (inputs ``[r; y]``, outputs ``u``)."""
 
     system: StateSpace
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(outputs, inputs) of the system."""
+        return self.system.shape
 
     def system_at(self, commands: np.ndarray) -> StateSpace:
         """The system, whatever the operating point."""
@@ -512,22 +523,31 @@ class ClosedLoopJudge:
     ) -> tuple[BetaResult, float]:
         """(result, rho) of the closed-loop formulation, or of ``est``'s direct one."""
         resp = response if response is not None else model.response(datum.theta, datum.ts_s)
-        res, rho = validate_closed_loop(datum, model, self.loop(datum, model, resp), method=method)
-        if rho < 1.0:
-            return res, rho
+        try:
+            loop = self.loop(datum, model, resp)
+        except ModelError:  # no linearisation here (the valves shut): the direct form
+            loop = None
+        if loop is not None:
+            res, rho = validate_closed_loop(datum, model, loop, method=method)
+            if rho < 1.0:
+                return res, rho
         return validate_with_transient(
             datum, model, est, method=method, response=resp, scaled=scaled
         )
 
 
 def closed_loop_judge(
-    controller: Controller | None, lpm: LocalPolynomial | None
+    controller: Controller | None,
+    lpm: LocalPolynomial | None,
+    models: Sequence[LFTModel] = (),
+    n_periods: int = 2,
 ) -> ClosedLoopJudge | None:
-    """The judge for a monitor (None without a controller).
+    """The judge for a monitor (None without a controller), its settings checked up front.
 
     Raises:
         ModelError: a controller without the transient term (the formulation is the
-            transient term's, written on the closed loop).
+            transient term's, written on the closed loop), one period per window, or a
+            model whose inputs and outputs are not the controller's.
     """
     if controller is None:
         return None
@@ -535,4 +555,18 @@ def closed_loop_judge(
         raise ModelError(
             "a closed-loop controller needs the transient term: set transient to local_polynomial"
         )
+    if n_periods < 2:
+        raise ModelError(
+            "the closed-loop formulation needs two or more periods per window (the "
+            "controller's transient is fitted between the harmonics): set periods_per_window "
+            ">= 2"
+        )
+    nu, n_in = controller.shape
+    for m in models:
+        if (m.nu, 2 * m.ny) != (nu, n_in):
+            raise ModelError(
+                f"the controller has {n_in} inputs ([setpoints; outputs]) and {nu} outputs; "
+                f"model {m.name!r} has {m.ny} outputs and {m.nu} inputs: give a controller "
+                "of its channels"
+            )
     return ClosedLoopJudge(controller, lpm)

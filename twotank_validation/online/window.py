@@ -582,7 +582,9 @@ class WindowMonitor:
                 for name, resp in self._responses.items()
             }
         # the loop's controller known: the closed-loop formulation (docs/theory.md §21)
-        self._closed = closed_loop_judge(controller, self._lpm)
+        self._closed = closed_loop_judge(
+            controller, self._lpm, self.models, config.periods_per_window
+        )
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
         self.operating_points: dict[str, OperatingPointTracker] = {
             m.name: OperatingPointTracker(
