@@ -12,11 +12,17 @@ import numpy as np
 import pytest
 
 from tools.events import record_events
-from twotank_validation.core.closed_loop import LoopAtBins, remove_closed_loop_transient
+from twotank_validation.core.closed_loop import (
+    LoopAtBins,
+    controller_of,
+    remove_closed_loop_transient,
+)
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model
 from twotank_validation.core.transient import local_polynomial
+from twotank_validation.errors import ModelError, ModelFileError
 from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.sim.control import ControllerConfig
 from twotank_validation.sim.scenario import ClosedLoop, Scenario, simulate_scenario
 
 PERIOD, TS = 2048, 0.1
@@ -91,3 +97,20 @@ def test_a_fault_starting_inside_a_window_is_detected_with_the_controller_known(
     assert not any(r.invalidated for r in reports if r.end_ns < onset_ns)
     first = next(r for r in reports if r.alarm is Alarm.ERROR)
     assert onset_ns < first.end_ns <= onset_ns + 5 * PERIOD_NS
+
+
+def test_the_rig_setting_is_the_simulators_pi(tmp_path) -> None:
+    """``closed_loop_controller: rig`` is ControllerConfig's law; a file gives the same."""
+    rig = controller_of("rig", TS)
+    assert rig == ControllerConfig().linear()
+    path = tmp_path / "pi.yaml"
+    path.write_text("pi_pair: {kp: [0.9, 0.7], ti_s: [122.5, 53.8], filter_s: 2.0}\n")
+    assert controller_of(str(path), TS) == rig
+    path.write_text("pi_pair: {kp: [0.9], ti_s: [122.5, 53.8]}\n")
+    with pytest.raises(ModelFileError, match="two positive kp"):
+        controller_of(str(path), TS)
+    with pytest.raises(ModelFileError, match="no such file"):
+        controller_of(str(tmp_path / "none.yaml"), TS)
+    # the setting reaches the monitor: without the transient term it fails up front
+    with pytest.raises(ModelError, match="set transient to local_polynomial"):
+        OnlineValidator(MonitorConfig(closed_loop_controller="rig"), [MODEL])

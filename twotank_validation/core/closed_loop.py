@@ -24,17 +24,23 @@ over an LFT's four blocks, and no maintained library fits a controller's transie
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Final
 
 import numpy as np
+import yaml
 
 from twotank_validation.core import lti
 from twotank_validation.core.band import masked_beta
 from twotank_validation.core.datum import Datum
 from twotank_validation.core.lti import StateSpace
-from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.model import (
+    LFTModel,
+    PlantResponse,
+    parse_lti,
+)
 from twotank_validation.core.transient import (
     _ABSORBED,
     LocalPolynomial,
@@ -48,7 +54,8 @@ from twotank_validation.core.transient import (
     validate_with_transient,
 )
 from twotank_validation.core.validate import BetaResult, validate_beta, validation_band
-from twotank_validation.errors import ModelError
+from twotank_validation.defaults import RIG_PI_FILTER_S, RIG_PI_KP, RIG_PI_TI_S
+from twotank_validation.errors import ModelError, ModelFileError
 
 
 @dataclass(frozen=True)
@@ -157,6 +164,74 @@ class FixedController:
 
 
 Controller = PIPair | FixedController
+
+RIG_CONTROLLER: Final = "rig"
+"""The ``closed_loop_controller`` value naming the rig's PI pair at its default tuning."""
+
+
+def controller_of(value: str, ts_s: float) -> Controller | None:
+    """The controller a ``closed_loop_controller`` setting names.
+
+    Args:
+        value: ``""`` (none: the direct formulation), ``"rig"`` (the rig's PI pair,
+            :data:`~twotank_validation.defaults.RIG_PI_KP` ...), or a YAML file holding
+            ``pi_pair: {kp: [..], ti_s: [..], filter_s: .., delay_samples: ..}`` or
+            ``lti: <an LTI of the model files' form, discrete, dt_s = ts_s>`` (inputs
+            ``[setpoints; outputs]``, outputs the model's inputs, ``u = K [r; y] + e``).
+        ts_s: the monitor's sample period (s).
+
+    Raises:
+        ModelFileError: a missing or malformed file, naming it and the forms.
+    """
+    if not value:
+        return None
+    if value == RIG_CONTROLLER:
+        return PIPair(ts_s=ts_s, kp=RIG_PI_KP, ti_s=RIG_PI_TI_S, filter_s=RIG_PI_FILTER_S)
+    path = Path(value)
+    if not path.is_file():
+        raise ModelFileError(
+            f"closed_loop_controller {value!r}: no such file; give {RIG_CONTROLLER!r}, a "
+            "controller YAML file, or nothing"
+        )
+    source = str(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ModelFileError(f"{source}: not valid YAML: {err}") from err
+    forms = "give pi_pair: {kp, ti_s, filter_s, delay_samples} or lti: {ss: ...} (discrete)"
+    if not isinstance(doc, Mapping) or len(doc) != 1 or next(iter(doc)) not in ("pi_pair", "lti"):
+        raise ModelFileError(f"{source}: not a controller: {forms}")
+    ((kind, body),) = doc.items()
+    if kind == "lti":
+        system = parse_lti(body, source, "lti")
+        if system.dt_s is None or not math.isclose(system.dt_s, ts_s):
+            raise ModelFileError(
+                f"{source}: the controller must be discrete at the monitor's {ts_s:g} s "
+                f"(dt_s: {ts_s:g}), found dt_s {system.dt_s!r}"
+            )
+        return FixedController(system)
+    if not isinstance(body, Mapping) or not {"kp", "ti_s"} <= set(body) <= {
+        "kp",
+        "ti_s",
+        "filter_s",
+        "delay_samples",
+    }:
+        raise ModelFileError(f"{source}: pi_pair takes kp, ti_s, filter_s, delay_samples: {forms}")
+    try:
+        kp = tuple(float(v) for v in body["kp"])
+        ti = tuple(float(v) for v in body["ti_s"])
+        filt = float(body.get("filter_s", 0.0))
+        delay = int(body.get("delay_samples", 1))
+    except (TypeError, ValueError) as err:
+        raise ModelFileError(f"{source}: pi_pair: {err}: {forms}") from err
+    good = len(kp) == len(ti) == 2 and all(v > 0 and math.isfinite(v) for v in (*kp, *ti))
+    if not (good and filt >= 0.0 and math.isfinite(filt) and delay >= 0):
+        raise ModelFileError(
+            f"{source}: pi_pair needs two positive kp and ti_s, filter_s >= 0 and "
+            "delay_samples >= 0"
+        )
+    return PIPair(ts_s=ts_s, kp=(kp[0], kp[1]), ti_s=(ti[0], ti[1]), filter_s=filt,
+                  delay_samples=delay)  # fmt: skip
 
 
 def feedback_response(system: StateSpace, theta: np.ndarray) -> np.ndarray:

@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -25,6 +26,7 @@ from twotank_validation.core.closed_loop import (
     close_loop,
     closed_loop_judge,
     closed_loop_poles,
+    controller_of,
     delayed_measurement,
     feedback_response,
     validate_closed_loop,
@@ -37,7 +39,7 @@ from twotank_validation.core.transient import (
     validate_with_transient,
 )
 from twotank_validation.core.validate import validate_beta
-from twotank_validation.errors import ModelError
+from twotank_validation.errors import ModelError, ModelFileError
 
 SISO = {
     "name": "siso",
@@ -221,3 +223,24 @@ def test_a_window_the_controller_cannot_be_linearised_at_is_judged_directly() ->
     res, rho = ClosedLoopJudge(pair, LPM)(datum, two, est)
     ref, ref_rho = validate_with_transient(datum, two, est)
     assert (res.beta, rho) == (ref.beta, ref_rho)
+
+
+def test_a_controller_file_in_the_lti_form_is_the_system(tmp_path) -> None:
+    path = tmp_path / "k.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {"lti": {"ss": {"A": PI.a.tolist(), "B": PI.b.tolist(), "C": PI.c.tolist(),
+                            "D": PI.d.tolist(), "dt_s": TS}}}
+        )
+    )  # fmt: skip
+    got = controller_of(str(path), TS)
+    assert isinstance(got, FixedController)
+    theta = np.linspace(0.0, 3.0, 9)
+    np.testing.assert_allclose(
+        feedback_response(got.system, theta), feedback_response(PI, theta), rtol=1e-12
+    )
+    with pytest.raises(ModelFileError, match=r"discrete at the monitor's 0\.5 s"):
+        controller_of(str(path), 0.5)
+    path.write_text("pid: {kp: 1}\n")
+    with pytest.raises(ModelFileError, match="not a controller"):
+        controller_of(str(path), TS)
