@@ -1,7 +1,7 @@
 """The supervisor on nominal closed-loop data: false transitions per 24 simulated hours.
 
 Usage: scripts/run bench bench_supervisor.py [--hours 24] [--seeds 2] [--setpoints]
-       [--transient [auto]]
+       [--transient [auto]] [--controller-known]
 
 Each seed is the default scenario in closed loop (the PI loops of
 ``twotank_validation.sim.control``, the excitation added to their output, the validator's
@@ -16,7 +16,9 @@ beside it (the supervisor's ``unjudged_after_s`` must exceed it). ``--setpoints`
 two hours (level 0.44-0.52, temperature 0.47-0.55), as an operator would. ``--transient``
 judges with the transient term (``transient: local_polynomial``, ``settle_periods: 0``;
 docs/theory.md §20) instead of the opened gate; ``--transient auto`` keeps the opened gate and
-judges the windows it leaves unjudged with the term (``transient: auto``).
+judges the windows it leaves unjudged with the term (``transient: auto``);
+``--controller-known`` the term on the closed-loop formulation (the rig's PI given to the
+validator, docs/theory.md §21).
 """
 
 from __future__ import annotations
@@ -42,7 +44,9 @@ HOUR = 3600.0
 SETPOINTS = ("height=0.52", "temperature=0.55", "height=0.44,temperature=0.47", "height=0.47")
 
 
-def one_seed(seed: int, hours: float, setpoints: bool, transient: str = "none") -> dict:
+def one_seed(
+    seed: int, hours: float, setpoints: bool, transient: str = "none", known: bool = False
+) -> dict:
     scn = dataclasses.replace(
         load_scenario("nominal"),
         duration_s=round(hours * HOUR / 0.1) * 0.1,
@@ -60,10 +64,12 @@ def one_seed(seed: int, hours: float, setpoints: bool, transient: str = "none") 
     t_sim = time.perf_counter() - t0
     config = (
         MonitorConfig(transient="local_polynomial", settle_periods=0)
-        if transient == "local_polynomial"
+        if transient == "local_polynomial" or known
         else MonitorConfig(input_periodic_rtol=CLOSED_LOOP_INPUT_PERIODIC_RTOL, transient=transient)
     )
-    reports = OnlineValidator(config, [load_model("A"), load_model("B")]).feed_many(
+    controller = scn.controller_config().linear() if known else None
+    models = [load_model("A"), load_model("B")]
+    reports = OnlineValidator(config, models, controller=controller).feed_many(
         *record_events(stamps, u, y)
     )
     mine = [r for r in reports if r.model == "B"]
@@ -97,8 +103,14 @@ def main() -> None:
         choices=("none", "local_polynomial", "auto"),
         help="the transient term, not the gate (auto: the term where the gate fails)",
     )
+    ap.add_argument(
+        "--controller-known", action="store_true", help="the closed-loop formulation (§21)"
+    )
     args = ap.parse_args()
-    rows = [one_seed(s, args.hours, args.setpoints, args.transient) for s in range(args.seeds)]
+    rows = [
+        one_seed(s, args.hours, args.setpoints, args.transient, args.controller_known)
+        for s in range(args.seeds)
+    ]
     for r in rows:
         print(
             f"seed {r['seed']}: {args.hours:g} h closed loop, {r['setpoint_changes']} setpoint "

@@ -17,6 +17,17 @@ TS_S: Final = 0.1
 PERIOD_SAMPLES: Final = 2048
 """Default excitation period (samples): 204.8 s at :data:`TS_S`."""
 
+RIG_PI_KP: Final = (0.9, 0.7)
+"""The rig's PI gains [level: total flow per unit of level, temperature: hot fraction per
+unit of temperature] (``sim.control``: SIMC tuning); the closed-loop formulation's ``rig``
+controller (docs/theory.md §21) reads the same."""
+
+RIG_PI_TI_S: Final = (122.5, 53.8)
+"""The rig's PI integral times [level, temperature] (s)."""
+
+RIG_PI_FILTER_S: Final = 2.0
+"""The rig's measurement filter time constant (s)."""
+
 MAX_RECOVERED_FRACTION: Final = 0.02
 """Default largest fraction of a window per signal whose unusable samples are recovered from
 the other periods. At 1 % of the messages lost per topic a window of N samples loses about

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from twotank_validation.core.closed_loop import Controller
 from twotank_validation.core.model import LFTModel
 from twotank_validation.defaults import JITTER_FRACTION
 from twotank_validation.errors import DatumError
@@ -129,6 +130,9 @@ class OnlineValidator:
         diagnoser: the live diagnosis (:class:`~twotank_validation.online.livediag.LiveDiagnoser`):
             it sees every judged window's report and samples, and each report carries the
             answer in force (``WindowReport.diagnosis``); None: no diagnosis.
+        controller: the loop's controller, known (closed-loop data; needs the transient
+            term): the windows are judged on the closed-loop formulation (docs/theory.md
+            §21); None: the direct one.
 
     Attributes:
         interface: the interface map.
@@ -151,6 +155,7 @@ class OnlineValidator:
         jitter_fraction: float = JITTER_FRACTION,
         oversampling: Mapping[str, int] | None = None,
         diagnoser: LiveDiagnoser | None = None,
+        controller: Controller | None = None,
     ) -> None:
         self.config = config
         self.interface = imap = interface if interface is not None else two_tank_map()
@@ -175,7 +180,11 @@ class OnlineValidator:
             )
         cmd_over = in_rates.pop()
         self._monitor = WindowMonitor(
-            config, models, self.channels, measured_inputs=imap.measured_inputs
+            config,
+            models,
+            self.channels,
+            measured_inputs=imap.measured_inputs,
+            controller=controller,
         )
         if diagnoser is not None:
             measured = {m.name: self._monitor.measured_of(m.name) for m in models}

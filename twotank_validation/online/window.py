@@ -17,6 +17,7 @@ import numpy as np
 
 from twotank_validation.core import fast
 from twotank_validation.core.band import Band, excited_lines, parse_band
+from twotank_validation.core.closed_loop import Controller, closed_loop_judge, controller_of
 from twotank_validation.core.columns import centred, column_max_abs, column_mean
 from twotank_validation.core.datum import (
     MEASURED_INPUT_RTOL,
@@ -128,6 +129,9 @@ class MonitorConfig:
             (:func:`~twotank_validation.core.band.parse_band`): ``""`` each model's file's
             band (every bin without one), ``"all"`` every bin, ``"excited"``, ``"LO:HI"`` or
             ``"excited:LO:HI"`` (Hz).
+        closed_loop_controller: the loop's controller, known
+            (:func:`~twotank_validation.core.closed_loop.controller_of`): ``"rig"``, a
+            controller file, or ``""`` (none).
     """
 
     ts_s: float = setting(TS_S, "sample period of the data (s)", unit="s", low=1e-3, high=60.0)
@@ -202,6 +206,16 @@ class MonitorConfig:
         option="--band",
         cli_help="frequencies the models are claimed over: all, excited, LO:HI (Hz) or "
         "excited:LO:HI; default: each model file's band, else every bin",
+    )
+
+    closed_loop_controller: str = setting(
+        "",
+        "the loop's controller, known: rig (the rig's PI pair) or a controller YAML file "
+        "(pi_pair or a discrete lti); windows are then judged on the closed-loop formulation "
+        "(needs the transient term, docs/theory.md section 21); empty: the direct one",
+        option="--closed-loop-controller",
+        cli_help="the loop's controller, known: rig or a controller YAML file (needs "
+        "--transient local_polynomial); default: none",
     )
 
     realisation_periods: int = setting(
@@ -497,6 +511,7 @@ class WindowMonitor:
         models: Sequence[LFTModel],
         channels: Channels | None = None,
         measured_inputs: Collection[str] = (),
+        controller: Controller | None = None,
     ) -> None:
         if not models:
             raise ModelError("the monitor needs at least one model")
@@ -583,6 +598,12 @@ class WindowMonitor:
                 name: scaled_noise(resp, self._est[name].noise_scale)
                 for name, resp in self._responses.items()
             }
+        # the loop's controller known: the closed-loop formulation (docs/theory.md §21)
+        if controller is None:
+            controller = controller_of(config.closed_loop_controller, config.ts_s)
+        self._closed = closed_loop_judge(
+            controller, self._lpm, self.models, config.periods_per_window
+        )
         self.alarms: dict[str, AlarmState] = {m.name: AlarmState() for m in self.models}
         self.operating_points: dict[str, OperatingPointTracker] = {
             m.name: OperatingPointTracker(
@@ -878,7 +899,8 @@ class WindowMonitor:
                     datum, model, method=cfg.method, response=self._responses[model.name]
                 )
             else:
-                res, rho = validate_with_transient(
+                judge = validate_with_transient if self._closed is None else self._closed
+                res, rho = judge(
                     datum,
                     model,
                     self._est[model.name],

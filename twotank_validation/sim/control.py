@@ -67,7 +67,14 @@ from typing import Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from twotank_validation.defaults import PERIOD_SAMPLES, TS_S
+from twotank_validation.core.closed_loop import PIPair
+from twotank_validation.defaults import (
+    PERIOD_SAMPLES,
+    RIG_PI_FILTER_S,
+    RIG_PI_KP,
+    RIG_PI_TI_S,
+    TS_S,
+)
 from twotank_validation.errors import ModelError
 
 __all__ = [
@@ -149,17 +156,17 @@ class ControllerConfig:
     ts_s: float = TS_S
     height_setpoint: float = 0.47
     temperature_setpoint: float = 0.5
-    kp_level: float = 0.9
-    ti_level_s: float = 122.5
+    kp_level: float = RIG_PI_KP[0]
+    ti_level_s: float = RIG_PI_TI_S[0]
     tt_level_s: float = 60.0
-    kp_temperature: float = 0.7
-    ti_temperature_s: float = 53.8
+    kp_temperature: float = RIG_PI_KP[1]
+    ti_temperature_s: float = RIG_PI_TI_S[1]
     tt_temperature_s: float = 30.0
     u_min: float = 0.0
     u_max: float = 1.0
     excitation_entry: str = "output"
     hold_samples: int = PERIOD_SAMPLES
-    filter_s: float = 2.0
+    filter_s: float = RIG_PI_FILTER_S
     excite_when_held: bool = True
 
     def __post_init__(self) -> None:
@@ -204,6 +211,18 @@ class ControllerConfig:
                 f"tt_temperature_s={self.tt_temperature_s!r} must be >= ts_s={self.ts_s!r} "
                 "(shorter ones overcorrect the integrator in one step)"
             )
+
+    def linear(self) -> PIPair:
+        """The two loops' law in its linear region (no limit active).
+
+        For the validator's closed-loop formulation (docs/theory.md §21).
+        """
+        return PIPair(
+            ts_s=self.ts_s,
+            kp=(self.kp_level, self.kp_temperature),
+            ti_s=(self.ti_level_s, self.ti_temperature_s),
+            filter_s=self.filter_s,
+        )
 
 
 def _positive(name: str, value: object, *, finite: bool) -> None:
