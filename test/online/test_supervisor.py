@@ -11,7 +11,6 @@ test, which also plays the validator's topics.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from functools import cache
 from itertools import groupby
@@ -49,6 +48,7 @@ from twotank_validation.online.supervisor import (
 )
 from twotank_validation.ros import messages
 from twotank_validation.ros.lifecycle import bring_up
+from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.params import LATCHED, ParameterError
 from twotank_validation.ros.supervisor_node import SupervisorNode
 
@@ -571,12 +571,7 @@ class Harness:
         self.modes.append(msg.data)
 
     def spin_until(self, cond, timeout_s: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not cond():
-            if time.monotonic() > deadline:
-                return False
-            self.ex.spin_once(timeout_sec=0.005)
-        return True
+        return spin_until(self.ex, cond, timeout_s)
 
     def clock_to(self, t_s: float) -> None:
         """Advance /clock one check period (1 s) at a time; each tick processed."""

@@ -38,6 +38,7 @@ from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
 from twotank_validation.ros.controller_node import ControllerNode
 from twotank_validation.ros.lifecycle import autostart_of, bring_up
+from twotank_validation.ros.live import spin_until
 from twotank_validation.ros.params import LATCHED, ParameterError
 from twotank_validation.ros.plant_node import PlantNode
 from twotank_validation.ros.supervisor_node import SupervisorNode
@@ -103,12 +104,7 @@ class Rig:
         assert self.spin_until(self.change.service_is_ready)
 
     def spin_until(self, cond, timeout_s: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not cond():
-            if time.monotonic() > deadline:
-                return False
-            self.ex.spin_once(timeout_sec=0.005)
-        return True
+        return spin_until(self.ex, cond, timeout_s)
 
     def transition(self, transition_id: int) -> bool:
         """Ask for a transition through ~/change_state (as ``ros2 lifecycle set`` does)."""

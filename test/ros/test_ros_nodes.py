@@ -9,7 +9,6 @@ environment keeps DDS discovery on loopback in any case (conftest.py).
 from __future__ import annotations
 
 import math
-import time
 from functools import cache
 
 import pytest
@@ -30,7 +29,7 @@ from twotank_validation.online import Alarm, WindowMonitor
 from twotank_validation.online import streams as itf
 from twotank_validation.ros import messages
 from twotank_validation.ros.lifecycle import bring_up
-from twotank_validation.ros.live import LiveConfig, run_live
+from twotank_validation.ros.live import LiveConfig, run_live, spin_until
 from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.validator_node import ValidatorNode
 
@@ -141,12 +140,7 @@ class Harness:
         )
 
     def spin_until(self, cond, timeout_s: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not cond():
-            if time.monotonic() > deadline:
-                return False
-            self.ex.spin_once(timeout_sec=0.005)
-        return True
+        return spin_until(self.ex, cond, timeout_s)
 
     def clock(self, t_ns: int) -> None:
         msg = Clock()

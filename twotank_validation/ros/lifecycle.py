@@ -30,7 +30,6 @@ import sys
 from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock
@@ -47,7 +46,7 @@ from rclpy.service import Service
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 
-from twotank_validation.ros.params import Param, ParameterError, check_value, declare
+from twotank_validation.ros.params import Param, ParameterError, check_value, declare, run_node
 
 STATUS_PERIOD_S = 1.0
 """Wall-clock period (s) of the lifecycle status on ``/diagnostics`` (``inactive``; ``active``
@@ -383,21 +382,4 @@ def run_managed(factory: Callable[[], ManagedNode], args: list[str] | None = Non
     under autostart exits 1 with the reason (the node was destroyed by :func:`bring_up`).
     """
     autostart, argv = autostart_of(args)
-    rclpy.init(args=argv)
-    node = factory()
-    if autostart:
-        try:
-            bring_up(node)
-        except ParameterError as err:
-            print(f"ERROR: {err}", file=sys.stderr)
-            rclpy.shutdown()
-            return 1
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(factory, argv, prepare=bring_up if autostart else None)

@@ -221,16 +221,25 @@ def declare(
     return values
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
+def run_node(
+    factory: Callable[[], Node],
+    args: list[str] | None = None,
+    *,
+    prepare: Callable[[Any], object] | None = None,
+) -> int:
     """Entry point body shared by the nodes: init, build (invalid parameters -> exit 1), spin.
 
     Args:
         factory: builds the node (raises :class:`ParameterError` on bad parameters).
         args: command-line arguments for ``rclpy.init`` (``--ros-args ...``).
+        prepare: run on the built node before spinning (a managed node's configure and
+            activate); a :class:`ParameterError` from it exits 1 too.
     """
     rclpy.init(args=args)
     try:
         node = factory()
+        if prepare is not None:
+            prepare(node)
     except ParameterError as err:
         print(f"ERROR: {err}", file=sys.stderr)
         rclpy.shutdown()
