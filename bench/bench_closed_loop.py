@@ -16,11 +16,20 @@ row per fault with the runs detected and the median delay in seconds and periods
 variant (measured, not asserted)::
 
     scripts/run bench bench_closed_loop.py [--seeds 3] [--jobs 2] [--only leak] [--variants auto,known]
+
+``--anatomy`` prints instead where each closed-loop delay goes (medians over the runs, in
+periods after the onset, window ends; "-": not within the horizon): the largest β of the
+judged windows spanning the onset and of those wholly after it, the first window with β > 1,
+the first whose operating point is checked (the op tracker calls it steady) and the share of
+windows so checked among those ending in (P/4, 4 P], the first with β_total > 1, the first
+ERROR and what raised it; beside the variants, the closed loop without the term with the gate
+open wide (``input_periodic_rtol`` 1, ``settle_periods`` 0): β without the term.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import time
 from collections.abc import Callable
@@ -39,7 +48,7 @@ from twotank_validation.core.transient import (
     validate_with_transient,
 )
 from twotank_validation.core.validate import validate_beta
-from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator, WindowReport
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 from twotank_validation.sim.scenario import ClosedLoop, Scenario, simulate_scenario
 
@@ -135,6 +144,71 @@ def _run(job: tuple[str, float, int, str]) -> Outcome:
     return delay_s(*job)
 
 
+NO_TERM_GATE_OPEN = Variant(True, lambda: MonitorConfig(input_periodic_rtol=1.0, settle_periods=0))
+"""The anatomy's reference: every window judged without the term (the gate open wide)."""
+ANATOMY_REFERENCE = "closed loop, no term, gate open"
+
+
+def anatomy(job: tuple[str, float, int, str]) -> dict[str, float | str]:
+    """One run's anatomy (module doc, ``--anatomy``): periods after the onset, window ends."""
+    spec, phase, seed, variant = job
+    chosen = NO_TERM_GATE_OPEN if variant == ANATOMY_REFERENCE else VARIANTS[variant]
+    onset = round((ONSET_P + phase) * PERIOD) * TS
+    scenario = Scenario(
+        name="bench",
+        duration_s=(ONSET_P + HORIZON_P + 1) * PERIOD_S,
+        seed=seed,
+        faults=(f"{spec}@{onset:g}",),
+        closed_loop=ClosedLoop(),
+    )
+    stamps, u, y = simulate_scenario(scenario)
+    known = scenario.controller_config().linear() if chosen.controller_known else None
+    reports = OnlineValidator(chosen.config(), [load_model("B")], controller=known).feed_many(
+        *record_events(stamps, u, y)
+    )
+    onset_ns = round(onset * 1e9)
+
+    def after(r: WindowReport) -> float:
+        return (r.end_ns - onset_ns) / (PERIOD_S * 1e9)
+
+    rs = [r for r in reports if r.judged and 0 < after(r) <= HORIZON_P]
+    checked = [r for r in rs if not math.isnan(r.beta_op) and after(r) > 0.25]
+    first = {
+        "beta > 1": next((after(r) for r in rs if r.beta > 1), math.inf),
+        "op checked": next((after(r) for r in checked), math.inf),
+        "beta_total > 1": next((after(r) for r in rs if r.beta_total > 1), math.inf),
+        "ERROR": next((after(r) for r in rs if r.alarm is Alarm.ERROR), math.inf),
+    }
+    return {
+        "spanning beta": max((r.beta for r in rs if r.start_ns <= onset_ns), default=math.nan),
+        "after beta": max((r.beta for r in rs if r.start_ns > onset_ns), default=math.nan),
+        **first,
+        "op checked share": sum(1 for r in checked if after(r) <= 4)
+        / max(1, sum(1 for r in reports if 0.25 < after(r) <= 4)),
+        "raised by": next((str(r.raised_by) for r in rs if r.alarm is Alarm.ERROR), "-"),
+    }
+
+
+def print_anatomy(faults: list[str], names: list[str], seeds: int, jobs: int) -> None:
+    """The ``--anatomy`` table (module doc)."""
+    keys = ["spanning beta", "after beta", "beta > 1", "op checked", "op checked share"]
+    keys += ["beta_total > 1", "ERROR"]
+    print(f"| fault | variant | {' | '.join(keys)} | raised by |")
+    print("|---|---|" + "---|" * (len(keys) + 1))
+    with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
+        for spec in faults:
+            for variant in [ANATOMY_REFERENCE, *names]:
+                runs = [(spec, p, s, variant) for s in range(seeds) for p in PHASES]
+                outs = list(pool.map(anatomy, runs))
+                cells = []
+                for k in keys:
+                    med = statistics.median(float(o[k]) for o in outs)
+                    cells.append("-" if math.isinf(med) else f"{med:.2f}")
+                raised = sorted({str(o["raised by"]) for o in outs})
+                print(f"| {spec} | {variant} | {' | '.join(cells)} | {', '.join(raised)} |",
+                      flush=True)  # fmt: skip
+
+
 def window_cost(repeats: int) -> None:
     """Per-window cost on a nominal closed-loop window, Models A and B, interleaved runs."""
     scenario = Scenario(name="cost", duration_s=6 * PERIOD_S, seed=1, closed_loop=ClosedLoop())
@@ -206,6 +280,9 @@ def main() -> None:
         "input_leakage and beta",
     )
     parser.add_argument(
+        "--anatomy", action="store_true", help="where each closed-loop delay goes (module doc)"
+    )
+    parser.add_argument(
         "--cost", type=int, default=0, help="only the window cost, this many interleaved runs"
     )
     args = parser.parse_args()
@@ -215,6 +292,10 @@ def main() -> None:
     start = time.monotonic()
     faults = [f for f in FAULTS if args.only in f]
     names = [v for v in VARIANTS if any(part in v for part in args.variants.split(","))]
+    if args.anatomy:
+        closed = [v for v in names if VARIANTS[v].closed]
+        print_anatomy(faults, closed, args.seeds, args.jobs)
+        return
     cols = ["detected", "median delay s (P)"]
     cols += ["spanning unjudged", "leakage", "beta"] if args.spanning else []
     head = " | ".join(f"{v}: {c}" for v in names for c in cols)
