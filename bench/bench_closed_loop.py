@@ -26,9 +26,9 @@ point checked with the transient term at DC (a window that is not steady, §20) 
 the first with β_total > 1, the first ERROR and what raised it; beside the variants, the closed loop without the term with the gate
 open wide (``input_periodic_rtol`` 1, ``settle_periods`` 0): β without the term.
 
-``--dc-term`` measures a candidate not in the validator: the operating-point check made
-transient-aware (docs/theory.md §20, closed loop). On every window the op tracker does not
-call steady, bin 0 of the deviation from the reference (the two periods before the onset)
+``--dc-term`` measures the operating point's check with the term at DC (docs/theory.md §20)
+offline, apart from the tracker's reference: on every window the op tracker does not call
+steady, whatever its reference's state, bin 0 of the deviation from the reference (the two periods before the onset)
 less the transient term interpolated at DC from the lines ±1, ±3 (§20's estimate, the model's
 denominator, order 2), Problem 3 at DC on it (:func:`check_operating_point`, the drift
 allowance) divided by the noise scale ``s_0`` and lowered by ``ρ_0`` (§20's bound on the
@@ -406,7 +406,7 @@ def main() -> None:
     parser.add_argument(
         "--dc-term",
         default="",
-        help="semicolon-separated faults or setpoint:SPEC, the candidate term-aware op check "
+        help="semicolon-separated faults or setpoint:SPEC: the term-aware op check offline "
         "(module doc)",
     )
     parser.add_argument(
