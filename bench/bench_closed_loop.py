@@ -16,30 +16,70 @@ row per fault with the runs detected and the median delay in seconds and periods
 variant (measured, not asserted)::
 
     scripts/run bench bench_closed_loop.py [--seeds 3] [--jobs 2] [--only leak] [--variants auto,known]
+
+``--anatomy`` prints instead where each closed-loop delay goes (medians over the runs, in
+periods after the onset, window ends; "-": not within the horizon): the largest β of the
+judged windows spanning the onset and of those wholly after it, the first window with β > 1,
+the first whose operating point is checked as steady (the op tracker calls it steady) and
+the share of windows so checked among those ending in (P/4, 4 P], the first whose operating
+point checked with the transient term at DC (a window that is not steady, §20) exceeds 1,
+the first with β_total > 1, the first ERROR and what raised it; beside the variants, the closed loop without the term with the gate
+open wide (``input_periodic_rtol`` 1, ``settle_periods`` 0): β without the term.
+
+``--dc-term`` measures the operating point's check with the term at DC (docs/theory.md §20)
+offline, apart from the tracker's reference: on every window the op tracker does not call
+steady, whatever its reference's state, bin 0 of the deviation from the reference (the two periods before the onset)
+less the transient term interpolated at DC from the lines ±1, ±3 (§20's estimate, the model's
+denominator, order 2), Problem 3 at DC on it (:func:`check_operating_point`, the drift
+allowance) divided by the noise scale ``s_0`` and lowered by ``ρ_0`` (§20's bound on the
+model error picked up from the fit lines). Per fault (or ``setpoint:SPEC``, a setpoint change
+the model explains), medians over the runs: the first window whose term-aware ``β_op`` > 1,
+the ERROR of ``transient: auto`` as it is and with that ``β_op`` on the windows it does not
+call steady (the sequential debounce from the onset on), and the largest term-aware
+``β_op`` over the runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
+import numpy as np
+
 from tools.events import record_events
 from tools.rig_faults import STATED_LIMITS, scaled
 from twotank_validation.core.closed_loop import ClosedLoopJudge
 from twotank_validation.core.datum import make_datum
 from twotank_validation.core.model import load_model
+from twotank_validation.core.oppoint import (
+    OperatingPoint,
+    check_operating_point,
+    combined_beta,
+    dc_response,
+)
 from twotank_validation.core.transient import (
+    denominator,
     local_polynomial,
+    model_error_reach,
+    model_poles,
     scaled_noise,
     transient_estimate,
     validate_with_transient,
 )
 from twotank_validation.core.validate import validate_beta
-from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import (
+    Alarm,
+    AlarmState,
+    MonitorConfig,
+    OnlineValidator,
+    WindowReport,
+)
+from twotank_validation.online.alarm import update_alarm
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 from twotank_validation.sim.scenario import ClosedLoop, Scenario, simulate_scenario
 
@@ -135,6 +175,161 @@ def _run(job: tuple[str, float, int, str]) -> Outcome:
     return delay_s(*job)
 
 
+NO_TERM_GATE_OPEN = Variant(True, lambda: MonitorConfig(input_periodic_rtol=1.0, settle_periods=0))
+"""The anatomy's reference: every window judged without the term (the gate open wide)."""
+ANATOMY_REFERENCE = "closed loop, no term, gate open"
+
+
+def anatomy(job: tuple[str, float, int, str]) -> dict[str, float | str]:
+    """One run's anatomy (module doc, ``--anatomy``): periods after the onset, window ends."""
+    spec, phase, seed, variant = job
+    chosen = NO_TERM_GATE_OPEN if variant == ANATOMY_REFERENCE else VARIANTS[variant]
+    onset = round((ONSET_P + phase) * PERIOD) * TS
+    scenario = Scenario(
+        name="bench",
+        duration_s=(ONSET_P + HORIZON_P + 1) * PERIOD_S,
+        seed=seed,
+        faults=(f"{spec}@{onset:g}",),
+        closed_loop=ClosedLoop(),
+    )
+    stamps, u, y = simulate_scenario(scenario)
+    known = scenario.controller_config().linear() if chosen.controller_known else None
+    reports = OnlineValidator(chosen.config(), [load_model("B")], controller=known).feed_many(
+        *record_events(stamps, u, y)
+    )
+    onset_ns = round(onset * 1e9)
+
+    def after(r: WindowReport) -> float:
+        return (r.end_ns - onset_ns) / (PERIOD_S * 1e9)
+
+    rs = [r for r in reports if r.judged and 0 < after(r) <= HORIZON_P]
+    checked = [
+        r
+        for r in rs
+        if not math.isnan(r.beta_op)
+        and after(r) > 0.25
+        and "transient term at DC" not in r.operating_point
+    ]
+    first = {
+        "beta > 1": next((after(r) for r in rs if r.beta > 1), math.inf),
+        "op checked": next((after(r) for r in checked), math.inf),
+        "op at DC > 1": next(
+            (after(r) for r in rs if r.beta_op > 1 and "transient term at DC" in r.operating_point),
+            math.inf,
+        ),
+        "beta_total > 1": next((after(r) for r in rs if r.beta_total > 1), math.inf),
+        "ERROR": next((after(r) for r in rs if r.alarm is Alarm.ERROR), math.inf),
+    }
+    return {
+        "spanning beta": max((r.beta for r in rs if r.start_ns <= onset_ns), default=math.nan),
+        "after beta": max((r.beta for r in rs if r.start_ns > onset_ns), default=math.nan),
+        **first,
+        "op checked share": sum(1 for r in checked if after(r) <= 4)
+        / max(1, sum(1 for r in reports if 0.25 < after(r) <= 4)),
+        "raised by": next((str(r.raised_by) for r in rs if r.alarm is Alarm.ERROR), "-"),
+    }
+
+
+DC_LINES = np.array([-3, -1, 1, 3])
+"""The lines the DC estimate reads (two periods per window: the odd lines, not harmonics)."""
+
+
+def dc_term_check(job: tuple[str, float, int]) -> dict[str, float]:
+    """One run of ``--dc-term`` (module doc): periods after the onset, window ends."""
+    spec, phase, seed = job
+    onset = round((ONSET_P + phase) * PERIOD) * TS
+    setpoint = spec.removeprefix("setpoint:") if spec.startswith("setpoint:") else None
+    scenario = Scenario(
+        name="bench",
+        duration_s=(ONSET_P + HORIZON_P + 1) * PERIOD_S,
+        seed=seed,
+        faults=() if setpoint else (f"{spec}@{onset:g}",),
+        setpoints=(f"{setpoint}@{onset:g}",) if setpoint else (),
+        closed_loop=ClosedLoop(),
+    )
+    stamps, u, y = simulate_scenario(scenario)
+    config = VARIANTS["closed loop, auto"].config()
+    model = load_model("B")
+    reports = OnlineValidator(config, [model]).feed_many(*record_events(stamps, u, y))
+    n, k0 = 2 * PERIOD, round(onset / TS)
+    ref = make_datum(u[k0 - n : k0], y[k0 - n : k0], ts_s=TS, period_samples=PERIOD)
+    reference = OperatingPoint(ref.u_bias, ref.y_bias)
+    resp = model.response(ref.theta, TS)
+    den = denominator(model_poles(model, TS), n)
+    a = np.linalg.pinv(np.vander(DC_LINES / 2.0, 3, increasing=True))[0]
+    a_den = a * np.array([den[k] if k > 0 else np.conj(den[-k]) for k in DC_LINES]) / den[0]
+    s0 = float(np.sqrt(1.0 + np.sum(np.abs(a_den) ** 2)))
+    p22_pinv = float(np.linalg.norm(np.linalg.pinv(dc_response(model, TS).p22[0]), 2))
+    onset_ns = round(onset * 1e9)
+    first_op, err_now, err_dc, largest = math.inf, math.inf, math.inf, 0.0
+    state = AlarmState()
+    for r in reports:
+        after = (r.end_ns - onset_ns) / (PERIOD_S * 1e9)
+        if not (0 < after <= HORIZON_P and r.judged):
+            continue
+        e = int(np.searchsorted(stamps, r.end_ns)) + 1
+        d = make_datum(u[e - n : e], y[e - n : e], ts_s=TS, period_samples=PERIOD)
+        res = d.y_bins - np.einsum("kyu,ku->ky", resp.p23, d.u_bins)
+        at = np.array([res[k] if k > 0 else np.conj(res[-k]) for k in DC_LINES])
+        t0 = np.real(np.sum(a_den[:, None] * at, axis=0))  # bin 0 of a real signal is real
+        reach = model_error_reach(resp, d.u_bins)[np.abs(DC_LINES)]
+        rho = p22_pinv * float(np.linalg.norm(np.abs(a_den) @ reach)) / s0
+        chk = check_operating_point(model, TS, reference, OperatingPoint(d.u_bias, d.y_bias - t0),
+                                    n_samples=n, allowance=config.op.drift_allowance)  # fmt: skip
+        op_term = max(0.0, chk.beta / s0 - rho)
+        largest = max(largest, op_term)
+        if op_term > 1.0:
+            first_op = min(first_op, after)
+        op = r.beta_op if not math.isnan(r.beta_op) else op_term
+        total = combined_beta(r.beta, op)
+        state = update_alarm(state, config.alarm, judged=True, invalidated=total > 1.0,
+                             beta=total, weight=(config.hop_samples or PERIOD // 4) / PERIOD)  # fmt: skip
+        if state.level is Alarm.ERROR:
+            err_dc = min(err_dc, after)
+        if r.alarm is Alarm.ERROR:
+            err_now = min(err_now, after)
+    return {"op > 1": first_op, "ERROR auto": err_now, "ERROR dc": err_dc, "largest": largest}
+
+
+def print_dc_term(specs: list[str], seeds: int, jobs: int) -> None:
+    """The ``--dc-term`` table (module doc)."""
+    keys = ["op > 1", "ERROR auto", "ERROR dc"]
+    print(f"| fault | {' | '.join(keys)} | largest term-aware beta_op | runs |")
+    print("|---|" + "---|" * (len(keys) + 2))
+    with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
+        for spec in specs:
+            outs = list(
+                pool.map(dc_term_check, [(spec, p, s) for s in range(seeds) for p in PHASES])
+            )
+            cells = []
+            for k in keys:
+                med = statistics.median(o[k] for o in outs)
+                found = sum(1 for o in outs if math.isfinite(o[k]))
+                cells.append(f"{found}/{len(outs)}, " + ("-" if math.isinf(med) else f"{med:.2f}"))
+            largest = max(o["largest"] for o in outs)
+            print(f"| {spec} | {' | '.join(cells)} | {largest:.2f} | {len(outs)} |", flush=True)
+
+
+def print_anatomy(faults: list[str], names: list[str], seeds: int, jobs: int) -> None:
+    """The ``--anatomy`` table (module doc)."""
+    keys = ["spanning beta", "after beta", "beta > 1", "op checked", "op checked share"]
+    keys += ["op at DC > 1", "beta_total > 1", "ERROR"]
+    print(f"| fault | variant | {' | '.join(keys)} | raised by |")
+    print("|---|---|" + "---|" * (len(keys) + 1))
+    with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
+        for spec in faults:
+            for variant in [ANATOMY_REFERENCE, *names]:
+                runs = [(spec, p, s, variant) for s in range(seeds) for p in PHASES]
+                outs = list(pool.map(anatomy, runs))
+                cells = []
+                for k in keys:
+                    med = statistics.median(float(o[k]) for o in outs)
+                    cells.append("-" if math.isinf(med) else f"{med:.2f}")
+                raised = sorted({str(o["raised by"]) for o in outs})
+                print(f"| {spec} | {variant} | {' | '.join(cells)} | {', '.join(raised)} |",
+                      flush=True)  # fmt: skip
+
+
 def window_cost(repeats: int) -> None:
     """Per-window cost on a nominal closed-loop window, Models A and B, interleaved runs."""
     scenario = Scenario(name="cost", duration_s=6 * PERIOD_S, seed=1, closed_loop=ClosedLoop())
@@ -206,6 +401,15 @@ def main() -> None:
         "input_leakage and beta",
     )
     parser.add_argument(
+        "--anatomy", action="store_true", help="where each closed-loop delay goes (module doc)"
+    )
+    parser.add_argument(
+        "--dc-term",
+        default="",
+        help="semicolon-separated faults or setpoint:SPEC: the term-aware op check offline "
+        "(module doc)",
+    )
+    parser.add_argument(
         "--cost", type=int, default=0, help="only the window cost, this many interleaved runs"
     )
     args = parser.parse_args()
@@ -215,6 +419,13 @@ def main() -> None:
     start = time.monotonic()
     faults = [f for f in FAULTS if args.only in f]
     names = [v for v in VARIANTS if any(part in v for part in args.variants.split(","))]
+    if args.dc_term:
+        print_dc_term(args.dc_term.split(";"), args.seeds, args.jobs)
+        return
+    if args.anatomy:
+        closed = [v for v in names if VARIANTS[v].closed]
+        print_anatomy(faults, closed, args.seeds, args.jobs)
+        return
     cols = ["detected", "median delay s (P)"]
     cols += ["spanning unjudged", "leakage", "beta"] if args.spanning else []
     head = " | ".join(f"{v}: {c}" for v in names for c in cols)

@@ -16,7 +16,8 @@ from twotank_validation import experiment
 from twotank_validation.cli import build_parser
 from twotank_validation.cli_options import read_settings
 from twotank_validation.core.model import load_model
-from twotank_validation.online import Alarm, MonitorConfig, OnlineValidator
+from twotank_validation.online import Alarm, AlarmConfig, AlarmState, MonitorConfig, OnlineValidator
+from twotank_validation.online.alarm import update_alarm
 from twotank_validation.online.window import WindowReport, monitor_record
 from twotank_validation.sim.control import CLOSED_LOOP_INPUT_PERIODIC_RTOL
 from twotank_validation.sim.scenario import ClosedLoop, Scenario, simulate_scenario
@@ -103,7 +104,8 @@ def test_a_window_judged_with_the_term_does_not_clear_an_alarm() -> None:
     setpoints moved at 10.3 periods while the leak lasts: once ERROR, the alarm holds it to
     the end; the windows spanning the loop's move read valid with the term (the leak's
     change of dynamics is mostly a transient of the model's slow poles, docs/theory.md §20)
-    and are no evidence of a recovery. Without the hold two of them cleared ERROR."""
+    and are no evidence of a recovery. Without the hold two of them cleared ERROR. With the
+    operating point checked with the term at DC, those windows see the leak and invalidate."""
     onset_s = round(6.3 * PERIOD) * TS
     scenario = Scenario(
         name="leak", duration_s=16 * PERIOD * TS, seed=0, closed_loop=ClosedLoop(),
@@ -117,8 +119,27 @@ def test_a_window_judged_with_the_term_does_not_clear_an_alarm() -> None:
     assert reports[first].end_ns > onset_s * 1e9
     held = reports[first:]
     assert all(r.alarm is Alarm.ERROR for r in held)
-    # the windows that held it: judged with the term and valid
-    assert any(r.judged and not r.invalidated and "transient term" in r.data_quality for r in held)
+    # the windows through the loop's move, judged with the term, see the leak at DC: their
+    # operating point, checked with the term there, invalidates (docs/theory.md §20)
+    through = [r for r in held if r.judged and "transient term" in r.data_quality]
+    assert len(through) >= 8
+    assert all(r.invalidated for r in through)
+    assert sum("transient term at DC" in r.operating_point for r in through) >= 8
+    assert reports[first].end_ns <= onset_s * 1e9 + PERIOD * TS * 1e9  # within one period
+
+
+def test_a_valid_window_judged_with_the_term_holds_an_error() -> None:
+    """The hold as the rule states it: valid windows clear ERROR after ``clear_windows`` of
+    them, unless they were judged by the weaker test (``hold``)."""
+    config = AlarmConfig(clear_windows=3)
+    raised = AlarmState(level=Alarm.ERROR, in_error=True, evidence=0.1)
+    for hold, after in ((True, Alarm.ERROR), (False, Alarm.OK)):
+        state = raised
+        for _ in range(3):
+            state = update_alarm(
+                state, config, judged=True, invalidated=False, beta=0.5, weight=0.25, hold=hold
+            )
+        assert state.level is after
 
 
 @pytest.mark.parametrize(

@@ -90,6 +90,26 @@ def dead_band(dy: np.ndarray, allowance: np.ndarray) -> np.ndarray:
     return np.sign(dy) * np.maximum(np.abs(dy) - np.asarray(allowance, dtype=float), 0.0)
 
 
+@dataclass(frozen=True)
+class DcTransient:
+    """The transient term at the zero-frequency bin of a window that is not steady.
+
+    Built by :func:`twotank_validation.core.transient.dc_correction` (docs/theory.md §20).
+
+    Attributes:
+        shift: (ny,) float, the transient's share of the window's output means (model units):
+            ``T_hat(0) / (c_N N)``, taken off the means before the check.
+        noise_scale: ``s_0``, the noise of the bin with the estimate's error (the noise
+            channels are scaled by it: the bin's minimum is divided by it).
+        rho: the least noise that the model error picked up from the fit lines can need
+            (§20); the bin's minimum is lowered by it.
+    """
+
+    shift: np.ndarray
+    noise_scale: float
+    rho: float
+
+
 def check_operating_point(
     model: LFTModel,
     ts_s: float,
@@ -100,6 +120,7 @@ def check_operating_point(
     convention: NormConvention = NormConvention.POWER,
     allowance: np.ndarray | float = 0.0,
     method: str = "auto",
+    transient: DcTransient | None = None,
 ) -> OperatingPointCheck:
     """Problem 3 at the zero-frequency bin of the window's deviation from the reference.
 
@@ -112,6 +133,8 @@ def check_operating_point(
         convention: norm convention of the window's β.
         allowance: (ny,) or scalar, dead band on each output's deviation (model units).
         method: solver route, as :func:`~twotank_validation.core.validate.validate`.
+        transient: a window that is not steady: its transient term at DC (taken off the
+            output means; the minimum divided by its noise scale and lowered by its rho).
 
     Returns:
         The check; its ``beta`` adds to the window's β as ``sqrt(beta² + beta_op²)``.
@@ -121,6 +144,8 @@ def check_operating_point(
     """
     du = np.asarray(window.u, dtype=float) - np.asarray(reference.u, dtype=float)
     dy = np.asarray(window.y, dtype=float) - np.asarray(reference.y, dtype=float)
+    if transient is not None:
+        dy = dy - np.asarray(transient.shift, dtype=float)
     if du.shape != (model.nu,) or dy.shape != (model.ny,):
         raise DimensionError(
             f"model {model.name!r} has {model.nu} inputs and {model.ny} outputs; the operating "
@@ -134,7 +159,10 @@ def check_operating_point(
         (scale * beyond).astype(complex)[None, :],
         method=method,
     )
-    return OperatingPointCheck(beta=float(lower[0]), du=du, dy=dy, dy_beyond=beyond)
+    beta = float(lower[0])
+    if transient is not None:
+        beta = max(0.0, beta / transient.noise_scale - transient.rho)
+    return OperatingPointCheck(beta=beta, du=du, dy=dy, dy_beyond=beyond)
 
 
 def combined_beta(beta: float, beta_op: float) -> float:

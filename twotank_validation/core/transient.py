@@ -34,6 +34,7 @@ from twotank_validation.core import lti
 from twotank_validation.core.band import masked_beta
 from twotank_validation.core.datum import Datum, PeriodicityFinding
 from twotank_validation.core.model import LFTModel, PlantResponse
+from twotank_validation.core.oppoint import DcTransient
 from twotank_validation.core.validate import BetaResult, validate_beta, validation_band
 
 
@@ -265,6 +266,86 @@ def transient_estimate(
 ) -> TransientEstimate:
     """The estimate for ``model``'s windows: the local polynomial over ``model``'s poles."""
     return TransientEstimate.of(lpm, denominator(model_poles(model, ts_s), n_samples))
+
+
+@dataclass(frozen=True)
+class DcEstimate:
+    """The transient term at DC, interpolated from the lines on both sides of it.
+
+    ``T_hat(0) = Re sum_j c_j X(k_j)`` over the signed lines ``k_j`` (``X(-k) = conj X(k)``),
+    ``c_j = a_j A(k_j) / A(0)``: the local polynomial of :func:`local_polynomial` at DC
+    through ``A R`` (docs/theory.md §20), the lines symmetric about DC, so that DC lies
+    inside the fit. Its real part: the datum at DC is real, and with symmetric lines the
+    sum is real up to round-off.
+
+    Attributes:
+        lines: (2 half_width,) int, the signed lines read (no DC, no harmonic of the period).
+        coef: (2 half_width,) complex, ``c_j``.
+    """
+
+    lines: np.ndarray
+    coef: np.ndarray
+
+    @property
+    def noise_scale(self) -> float:
+        """``s_0 = sqrt(1 + sum_j |c_j|^2)``: the noise of ``V(0) - V_hat(0)`` over ``V(0)``'s."""
+        return float(np.sqrt(1.0 + np.sum(np.abs(self.coef) ** 2)))
+
+    def _read(self, x: np.ndarray) -> np.ndarray:
+        at = x[np.abs(self.lines)]
+        return np.where((self.lines < 0)[:, None], np.conj(at), at)
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """(n_channels,) float, the estimate at DC from ``x`` (n_bins, n_channels)."""
+        return np.real(self.coef @ self._read(np.asarray(x)))
+
+    def bound(self, size: np.ndarray) -> np.ndarray:
+        """(n_channels,) float, ``sum_j |c_j| size(|k_j|)``."""
+        return np.abs(self.coef) @ np.asarray(size)[np.abs(self.lines)]
+
+
+def dc_estimate(den: np.ndarray, n_periods: int, order: int, half_width: int) -> DcEstimate:
+    """The estimate at DC (:class:`DcEstimate`) for windows of ``n_periods`` periods.
+
+    Args:
+        den: (N//2 + 1,) complex, ``A(n)`` (:func:`denominator`).
+        n_periods: whole periods per window (with two or more, harmonics are skipped).
+        order: polynomial order ``R``.
+        half_width: lines on each side of DC (``2 half_width >= order + 2``, as
+            :func:`local_polynomial` checks).
+    """
+    step = n_periods if n_periods >= 2 else 1
+    pos = [k for k in range(1, den.size) if step == 1 or k % step][:half_width]
+    lines = np.array([-k for k in reversed(pos)] + pos)
+    a = np.linalg.pinv(np.vander(lines / half_width, order + 1, increasing=True))[0]
+    at = np.where(lines < 0, np.conj(den[np.abs(lines)]), den[np.abs(lines)])
+    return DcEstimate(lines, a * at / den[0])
+
+
+def dc_correction(
+    est: DcEstimate,
+    datum: Datum,
+    resp: PlantResponse,
+    dc_resp: PlantResponse,
+) -> DcTransient:
+    """The transient term at DC of a window, for the operating-point check (§20).
+
+    ``T_hat(0)`` from ``R(k) = Y(k) - P23(k) U(k)`` at the lines ``est`` reads, in the
+    output means' units; ``rho_0`` from the member's model error those lines may carry
+    (:func:`model_error_reach`), as at every other bin.
+
+    Args:
+        est: the estimate at DC (:func:`dc_estimate`) for the datum's window.
+        datum: the window's datum (its bins; its means are the check's).
+        resp: P at the datum's bins.
+        dc_resp: P at z = 1 (:func:`~twotank_validation.core.oppoint.dc_response`).
+    """
+    r = datum.y_bins - np.einsum("kyu,ku->ky", resp.p23, datum.u_bins)
+    scale = datum.convention.dft_scale(datum.n_samples) * datum.n_samples
+    s0 = est.noise_scale
+    eps = est.bound(model_error_reach(resp, datum.u_bins))
+    rho = float(_noise_needed(scaled_noise(dc_resp, np.array([s0])), eps[None, :])[0])
+    return DcTransient(shift=est.apply(r) / scale, noise_scale=s0, rho=rho)
 
 
 def model_error_reach(resp: PlantResponse, u_bins: np.ndarray) -> np.ndarray:

@@ -17,8 +17,11 @@ steady state feed it their input and output means; it answers with the zero-freq
    inputs did not, or moved other than the model predicts, keep the reference: that is the
    fault the check exists for, and it stays visible for as long as it lasts.
 4. **Transients.** A window whose outputs still drift (the datum's transient finding) is not
-   in steady state: its means are not an operating point, so it is neither checked nor used
-   to commission.
+   in steady state: its means are not an operating point, so it is never used to commission
+   or to move the reference. With the transient term on (the monitor passes the term at DC,
+   :class:`~twotank_validation.core.oppoint.DcTransient`) it is checked against a settled
+   reference (given, commissioned, or moved and refined) with the transient's share taken
+   off its means (docs/theory.md §20); otherwise it is not checked.
 5. **Suspended.** A judged window that invalidates the model (its dynamics: β > 1) while no
    reference exists ends the commissioning: the windows after it are not known to be
    healthy (a leak's transient invalidates the dynamics, the steady windows after it sit at
@@ -43,6 +46,7 @@ import numpy as np
 from twotank_validation.core.datum import NormConvention
 from twotank_validation.core.model import LFTModel
 from twotank_validation.core.oppoint import (
+    DcTransient,
     OperatingPoint,
     OperatingPointCheck,
     check_operating_point,
@@ -208,6 +212,7 @@ class OperatingPointTracker:
         steady: bool,
         end_ns: int | None = None,
         invalidated: bool = False,
+        transient: DcTransient | None = None,
     ) -> OpVerdict:
         """One judged window's means in; the check of this window out.
 
@@ -217,6 +222,8 @@ class OperatingPointTracker:
             end_ns: the window's last stamp (spaces the windows collected; None: no spacing).
             invalidated: the window's dynamics invalidate the model (β > 1): without a
                 reference, its verdict; the commissioning is then suspended (module doc, 5).
+            transient: the window's transient term at DC, None: the term is off (a window
+                that is not steady is then not checked; module doc, 4).
         """
         if self.state is OpState.OFF:
             return OpVerdict(self.state, None, "operating-point check off")
@@ -225,19 +232,10 @@ class OperatingPointTracker:
         if self.state is OpState.SUSPENDED:
             return OpVerdict(self.state, None, SUSPENDED_NOTE)
         if not steady:
-            return OpVerdict(self.state, None, "not in steady state (outputs still drift)")
+            return self._unsteady(means, transient)
         if self.reference is None:
             return self._commission(means, end_ns)
-        chk = check_operating_point(
-            self.model,
-            self.ts_s,
-            self.reference,
-            means,
-            n_samples=self.n_samples,
-            convention=self.convention,
-            allowance=self.config.drift_allowance,
-            method=self.method,
-        )
+        chk = self._check(means, None)
         moved = float(np.max(np.abs(chk.du), initial=0.0)) > self.config.input_tolerance
         if moved and chk.explained:
             self.reference, self.state = means, OpState.MOVED
@@ -250,6 +248,29 @@ class OperatingPointTracker:
                 f"model predicts (beta_op {chk.beta:.3g}): setpoint change, reference moved",
             )
         return self._refine(means, chk, moved=moved, end_ns=end_ns)
+
+    def _unsteady(self, means: OperatingPoint, transient: DcTransient | None) -> OpVerdict:
+        """A window whose outputs drift: checked with the term at DC against a settled reference."""
+        if transient is None or self.reference is None or self._pending:
+            return OpVerdict(self.state, None, "not in steady state (outputs still drift)")
+        chk = self._check(means, transient)
+        return OpVerdict(
+            self.state, chk, "outputs still drift: checked with the transient term at DC"
+        )
+
+    def _check(self, means: OperatingPoint, transient: DcTransient | None) -> OperatingPointCheck:
+        assert self.reference is not None
+        return check_operating_point(
+            self.model,
+            self.ts_s,
+            self.reference,
+            means,
+            n_samples=self.n_samples,
+            convention=self.convention,
+            allowance=self.config.drift_allowance,
+            method=self.method,
+            transient=transient,
+        )
 
     def _refine(
         self, means: OperatingPoint, chk: OperatingPointCheck, *, moved: bool, end_ns: int | None

@@ -29,11 +29,14 @@ from twotank_validation.core.datum import (
 )
 from twotank_validation.core.measured import input_noise_effect
 from twotank_validation.core.model import LFTModel, PlantResponse
-from twotank_validation.core.oppoint import OperatingPoint, combined_beta
+from twotank_validation.core.oppoint import OperatingPoint, combined_beta, dc_response
 from twotank_validation.core.transient import (
+    DcEstimate,
     LocalPolynomial,
     TransientEstimate,
     TransientMethod,
+    dc_correction,
+    dc_estimate,
     local_polynomial,
     scaled_noise,
     transient_estimate,
@@ -583,6 +586,7 @@ class WindowMonitor:
         self._lpm: LocalPolynomial | None = None
         self._est: dict[str, TransientEstimate] = {}
         self._scaled: dict[str, PlantResponse] = {}
+        self._dc: dict[str, DcEstimate] = {}  # the term at DC: the operating point's check
         if config.transient != TransientMethod.NONE:
             self._lpm = local_polynomial(
                 config.window_samples,
@@ -597,6 +601,15 @@ class WindowMonitor:
             self._scaled = {
                 name: scaled_noise(resp, self._est[name].noise_scale)
                 for name, resp in self._responses.items()
+            }
+            self._dc = {
+                name: dc_estimate(
+                    est.den,
+                    config.periods_per_window,
+                    config.transient_order,
+                    config.transient_half_width,
+                )
+                for name, est in self._est.items()
             }
         # the loop's controller known: the closed-loop formulation (docs/theory.md §21)
         if controller is None:
@@ -925,12 +938,20 @@ class WindowMonitor:
                         )
                     )
                     continue
+            steady = not datum.periodicity.transient_suspected
+            dc = self._dc.get(model.name)
             op = self.operating_points[model.name].observe(
                 OperatingPoint(datum.u_bias, datum.y_bias),
-                steady=not datum.periodicity.transient_suspected,
+                steady=steady,
                 end_ns=end_ns,
                 invalidated=res.beta > 1.0,
+                transient=None
+                if steady or dc is None
+                else dc_correction(
+                    dc, datum, self._responses[model.name], dc_response(model, cfg.ts_s)
+                ),
             )
+            op_term = not steady and op.check is not None
             elapsed = time.perf_counter() - t0
             total = combined_beta(res.beta, op.beta) if op.check is not None else res.beta
             state = update_alarm(
@@ -941,7 +962,9 @@ class WindowMonitor:
                 beta=total,
                 weight=self._weight,
                 unchecked=op.unchecked,
-                hold=bool(term),  # auto: a window the gate refused, judged with the term
+                # auto: a window the gate refused, judged with the term; or its operating
+                # point checked with the term at DC: weaker evidence, it clears no ERROR
+                hold=bool(term) or op_term,
             )
             self.alarms[model.name] = state
             general = res.method in (Method.SDP, Method.FAST)  # certified lower bound and a witness
