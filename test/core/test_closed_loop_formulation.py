@@ -16,6 +16,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from transient_plant import MODEL, PERIOD, PERIODS, TS, N, multisine
 
 from twotank_validation.core import lti
 from twotank_validation.core.closed_loop import (
@@ -32,7 +33,7 @@ from twotank_validation.core.closed_loop import (
     validate_closed_loop,
 )
 from twotank_validation.core.datum import make_datum
-from twotank_validation.core.model import load_model, model_from_dict
+from twotank_validation.core.model import load_model
 from twotank_validation.core.transient import (
     local_polynomial,
     transient_estimate,
@@ -41,38 +42,11 @@ from twotank_validation.core.transient import (
 from twotank_validation.core.validate import validate_beta
 from twotank_validation.errors import ModelError, ModelFileError
 
-SISO = {
-    "name": "siso",
-    "inputs": ["valve"],
-    "outputs": ["flow"],
-    "nominal": {"tf": {"num": [3.0], "den": [2.0, 3.0, 1.0]}},
-    "perturbations": [
-        {
-            "name": "mult",
-            "kind": "output_multiplicative",
-            "outputs": ["flow"],
-            "weight": {"tf": {"num": [0.5, 0.05], "den": [1.0, 1.0]}},
-        }
-    ],
-    "noise": [{"name": "n", "outputs": ["flow"], "weight": {"gain": 0.02}}],
-}
-TS, PERIOD, PERIODS = 0.25, 256, 2
-N = PERIOD * PERIODS
-MODEL = model_from_dict(SISO)
 LPM = local_polynomial(N, PERIODS, 2, 2)
 KP, TI_S = 0.3, 2.0
 _G = TS * KP / TI_S
 # u = kp (r - y) + x, x+ = x + g (r - y), reading y one sample late (as the rig's loop)
 PI = delayed_measurement(lti.StateSpace([[1.0]], [[_G, -_G]], [[1.0]], [[KP, -KP]], dt_s=TS), 1)
-
-
-def _excitation(seed: int) -> np.ndarray:
-    """A random-phase multisine of RMS 0.3 over the period's lines 1..60, two periods."""
-    rng = np.random.default_rng(seed)
-    spec = np.zeros(PERIOD // 2 + 1, complex)
-    spec[1:61] = np.exp(2j * np.pi * rng.random(60))
-    one = np.fft.irfft(spec, PERIOD)
-    return np.tile(0.3 * one / one.std(), PERIODS)
 
 
 def _in_loop(
@@ -115,7 +89,7 @@ def test_the_loop_is_stable_and_the_delay_is_a_state() -> None:
 def test_the_closed_loop_problem_is_the_direct_one_per_bin() -> None:
     """Any (U, Y): β of the closed LFT on (U + K_y Y, Y) is β of P on (U, Y), bin by bin."""
     rng = np.random.default_rng(7)
-    u = _excitation(1) + 0.05 * rng.standard_normal(N)
+    u = multisine(1, 0.3) + 0.05 * rng.standard_normal(N)
     y = 0.1 * rng.standard_normal(N) + np.convolve(u, np.ones(6) / 2.0)[:N]
     datum = make_datum(u[:, None], y[:, None], ts_s=TS, period_samples=PERIOD)
     resp = MODEL.response(datum.theta, TS)
@@ -140,7 +114,7 @@ def test_a_member_in_the_loop_from_any_initial_state_is_never_invalidated(
     delta: float, scale: float, seed: int
 ) -> None:
     rng = np.random.default_rng(seed)
-    e = _excitation(seed)
+    e = multisine(seed, 0.3)
     noise = 0.01 * rng.standard_normal(N)  # RMS 0.5 of the noise weight
     states = [scale * rng.standard_normal(n) for n in (2, 1, PI.n_states)]
     u, y = _in_loop(e, delta, *states, noise, np.zeros(N))
@@ -155,7 +129,7 @@ def test_the_loop_compensation_leaks_into_the_direct_form_not_into_the_closed_on
     """Started far from its periodic steady state, the loop answers with U at every line;
     the direct formulation picks that up as model error, the closed one does not."""
     rng = np.random.default_rng(11)
-    e = _excitation(11)
+    e = multisine(11, 0.3)
     u, y = _in_loop(e, 0.8, np.array([4.0, -3.0]), np.array([2.0]), np.array([-3.0, 1.0]),
                     0.01 * rng.standard_normal(N), np.zeros(N))  # fmt: skip
     datum = make_datum(u[:, None], y[:, None], ts_s=TS, period_samples=PERIOD)
@@ -174,7 +148,7 @@ def test_a_setpoint_change_inside_the_window_raises_nothing(at: float, step: flo
     direct formulation (docs/theory.md §21)."""
     rng = np.random.default_rng(5)
     setpoint = np.where(np.arange(N) >= round(at * N), step, 0.0)
-    u, y = _in_loop(_excitation(5), -0.9, np.zeros(2), np.zeros(1), np.zeros(2),
+    u, y = _in_loop(multisine(5, 0.3), -0.9, np.zeros(2), np.zeros(1), np.zeros(2),
                     0.01 * rng.standard_normal(N), setpoint)  # fmt: skip
     datum = make_datum(u[:, None], y[:, None], ts_s=TS, period_samples=PERIOD)
     resp = MODEL.response(datum.theta, TS)
@@ -192,7 +166,7 @@ def test_a_setpoint_change_inside_the_window_raises_nothing(at: float, step: flo
 
 
 def test_a_controller_that_is_not_the_models_shape_is_refused() -> None:
-    datum = make_datum(_excitation(0)[:, None], _excitation(1)[:, None], ts_s=TS,
+    datum = make_datum(multisine(0, 0.3)[:, None], multisine(1, 0.3)[:, None], ts_s=TS,
                        period_samples=PERIOD)  # fmt: skip
     two = FixedController(lti.StateSpace([], [], [], np.zeros((2, 4)), dt_s=TS))
     with pytest.raises(ModelError, match="needs 2"):
@@ -214,7 +188,7 @@ def test_bad_settings_fail_up_front_with_the_fix() -> None:
 def test_a_window_the_controller_cannot_be_linearised_at_is_judged_directly() -> None:
     """The rig's PI pair at shut valves (no total flow, no hot fraction): the direct form."""
     rng = np.random.default_rng(2)
-    u = np.column_stack([_excitation(2), _excitation(3)])  # mean 0: no flow
+    u = np.column_stack([multisine(2, 0.3), multisine(3, 0.3)])  # mean 0: no flow
     y = 0.01 * rng.standard_normal((N, 2))
     datum = make_datum(u, y, ts_s=TS, period_samples=PERIOD)
     two = load_model("B")

@@ -15,11 +15,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import signal
+from transient_plant import MODEL, PERIOD, PERIODS, TS, N, multisine
 
 from twotank_validation import experiment
 from twotank_validation.core import fast, lti, solvers
 from twotank_validation.core.datum import make_datum
-from twotank_validation.core.model import PlantResponse, load_model, model_from_dict
+from twotank_validation.core.model import PlantResponse, load_model
 from twotank_validation.core.transient import (
     TransientEstimate,
     local_polynomial,
@@ -29,36 +30,9 @@ from twotank_validation.core.transient import (
 )
 from twotank_validation.core.validate import validate_beta
 
-SISO = {
-    "name": "siso",
-    "inputs": ["valve"],
-    "outputs": ["flow"],
-    "nominal": {"tf": {"num": [3.0], "den": [2.0, 3.0, 1.0]}},
-    "perturbations": [
-        {
-            "name": "mult",
-            "kind": "output_multiplicative",
-            "outputs": ["flow"],
-            "weight": {"tf": {"num": [0.5, 0.05], "den": [1.0, 1.0]}},
-        }
-    ],
-    "noise": [{"name": "n", "outputs": ["flow"], "weight": {"gain": 0.02}}],
-}
-TS, PERIOD, PERIODS = 0.25, 256, 2  # time constants 4 and 8 samples; windows of 512
-N = PERIOD * PERIODS
-MODEL = model_from_dict(SISO)
 LPM = local_polynomial(N, PERIODS, 2, 2)
 EST = transient_estimate(LPM, MODEL, TS, N)
 PLAIN = TransientEstimate.of(LPM)
-
-
-def _excitation(seed: int) -> np.ndarray:
-    """A random-phase multisine of unit RMS over the period's lines 1..60, two periods."""
-    rng = np.random.default_rng(seed)
-    spec = np.zeros(PERIOD // 2 + 1, complex)
-    spec[1:61] = np.exp(2j * np.pi * rng.random(60))
-    one = np.fft.irfft(spec, PERIOD)
-    return np.tile(one / one.std(), PERIODS)
 
 
 def _dlsim(sys: lti.StateSpace, u: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
@@ -68,7 +42,7 @@ def _dlsim(sys: lti.StateSpace, u: np.ndarray, x0: np.ndarray | None = None) -> 
 
 def test_the_estimate_matches_the_exact_transient_of_a_plant_started_off_equilibrium() -> None:
     sys = MODEL.nominal_discrete(TS)
-    u = _excitation(0)
+    u = multisine(0)
     x0 = np.array([3.0, -2.0])
     y = _dlsim(sys, u, x0)
     steady = _dlsim(sys, np.tile(u[:PERIOD], 40))[-N:]  # from 40 periods before: settled
@@ -98,7 +72,7 @@ def test_the_estimate_matches_the_exact_transient_of_a_plant_started_off_equilib
 def test_the_noise_left_grows_by_the_leverage() -> None:
     """E|V(n) - V_hat(n)|^2 = noise_scale(n)^2 E|V(n)|^2 for white noise (Monte-Carlo)."""
     rng = np.random.default_rng(1)
-    u = _excitation(2)
+    u = multisine(2)
     resp = MODEL.response(make_datum(u, u, ts_s=TS, period_samples=PERIOD).theta, TS)
     draws = 400
     left = np.zeros(N // 2 + 1)
@@ -132,7 +106,7 @@ def test_a_member_from_any_initial_state_is_never_invalidated(
     delta: float, scale: float, seed: int
 ) -> None:
     rng = np.random.default_rng(seed)
-    u = _excitation(seed)
+    u = multisine(seed)
     x_g = scale * rng.standard_normal(2)  # the steady response's states: RMS 0.4-0.6
     x_w = scale * rng.standard_normal(1)
     # sensor noise inside the budget: RMS 0.5 of the weight (0.02), E beta_noise^2 = 0.25
@@ -145,7 +119,7 @@ def test_a_member_from_any_initial_state_is_never_invalidated(
 
 def test_the_routes_agree_with_the_transient_term_on() -> None:
     rng = np.random.default_rng(3)
-    u = _excitation(3)
+    u = multisine(3)
     y = _member(u, 0.7, np.array([2.0, 1.0]), np.array([-1.0])) + 0.01 * rng.standard_normal(N)
     datum = make_datum(u, y, ts_s=TS, period_samples=PERIOD)
     betas = {m: validate_with_transient(datum, MODEL, EST, method=m)[0] for m in

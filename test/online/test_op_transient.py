@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import signal
+from transient_plant import MODEL, PERIOD, PERIODS, TS, N, multisine
 
 from twotank_validation.core.datum import make_datum
-from twotank_validation.core.model import model_from_dict
 from twotank_validation.core.oppoint import OperatingPoint, dc_response
 from twotank_validation.core.transient import (
     dc_correction,
@@ -22,41 +22,14 @@ from twotank_validation.core.transient import (
 )
 from twotank_validation.online.op_tracker import OperatingPointTracker, OpPointConfig
 
-SISO = {
-    "name": "siso",
-    "inputs": ["valve"],
-    "outputs": ["flow"],
-    "nominal": {"tf": {"num": [3.0], "den": [2.0, 3.0, 1.0]}},
-    "perturbations": [
-        {
-            "name": "mult",
-            "kind": "output_multiplicative",
-            "outputs": ["flow"],
-            "weight": {"tf": {"num": [0.5, 0.05], "den": [1.0, 1.0]}},
-        }
-    ],
-    "noise": [{"name": "n", "outputs": ["flow"], "weight": {"gain": 0.02}}],
-}
-TS, PERIOD, PERIODS = 0.25, 256, 2  # time constants 4 and 8 samples; windows of 512
-N = PERIOD * PERIODS
-MODEL = model_from_dict(SISO)
 DC = dc_estimate(denominator(model_poles(MODEL, TS), N), PERIODS, 2, 2)
 U_REF, Y_REF = 0.1, 0.3  # an equilibrium: the nominal's gain at DC is 3
-
-
-def _excitation() -> np.ndarray:
-    """A random-phase multisine of unit RMS over the period's lines 1..60, two periods."""
-    rng = np.random.default_rng(0)
-    spec = np.zeros(PERIOD // 2 + 1, complex)
-    spec[1:61] = np.exp(2j * np.pi * rng.random(60))
-    one = np.fft.irfft(spec, PERIOD)
-    return np.tile(one / one.std(), PERIODS)
 
 
 def _window(x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Input, output and settled output (deviations from the equilibrium) from state x0."""
     sys = MODEL.nominal_discrete(TS)
-    u = _excitation()
+    u = multisine(0)
     ss = (sys.a, sys.b, sys.c, sys.d, TS)
     _, y, _ = signal.dlsim(ss, u[:, None], x0=x0)
     _, steady, _ = signal.dlsim(ss, np.tile(u[:PERIOD], 40)[:, None])
