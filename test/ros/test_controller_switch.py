@@ -9,139 +9,65 @@ exactly the new mode's controllers are active. Timeouts are wall clock (0.3 s he
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from pathlib import Path
+from typing import Any, ClassVar
 
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from fake_controller_manager import FakeControllerManager
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
+from supervisor_harness import Harness
 
-from twotank_validation.online import streams as itf
 from twotank_validation.online.supervisor import Mode
-from twotank_validation.ros import messages
 from twotank_validation.ros.lifecycle import bring_up
-from twotank_validation.ros.live import spin_until
-from twotank_validation.ros.params import LATCHED, ParameterError
+from twotank_validation.ros.params import ParameterError
 from twotank_validation.ros.supervisor_node import SupervisorNode, main
 
 NORMAL, FALLBACK = "pi_controller", "hold_controller"
-KEEP_ALL = QoSProfile(
-    depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
-)
 
 
-class Rig:
-    """Supervisor + fake controller manager + a test node (validator topics, /clock)."""
+class Rig(Harness):
+    """The supervisor harness with a fake controller manager and the /diagnostics statuses."""
 
-    def __init__(self, **params) -> None:
-        self.ctx = Context()
-        rclpy.init(context=self.ctx)
-        values = {
-            "models": ["B"],
-            "clear_after_s": 10.0,
-            "clear_reports": 2,
-            "stale_after_s": 30.0,
-            "startup_grace_s": 120.0,
-            "check_period_s": 1.0,
-            "controller_manager": "/controller_manager",
-            "normal_controllers": [NORMAL],
-            "fallback_controllers": [FALLBACK],
-            "switch_timeout_s": 0.3,
-            **params,
-        }
-        overrides = [Parameter("use_sim_time", value=True)] + [
-            Parameter(k, value=v) for k, v in values.items()
-        ]
+    DEFAULTS: ClassVar[dict[str, Any]] = {
+        **Harness.DEFAULTS,
+        "controller_manager": "/controller_manager",
+        "normal_controllers": [NORMAL],
+        "fallback_controllers": [FALLBACK],
+        "switch_timeout_s": 0.3,
+    }
+
+    def add_nodes(self) -> list[Node]:
         self.cm = FakeControllerManager([NORMAL], [FALLBACK, "other"], context=self.ctx)
-        self.sup = bring_up(SupervisorNode(context=self.ctx, parameter_overrides=overrides))
-        self.src = Node("test_validator", context=self.ctx)
-        _, report_cls = messages.message_classes()
-        self.report_cls = report_cls
-        self.pub_clock = self.src.create_publisher(Clock, "/clock", 10)
-        self.pub_flag = self.src.create_publisher(Bool, "validation/B/invalidated", LATCHED)
-        self.pub_report = self.src.create_publisher(report_cls, "validation/B/report", 10)
-        self.modes: list[str] = []
-        self.states: list[DiagnosticStatus] = []
         self.diags: list[DiagnosticStatus] = []
-        self.src.create_subscription(String, "control/mode", self._on_mode, KEEP_ALL)
-        self.src.create_subscription(
-            DiagnosticStatus, "supervisor/state", self.states.append, KEEP_ALL
-        )
         self.src.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 100)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        for n in (self.cm, self.sup, self.src):
-            self.ex.add_node(n)
-        assert self.spin_until(
-            lambda: (
-                self.pub_report.get_subscription_count() >= 1
-                and self.pub_flag.get_subscription_count() >= 1
-                and self.modes == ["normal"]
-                and (
-                    self.sup.switch.service != "/controller_manager/switch_controller"
-                    or self.sup.switch._client.service_is_ready()
-                )
-            )
-        )
-        self.t = 0.0
+        return [self.cm]
 
-    def _on_mode(self, msg: String) -> None:
-        self.modes.append(msg.data)
+    def ready(self) -> bool:
+        return (
+            self.sup.switch.service != "/controller_manager/switch_controller"
+            or self.sup.switch._client.service_is_ready()
+        )
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         self.diags.extend(s for s in msg.status if s.name.endswith("supervisor"))
-
-    def spin_until(self, cond, timeout_s: float = 10.0) -> bool:
-        return spin_until(self.ex, cond, timeout_s)
-
-    def clock_to(self, t_s: float) -> None:
-        """Advance /clock a second at a time, each check (tick) processed."""
-        while self.t < t_s:
-            self.t = min(t_s, math.floor(self.t) + 1.0)
-            msg = Clock()
-            itf.set_stamp(msg.clock, round(self.t * 1e9))
-            self.pub_clock.publish(msg)
-            assert self.spin_until(lambda: (self.sup.machine.state.now_s or 0.0) >= self.t)
-
-    def window(self, t_s: float, invalidated: bool) -> None:
-        """The validator's window at t_s: its report, then its flag."""
-        self.clock_to(t_s)
-        msg = self.report_cls()
-        itf.set_stamp(msg.header.stamp, round((t_s - 0.5) * 1e9))
-        msg.model, msg.judged = "B", True
-        n = self.sup.received.get("validation/B/report", 0)
-        self.pub_report.publish(msg)
-        assert self.spin_until(lambda: self.sup.received.get("validation/B/report", 0) > n)
-        n = self.sup.received.get("validation/B/invalidated", 0)
-        self.pub_flag.publish(Bool(data=invalidated))
-        assert self.spin_until(lambda: self.sup.received.get("validation/B/invalidated", 0) > n)
-
-    def state(self) -> dict[str, str]:
-        """The values of the last supervisor/state, once the last one published arrived."""
-        assert self.spin_until(lambda: bool(self.states) and self.states[-1] == self.sup.last_state)
-        return {kv.key: kv.value for kv in self.states[-1].values}
 
     def wait_switch(self, state: str) -> dict[str, str]:
         assert self.spin_until(lambda: self.sup.switch.machine.status.state.value == state), (
             self.sup.switch.machine.status
         )
-        return self.state()
+        return self.state_values()
 
     def close(self) -> None:
         self.cm.release()
-        for n in (self.sup, self.src, self.cm):
-            n.destroy_node()
-        rclpy.shutdown(context=self.ctx)
+        self.cm.destroy_node()
+        super().close()
 
 
 @pytest.fixture
@@ -222,7 +148,7 @@ def test_a_refused_switch_is_a_published_fault_and_retried_at_each_check(rig) ->
     r.clock_to(106.0)  # the next check: sent again, refused again
     assert r.spin_until(lambda: r.sup.switch.machine.status.failures == 2)
     assert calls(r) == [TO_SAFE, TO_SAFE]
-    assert r.state()["switch_attempt"] == "2"
+    assert r.state_values()["switch_attempt"] == "2"
     # /diagnostics carries the same typed state (published at the check, before the retry)
     assert r.spin_until(lambda: any(_kv(s).get("switch") == "refused" for s in r.diags))
     failed = [s for s in r.diags if _kv(s).get("switch") == "refused"]
@@ -261,7 +187,7 @@ def test_a_switch_without_answer_times_out_is_published_and_retried(rig) -> None
     r.wait_switch("in_place")
     assert calls(r) == [TO_SAFE, TO_SAFE]
     assert r.cm.active() == {FALLBACK}
-    assert r.state()["switch_failures"] == "1"
+    assert r.state_values()["switch_failures"] == "1"
 
 
 @pytest.mark.parametrize("rig", [{"controller_manager": "/nobody"}], indirect=True)
@@ -284,7 +210,7 @@ def test_switch_off_makes_no_call(rig) -> None:
     r.clock_to(110.0)
     assert r.cm.requests == []
     assert r.sup.switch.service == ""
-    assert not any(k.startswith("switch") for k in r.state())
+    assert not any(k.startswith("switch") for k in r.state_values())
     assert r.states[-1].level == DiagnosticStatus.ERROR
 
 
