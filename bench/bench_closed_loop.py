@@ -138,9 +138,10 @@ class Outcome:
     """Windows spanning it left unjudged."""
 
 
-def delay_s(spec: str, phase: float, seed: int, variant: str) -> Outcome:
-    """Run one fault with one variant (:class:`Outcome`)."""
-    chosen = VARIANTS[variant]
+def fault_run(
+    spec: str, phase: float, seed: int, chosen: Variant
+) -> tuple[float, list[WindowReport]]:
+    """Simulate one fault from ``8 P + phase P`` and validate it: (onset s, Model B's reports)."""
     onset = round((ONSET_P + phase) * PERIOD) * TS
     scenario = Scenario(
         name="bench",
@@ -154,6 +155,12 @@ def delay_s(spec: str, phase: float, seed: int, variant: str) -> Outcome:
     reports = OnlineValidator(chosen.config(), [load_model("B")], controller=known).feed_many(
         *record_events(stamps, u, y)
     )
+    return onset, reports
+
+
+def delay_s(spec: str, phase: float, seed: int, variant: str) -> Outcome:
+    """Run one fault with one variant (:class:`Outcome`)."""
+    onset, reports = fault_run(spec, phase, seed, VARIANTS[variant])
     onset_ns = round(onset * 1e9)
     spanning = [r for r in reports if r.start_ns <= onset_ns < r.end_ns]
     judged = [r for r in spanning if r.judged]
@@ -184,19 +191,7 @@ def anatomy(job: tuple[str, float, int, str]) -> dict[str, float | str]:
     """One run's anatomy (module doc, ``--anatomy``): periods after the onset, window ends."""
     spec, phase, seed, variant = job
     chosen = NO_TERM_GATE_OPEN if variant == ANATOMY_REFERENCE else VARIANTS[variant]
-    onset = round((ONSET_P + phase) * PERIOD) * TS
-    scenario = Scenario(
-        name="bench",
-        duration_s=(ONSET_P + HORIZON_P + 1) * PERIOD_S,
-        seed=seed,
-        faults=(f"{spec}@{onset:g}",),
-        closed_loop=ClosedLoop(),
-    )
-    stamps, u, y = simulate_scenario(scenario)
-    known = scenario.controller_config().linear() if chosen.controller_known else None
-    reports = OnlineValidator(chosen.config(), [load_model("B")], controller=known).feed_many(
-        *record_events(stamps, u, y)
-    )
+    onset, reports = fault_run(spec, phase, seed, chosen)
     onset_ns = round(onset * 1e9)
 
     def after(r: WindowReport) -> float:
