@@ -25,7 +25,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, replace
-from functools import cached_property
+from functools import cache, cached_property
 
 import numpy as np
 import scipy.sparse
@@ -120,6 +120,7 @@ class LocalPolynomial:
         return np.asarray(direct @ x + mirrored @ np.conj(x))
 
 
+@cache  # a pure function of four integers, asked for by every config check and monitor
 def local_polynomial(
     n_samples: int, n_periods: int, order: int, half_width: int
 ) -> LocalPolynomial:
@@ -174,7 +175,10 @@ def local_polynomial(
         lines[n] = np.where(flip, n_samples - kept, kept)
         mirror[n] = flip
         weights[n] = np.linalg.pinv(basis)[0]
-    return LocalPolynomial(lines, mirror, weights, np.sum(weights**2, axis=1))
+    leverage = np.sum(weights**2, axis=1)
+    for shared in (lines, mirror, weights, leverage):  # one estimate serves every caller
+        shared.setflags(write=False)
+    return LocalPolynomial(lines, mirror, weights, leverage)
 
 
 def model_poles(model: LFTModel, ts_s: float) -> np.ndarray:
